@@ -1,0 +1,48 @@
+"""Typed errors of the hardware layer; each message says what is wrong and what to do."""
+
+from __future__ import annotations
+
+from studio.errors import StudioError
+
+
+class HardwareError(StudioError):
+    """Base class of every servo-bus, calibration and playback error."""
+
+
+class ProtocolError(HardwareError):
+    """Bytes that are not a valid LX-15D packet."""
+
+
+class ChecksumError(ProtocolError):
+    """A packet arrived whose checksum does not match: noise on the bus or two servos answering at once."""
+
+
+class UnexpectedReply(ProtocolError):
+    """A valid packet arrived that is not the answer that was asked for (wrong ID, command or echo)."""
+
+
+class ServoTimeout(HardwareError):
+    """A servo did not answer in time."""
+
+    def __init__(self, servo_id: int, message: str | None = None):
+        self.servo_id = servo_id
+        super().__init__(
+            message
+            or f"servo {servo_id} did not answer: check its cable, power and ID (run `shadow-studio scan --port …`)"
+        )
+
+
+class ServoFault(HardwareError):
+    """A servo reports a fault (over-temperature, over-voltage, locked rotor) or a reading outside safe bounds."""
+
+    def __init__(self, servo_id: int, message: str):
+        self.servo_id = servo_id
+        super().__init__(message)
+
+
+class BusError(HardwareError):
+    """The serial port cannot be opened or used."""
+
+
+class CalibrationError(HardwareError):
+    """A calibration file does not match the hand or is inconsistent."""
