@@ -59,23 +59,30 @@ def _cross(ox, oy, ax, ay, bx, by):
 
 @njit(cache=True)
 def _convex_hull(px, py, n, hx, hy):
-    """Andrew's monotone chain on ``n`` points; writes the hull (counter-clockwise) into hx, hy; returns its size."""
-    order = np.argsort(px[:n] + py[:n] * 1e-9)
-    sx = px[:n][order]
-    sy = py[:n][order]
+    """Andrew's monotone chain on ``n`` points (sorted in place, no allocation); writes the counter-clockwise
+    hull into hx, hy and returns its size."""
+    for i in range(1, n):  # insertion sort by (x, y): n <= 8 * M is small
+        x, y = px[i], py[i]
+        k = i - 1
+        while k >= 0 and (px[k] > x or (px[k] == x and py[k] > y)):
+            px[k + 1] = px[k]
+            py[k + 1] = py[k]
+            k -= 1
+        px[k + 1] = x
+        py[k + 1] = y
     k = 0
     for i in range(n):  # lower hull
-        while k >= 2 and _cross(hx[k - 2], hy[k - 2], hx[k - 1], hy[k - 1], sx[i], sy[i]) <= 0:
+        while k >= 2 and _cross(hx[k - 2], hy[k - 2], hx[k - 1], hy[k - 1], px[i], py[i]) <= 0:
             k -= 1
-        hx[k] = sx[i]
-        hy[k] = sy[i]
+        hx[k] = px[i]
+        hy[k] = py[i]
         k += 1
     t = k + 1
     for i in range(n - 2, -1, -1):  # upper hull
-        while k >= t and _cross(hx[k - 2], hy[k - 2], hx[k - 1], hy[k - 1], sx[i], sy[i]) <= 0:
+        while k >= t and _cross(hx[k - 2], hy[k - 2], hx[k - 1], hy[k - 1], px[i], py[i]) <= 0:
             k -= 1
-        hx[k] = sx[i]
-        hy[k] = sy[i]
+        hx[k] = px[i]
+        hy[k] = py[i]
         k += 1
     return k - 1 if k > 1 else k
 
@@ -123,6 +130,11 @@ def _fill_convex(img, hx, hy, k, umin_row, umax_row):
 def _render_one(T, piece_link, piece_pts, piece_n, piece_r, light, zb, half, scale, M, img, px, py, hx, hy, ur, vr):
     """Shadow of one posed hand (link poses ``T (L, 4, 4)``) into ``img (H, W)`` uint8."""
     ring_k = math.sqrt(2 * math.pi / (M * math.sin(2 * math.pi / M)))  # polygon keeps the ellipse's area
+    cos_m = np.empty(M)
+    sin_m = np.empty(M)
+    for m in range(M):
+        cos_m[m] = math.cos(2.0 * math.pi * m / M)
+        sin_m[m] = math.sin(2.0 * math.pi * m / M)
     Lx, Ly, Lz = light[0], light[1], light[2]
     for p in range(piece_link.shape[0]):
         Tl = T[piece_link[p]]
@@ -155,8 +167,7 @@ def _render_one(T, piece_link, piece_pts, piece_n, piece_r, light, zb, half, sca
             e1x, e1y, e1z = e1x / nn, e1y / nn, e1z / nn
             e2x, e2y, e2z = uy * e1z - uz * e1y, uz * e1x - ux * e1z, ux * e1y - uy * e1x
             for m in range(M):
-                a = 2.0 * math.pi * m / M
-                ca, sa = math.cos(a) * rho, math.sin(a) * rho
+                ca, sa = cos_m[m] * rho, sin_m[m] * rho
                 wx = ox + ca * e1x + sa * e2x
                 wy = oy + ca * e1y + sa * e2y
                 wz = oz + ca * e1z + sa * e2z
