@@ -46,3 +46,7 @@ class BusError(HardwareError):
 
 class CalibrationError(HardwareError):
     """A calibration file does not match the hand or is inconsistent."""
+
+
+class OverTemperature(ServoFault):
+    """A servo is hotter than the safe limit."""

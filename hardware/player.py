@@ -1,0 +1,345 @@
+"""Timed show playback at 40 Hz with safety: the steady clock, batching, read-back and safe stops.
+
+Timing (115200 baud, DESIGN §4). One move packet is 10 bytes ≈ 0.87 ms on the wire, so a batch of 7 servos
+takes ≈ 6.1 ms and all 21 servos ≈ 18.2 ms. The paper's "7 per batch, 10 ms between batches" taken literally
+(3 × 6.1 ms + 2 × 10 ms idle = 38 ms, or 10 ms start-to-start = 26.1 ms) does not fit one 25 ms tick, so the
+player keeps 7 servos per batch and spreads the batches evenly over the tick (start-to-start 25/3 ≈ 8.3 ms,
+≈ 2.2 ms idle after each). Each idle slot carries one position read (6 + 8 bytes ≈ 1.2 ms) and the last slot of a
+tick one health read (faults, temperature or voltage), so positions come back at 40·3/21 ≈ 5.7 Hz per servo and
+health at ≈ 0.6 Hz per servo. Every move carries a move time of one tick, so each servo interpolates linearly to
+its next sample. Tick *k* starts at the absolute deadline ``t0 + k / rate``: a late tick never delays the next.
+
+Stops: Ctrl-C, :meth:`Player.estop`, the cancel event, a fault bit, over-temperature, out-of-range voltage,
+``max_missed_reads`` failed reads of one servo, or a tracking error beyond the threshold. Each halts motion
+(MOVE_STOP to all) and then holds or releases torque as configured; the result says why and which.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from hardware.bus import ServoBus
+from hardware.calibration import Calibration
+from hardware.errors import HardwareError, OverTemperature, ProtocolError, ServoFault, ServoTimeout
+from hardware.safety import (
+    Clipped,
+    SafetyConfig,
+    check_faults,
+    check_temperature,
+    check_voltage,
+    clip_command,
+    tracking_error,
+)
+
+log = logging.getLogger(__name__)
+
+SampleHook = Callable[[float, np.ndarray, np.ndarray], None]  # (t s, commanded (J,) rad, measured (J,) rad)
+
+
+class StopReason(str, Enum):
+    COMPLETED = "completed"
+    INTERRUPTED = "interrupted (Ctrl-C)"
+    CANCELLED = "cancelled"
+    ESTOP = "e-stop"
+    FAULT = "servo fault"
+    OVER_TEMPERATURE = "over-temperature"
+    LOST_COMMUNICATION = "lost communication"
+    TRACKING_ERROR = "tracking error"
+
+
+@dataclass
+class PlayerConfig:
+    """How a show is played."""
+
+    rate_hz: float = 40.0  # controller rate (paper)
+    batch_size: int = 7  # servos per batch (paper)
+    batch_spacing_s: float | None = None  # start-to-start between batches; None: spread evenly over the tick
+    reads_per_batch: int = 1  # position reads in the idle time after each batch
+    health_reads: bool = True  # one fault/temperature/voltage read per tick, round robin
+    ramp_speed_rad_s: float = 0.5  # speed of the ramp from the measured pose to the first frame
+    hold_torque_on_stop: bool = True  # after a stop: True keeps torque (hand holds its pose), False releases it
+
+
+@dataclass
+class PlaybackResult:
+    """What happened; arrays cover the ticks actually played (ramp included)."""
+
+    reason: StopReason  # why playback ended
+    message: str  # one sentence for the user
+    torque: str  # "held", "released" or "unknown" (the bus failed while stopping)
+    ramp_ticks: int  # ticks spent ramping before the show's first frame
+    t: np.ndarray  # (T,) s planned tick times from the start of the ramp
+    requested: np.ndarray  # (T, J) rad asked for (ramp + show), calibration joint order
+    sent: np.ndarray  # (T, J) rad actually commanded after clipping
+    clipped_limit: np.ndarray  # (T, J) bool: request beyond a soft limit
+    clipped_step: np.ndarray  # (T, J) bool: request beyond the max step per tick
+    lateness_s: np.ndarray  # (T,) s actual start of each tick minus its deadline
+    measured_t: np.ndarray  # (M,) s time of each position read-back
+    measured_joint: np.ndarray  # (M,) joint index read
+    measured_rad: np.ndarray  # (M,) rad measured
+    max_tracking_error_rad: float  # worst distance of a read-back from the recent commands
+    commands: int  # move packets sent
+    joint_names: list[str] = field(default_factory=list)  # column order
+
+    @property
+    def ok(self) -> bool:
+        return self.reason == StopReason.COMPLETED
+
+
+@dataclass
+class _Recording:
+    """Rows collected while playing (turned into a :class:`PlaybackResult` at the end)."""
+
+    ramp_ticks: int = 0
+    requested: list = field(default_factory=list)
+    sent: list = field(default_factory=list)
+    at_limit: list = field(default_factory=list)
+    at_step: list = field(default_factory=list)
+    late: list = field(default_factory=list)
+    meas_t: list = field(default_factory=list)
+    meas_j: list = field(default_factory=list)
+    meas_q: list = field(default_factory=list)
+    worst: float = 0.0
+    commands: int = 0
+    misses: np.ndarray | None = None  # (J,) consecutive failed reads per joint
+    measured: np.ndarray | None = None  # (J,) rad latest read-back per joint
+    history: np.ndarray | None = None  # (K, J) rad the last K commands sent
+    t0: float = 0.0  # perf_counter time of tick 0
+
+    def record_command(self, requested: np.ndarray, c: Clipped) -> None:
+        self.history = np.roll(self.history, -1, 0)
+        self.history[-1] = c.sent
+        self.sent.append(c.sent)
+        self.requested.append(requested)
+        self.at_limit.append(c.at_limit)
+        self.at_step.append(c.at_step)
+
+
+class _Stop(Exception):
+    def __init__(self, reason: StopReason, message: str):
+        super().__init__(message)
+        self.reason, self.message = reason, message
+
+
+class Player:
+    """Plays ``(times, positions, joint_names)`` on a connected bus through a calibration."""
+
+    def __init__(
+        self,
+        bus: ServoBus,
+        calibration: Calibration,
+        config: PlayerConfig | None = None,
+        safety: SafetyConfig | None = None,
+        on_sample: SampleHook | None = None,
+    ):
+        self.bus, self.cal = bus, calibration
+        self.cfg = config or PlayerConfig()
+        self.safety = safety or SafetyConfig()
+        self.on_sample = on_sample
+        self._estop = threading.Event()
+        period = 1.0 / self.cfg.rate_hz
+        n_batches = -(-len(calibration.joints) // self.cfg.batch_size)
+        self.spacing = self.cfg.batch_spacing_s if self.cfg.batch_spacing_s is not None else period / n_batches
+        if self.spacing * (n_batches - 1) >= period:
+            raise ValueError(
+                f"{n_batches} batches {self.spacing * 1000:.1f} ms apart do not fit a {period * 1000:.1f} ms tick: "
+                "lower batch_spacing_s or rate_hz"
+            )
+
+    def estop(self) -> None:
+        """Stop as soon as possible (thread-safe; call from a UI or signal handler)."""
+        self._estop.set()
+
+    def trajectory(self, times: np.ndarray, positions: np.ndarray, joint_names: list[str], start: np.ndarray):
+        """Ticks to play: a ramp from ``start (J,) rad`` to the first frame, then the show resampled at the rate.
+
+        Returns ``(q (T, J) rad in calibration order, ramp_ticks)``."""
+        times = np.asarray(times, dtype=float)
+        positions = np.asarray(positions, dtype=float)
+        if positions.ndim != 2 or positions.shape != (len(times), len(joint_names)) or len(times) < 1:
+            raise ValueError(f"positions must be (N, {len(joint_names)}) for {len(times)} times; got {positions.shape}")
+        if len(times) > 1 and not np.all(np.diff(times) > 0):
+            raise ValueError("show times must be strictly increasing")
+        if sorted(joint_names) != sorted(self.cal.joint_names):
+            raise ValueError(f"show joints {joint_names} do not match the calibration's {self.cal.joint_names}")
+        cols = [joint_names.index(n) for n in self.cal.joint_names]
+        q = positions[:, cols]
+        dt = 1.0 / self.cfg.rate_hz
+        tk = np.arange(0.0, times[-1] - times[0] + 1e-9, dt) + times[0]
+        show = np.stack([np.interp(tk, times, q[:, j]) for j in range(q.shape[1])], 1)
+        first = np.clip(show[0], self.cal.lower, self.cal.upper)
+        here = np.clip(start, self.cal.lower, self.cal.upper)
+        n_ramp = int(np.ceil(np.max(np.abs(first - here)) / (self.cfg.ramp_speed_rad_s * dt)))
+        ramp = here + (first - here) * (np.arange(1, n_ramp + 1) / max(n_ramp, 1))[:, None]
+        return np.concatenate([ramp, show]), n_ramp
+
+    def play(
+        self,
+        times: np.ndarray,
+        positions: np.ndarray,
+        joint_names: list[str],
+        cancel: threading.Event | None = None,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> PlaybackResult:
+        """Play ``positions (N, J) rad`` at ``times (N,) s`` (columns named by ``joint_names``); never raises for a
+        stop condition: the result says why it stopped and what torque state it left."""
+        self._estop.clear()
+        ids, J, dt = self.cal.ids, len(self.cal.ids), 1.0 / self.cfg.rate_hz
+        rec = _Recording(misses=np.zeros(J, dtype=int))
+        try:
+            start = self.cal.to_rad(np.array([self.bus.read_position(i) for i in ids], dtype=float))
+        except (ServoTimeout, ProtocolError) as e:
+            return self._finish(StopReason.LOST_COMMUNICATION, f"cannot read the starting pose: {e}", rec)
+        q, rec.ramp_ticks = self.trajectory(times, positions, joint_names, start)
+        rec.measured = start.copy()
+        rec.history = np.repeat(start[None], self.safety.tracking_lag_ticks, 0)
+        batches = [list(range(k, min(k + self.cfg.batch_size, J))) for k in range(0, J, self.cfg.batch_size)]
+        reads = health = 0
+        prev = start
+        max_step = self.safety.max_speed_rad_s * dt
+        rec.t0 = time.perf_counter() + 0.002
+        try:
+            for k in range(len(q)):
+                deadline = rec.t0 + k * dt
+                c = clip_command(q[k], prev, self.cal.lower, self.cal.upper, max_step)
+                units = self.cal.to_units(c.sent)
+                for b, batch in enumerate(batches):
+                    self._check_stop(cancel)
+                    _sleep_until(deadline + b * self.spacing)
+                    if b == 0:
+                        rec.late.append(time.perf_counter() - deadline)
+                    self.bus.move_batch({ids[j]: units[j] for j in batch}, dt)
+                    rec.commands += len(batch)
+                    if b == 0:
+                        prev = c.sent
+                        rec.record_command(q[k], c)
+                    for _ in range(self.cfg.reads_per_batch):
+                        self._read_back(reads % J, rec)
+                        reads += 1
+                if self.cfg.health_reads:
+                    self._health(health, rec.misses)
+                    health += 1
+                if self.on_sample is not None:
+                    self.on_sample(k * dt, c.sent.copy(), rec.measured.copy())
+                if progress is not None:
+                    progress(k + 1, len(q))
+            reason, message = StopReason.COMPLETED, f"played {len(q)} ticks ({len(q) * dt:.2f} s)"
+        except _Stop as s:
+            reason, message = s.reason, s.message
+        except KeyboardInterrupt:
+            reason, message = StopReason.INTERRUPTED, "stopped by Ctrl-C"
+        except HardwareError as e:
+            reason, message = StopReason.LOST_COMMUNICATION, f"the bus failed: {e}"
+        return self._finish(reason, message, rec)
+
+    def _read_back(self, j: int, rec: _Recording) -> None:
+        """Read joint ``j``'s position, log it, and stop on a tracking error."""
+        val = self._read(j, rec.misses, self.bus.read_position)
+        if val is None:
+            return
+        rec.measured[j] = self.cal.to_rad(np.full(len(self.cal.ids), float(val)))[j]
+        rec.meas_t.append(time.perf_counter() - rec.t0)
+        rec.meas_j.append(j)
+        rec.meas_q.append(rec.measured[j])
+        err = tracking_error(rec.measured[j], rec.history[:, j])
+        rec.worst = max(rec.worst, err)
+        if err > self.safety.max_tracking_error_rad:
+            raise _Stop(
+                StopReason.TRACKING_ERROR,
+                f"{self.cal.joint_names[j]} (servo {self.cal.ids[j]}) is {err:.2f} rad from its command "
+                f"(limit {self.safety.max_tracking_error_rad} rad): blocked, overloaded or stuck",
+            )
+
+    def _check_stop(self, cancel: threading.Event | None) -> None:
+        if self._estop.is_set():
+            raise _Stop(StopReason.ESTOP, "e-stop pressed")
+        if cancel is not None and cancel.is_set():
+            raise _Stop(StopReason.CANCELLED, "cancelled")
+
+    def _read(self, j: int, misses: np.ndarray, fn):
+        """One read of joint ``j``'s servo; None on a (tolerated) miss, ``_Stop`` after too many in a row."""
+        sid = self.cal.ids[j]
+        try:
+            val = fn(sid)
+        except (ServoTimeout, ProtocolError) as e:
+            misses[j] += 1
+            log.warning("read of servo %d failed (%d in a row): %s", sid, misses[j], e)
+            if misses[j] >= self.safety.max_missed_reads:
+                raise _Stop(
+                    StopReason.LOST_COMMUNICATION,
+                    f"{self.cal.joint_names[j]} (servo {sid}) failed {misses[j]} reads in a row: {e}",
+                ) from e
+            return None
+        misses[j] = 0
+        return val
+
+    def _health(self, cursor: int, misses: np.ndarray) -> None:
+        j, kind = (cursor // 3) % len(self.cal.ids), cursor % 3
+        sid, name = self.cal.ids[j], self.cal.joint_names[j]
+        reader = (self.bus.read_faults, self.bus.read_temperature, self.bus.read_voltage)[kind]
+        val = self._read(j, misses, reader)
+        if val is None:
+            return
+        try:
+            if kind == 0:
+                check_faults(sid, name, val)
+            elif kind == 1:
+                check_temperature(sid, name, val, self.safety)
+            else:
+                check_voltage(sid, name, val, self.safety)
+        except OverTemperature as e:
+            raise _Stop(StopReason.OVER_TEMPERATURE, str(e)) from e
+        except ServoFault as e:
+            raise _Stop(StopReason.FAULT, str(e)) from e
+
+    def _finish(self, reason: StopReason, message: str, rec: _Recording) -> PlaybackResult:
+        torque = "held"
+        if reason != StopReason.COMPLETED:
+            try:
+                self.bus.stop()
+                if not self.cfg.hold_torque_on_stop:
+                    self.bus.set_torque(False)
+                    torque = "released"
+            except (HardwareError, OSError) as e:
+                torque = "unknown"
+                message += f"; stopping the servos failed too ({e}): cut their power"
+            log.warning("playback stopped: %s: %s (torque %s)", reason.value, message, torque)
+        J = len(self.cal.ids)
+
+        def rows(x: list, dtype=float) -> np.ndarray:
+            return np.array(x, dtype=dtype).reshape(len(x), J)
+
+        return PlaybackResult(
+            reason=reason,
+            message=message,
+            torque=torque,
+            ramp_ticks=rec.ramp_ticks,
+            t=np.arange(len(rec.sent)) / self.cfg.rate_hz,
+            requested=rows(rec.requested),
+            sent=rows(rec.sent),
+            clipped_limit=rows(rec.at_limit, bool),
+            clipped_step=rows(rec.at_step, bool),
+            lateness_s=np.array(rec.late, dtype=float),
+            measured_t=np.array(rec.meas_t, dtype=float),
+            measured_joint=np.array(rec.meas_j, dtype=int),
+            measured_rad=np.array(rec.meas_q, dtype=float),
+            max_tracking_error_rad=rec.worst,
+            commands=rec.commands,
+            joint_names=list(self.cal.joint_names),
+        )
+
+
+def _sleep_until(t: float) -> None:
+    """Sleep to the absolute perf_counter time ``t`` (the last 0.3 ms in short naps, for a tight deadline)."""
+    while True:
+        left = t - time.perf_counter()
+        if left <= 0:
+            return
+        time.sleep(left - 0.0003 if left > 0.001 else left / 2)
