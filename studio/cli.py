@@ -18,6 +18,7 @@ from studio.errors import StudioError
 VERB_MODULES = (
     "studio.cli_hand",
     "studio.dataset_cli",
+    "hardware.cli",
 )
 
 

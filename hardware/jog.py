@@ -1,0 +1,172 @@
+"""Jogging: move one joint at a time through the calibration and the safety layer.
+
+:class:`Jog` holds the logic (select a joint, step ±, go to an angle, home, torque, read, e-stop) and is driven
+by method calls or by text commands through :meth:`Jog.execute`; the terminal verb and the notebook's jog panel
+are thin faces of it. Every move is clipped to the soft limits and paced at ``speed_rad_s``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hardware.bus import ServoBus
+from hardware.calibration import Calibration
+from hardware.safety import SafetyConfig, clip_command, move_time
+
+HELP = """commands:
+  j NAME|INDEX     select a joint              + / -          step the joint by the step size
+  step DEG         set the step size           go DEG         move the joint to an angle (degrees)
+  home             all joints to their rest    read           measured angles of every joint
+  on / off         torque on / off (all)       stop           e-stop: halt every servo now
+  joints           list joints                 help / quit"""
+
+
+@dataclass
+class JogConfig:
+    """How jog moves behave."""
+
+    step_rad: float = math.radians(3.0)  # size of one + / - step
+    speed_rad_s: float = 0.8  # joint speed of jog moves
+    min_move_s: float = 0.05  # shortest move time sent
+    release_on_estop: bool = False  # e-stop also releases torque (True) or holds the pose (False)
+
+
+@dataclass(frozen=True)
+class JogMove:
+    """One move as sent."""
+
+    joint: str  # joint moved (or "all")
+    requested: float  # rad asked for (NaN for multi-joint moves)
+    sent: float  # rad actually commanded after clipping
+    clipped: bool  # the request lay beyond a soft limit
+    duration_s: float  # move time sent
+
+
+class Jog:
+    """Jog a hand on a connected bus. ``target`` is the pose last commanded (rad, calibration order)."""
+
+    def __init__(
+        self,
+        bus: ServoBus,
+        calibration: Calibration,
+        safety: SafetyConfig | None = None,
+        config: JogConfig | None = None,
+        home_pose: np.ndarray | None = None,
+    ):
+        self.bus, self.cal = bus, calibration
+        self.safety = safety or SafetyConfig()
+        self.cfg = config or JogConfig()
+        self.home_pose = np.zeros(len(calibration.ids)) if home_pose is None else np.asarray(home_pose, float)
+        self.index = 0
+        self.target = self.read_array()
+
+    @property
+    def joint(self) -> str:
+        return self.cal.joint_names[self.index]
+
+    def select(self, joint: str | int) -> str:
+        """Select by name or index; returns the name."""
+        names = self.cal.joint_names
+        if isinstance(joint, str) and joint.lstrip("-").isdigit():
+            joint = int(joint)
+        if isinstance(joint, int):
+            if not 0 <= joint < len(names):
+                raise ValueError(f"joint index must be 0..{len(names) - 1}")
+            self.index = joint
+        elif joint in names:
+            self.index = names.index(joint)
+        else:
+            raise ValueError(f"unknown joint {joint!r}; joints: {', '.join(names)}")
+        return self.joint
+
+    def read_array(self) -> np.ndarray:
+        """(J,) measured angles, rad."""
+        return self.cal.to_rad(np.array([self.bus.read_position(i) for i in self.cal.ids], dtype=float))
+
+    def read(self) -> dict[str, float]:
+        """``{joint: rad}`` measured."""
+        return dict(zip(self.cal.joint_names, self.read_array().tolist()))
+
+    def go(self, angle_rad: float) -> JogMove:
+        """Move the selected joint to ``angle_rad`` (clipped to its soft limits)."""
+        j = self.index
+        want = self.target.copy()
+        want[j] = angle_rad
+        c = clip_command(want, None, self.cal.lower, self.cal.upper, np.inf)
+        dur = move_time(c.sent[j] - self.target[j], self.cfg.speed_rad_s, self.cfg.min_move_s)
+        self.bus.move_batch({self.cal.ids[j]: self.cal.to_units(c.sent)[j]}, dur)
+        self.target[j] = c.sent[j]
+        return JogMove(self.joint, float(angle_rad), float(c.sent[j]), bool(c.at_limit[j]), dur)
+
+    def step(self, sign: int) -> JogMove:
+        """Step the selected joint by ``sign`` × the step size."""
+        return self.go(self.target[self.index] + math.copysign(self.cfg.step_rad, sign))
+
+    def home(self) -> JogMove:
+        """Move every joint to the home pose (clipped), batched, at jog speed."""
+        c = clip_command(self.home_pose, None, self.cal.lower, self.cal.upper, np.inf)
+        dur = move_time(c.sent - self.target, self.cfg.speed_rad_s, self.cfg.min_move_s)
+        units = self.cal.to_units(c.sent)
+        self.bus.write_positions(dict(zip(self.cal.ids, units)), dur)
+        self.target = c.sent.copy()
+        return JogMove("all", float("nan"), float("nan"), c.any, dur)
+
+    def torque(self, on: bool) -> None:
+        """Torque on (holding the measured pose) or off (limp) for every servo."""
+        if on:
+            self.target = np.clip(self.read_array(), self.cal.lower, self.cal.upper)
+            self.bus.write_positions(dict(zip(self.cal.ids, self.cal.to_units(self.target))), self.cfg.min_move_s)
+        self.bus.set_torque(on, self.cal.ids)
+
+    def estop(self) -> None:
+        """Halt every servo (broadcast) and release torque if configured."""
+        self.bus.stop()
+        if self.cfg.release_on_estop:
+            self.bus.set_torque(False)
+
+    def execute(self, line: str) -> str:
+        """Run one text command; returns the line to show (``ValueError`` for bad input)."""
+        words = line.strip().split()
+        if not words:
+            return self.status()
+        cmd, args = words[0].lower(), words[1:]
+        if cmd in ("+", "-"):
+            return self._say(self.step(1 if cmd == "+" else -1))
+        if cmd == "j" and args:
+            self.select(args[0])
+            return self.status()
+        if cmd == "step" and args:
+            self.cfg.step_rad = math.radians(float(args[0]))
+            return f"step {args[0]} deg"
+        if cmd == "go" and args:
+            return self._say(self.go(math.radians(float(args[0]))))
+        if cmd == "home":
+            return self._say(self.home())
+        if cmd in ("on", "off"):
+            self.torque(cmd == "on")
+            return f"torque {cmd}"
+        if cmd == "read":
+            return "  ".join(f"{n}={math.degrees(v):.1f}" for n, v in self.read().items())
+        if cmd in ("stop", "estop", "e"):
+            self.estop()
+            return "E-STOP: servos halted" + (", torque released" if self.cfg.release_on_estop else ", holding")
+        if cmd == "joints":
+            return "  ".join(f"{k}:{n}" for k, n in enumerate(self.cal.joint_names))
+        if cmd in ("help", "?", "h"):
+            return HELP
+        raise ValueError(f"unknown command {line.strip()!r}; type help")
+
+    def status(self) -> str:
+        j = self.index
+        lo, hi = math.degrees(self.cal.lower[j]), math.degrees(self.cal.upper[j])
+        now = math.degrees(self.target[j])
+        return f"[{j}] {self.joint} (servo {self.cal.ids[j]}): {now:.1f} deg in [{lo:.1f}, {hi:.1f}]"
+
+    def _say(self, m: JogMove) -> str:
+        note = "  (clipped to soft limit)" if m.clipped else ""
+        if m.joint == "all":
+            return f"home in {m.duration_s:.2f} s{note}"
+        return f"{m.joint} -> {math.degrees(m.sent):.1f} deg in {m.duration_s:.2f} s{note}"
