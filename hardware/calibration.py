@@ -146,9 +146,18 @@ def validate(cal: Calibration, hand: Hand, path: str | Path | None = None) -> Ca
 
 
 def default_calibration(hand: Hand, margin: float = 0.05) -> Calibration:
-    """IDs 1..21 in joint order, direction +1, zero 500 (= 120°), soft limits ``margin`` rad inside the URDF."""
+    """IDs 1..21 in joint order, direction +1, zero 500 (= 120°), soft limits ``margin`` rad inside the URDF
+    (but never excluding the rest pose, so the hand can always go home)."""
+    rest = hand.rest_pose()
     joints = tuple(
-        JointCalibration(j.name, k + 1, 1, float(C.CENTER_UNITS), j.lower + margin, j.upper - margin)
+        JointCalibration(
+            j.name,
+            k + 1,
+            1,
+            float(C.CENTER_UNITS),
+            float(min(j.lower + margin, rest[k])),
+            float(max(j.upper - margin, rest[k])),
+        )
         for k, j in enumerate(hand.joints)
     )
     return Calibration(joints, hand.hash)
