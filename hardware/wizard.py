@@ -30,6 +30,7 @@ class WizardConfig:
     step_units: int = 10  # size of one + / - step, servo units (≈ 2.4°)
     move_s: float = 0.2  # move time of each jog step
     margin_rad: float = 0.02  # recorded limits are pulled this far inside the URDF limits when beyond them
+    min_span_rad: float = 0.1  # narrowest accepted range between the recorded limits
 
 
 class CalibrationWizard:
@@ -101,7 +102,14 @@ class CalibrationWizard:
         direction = 1 if r["upper"] >= r["lower"] else -1
         lo = (r["lower"] - r["zero"]) * direction / C.UNITS_PER_RAD
         hi = (r["upper"] - r["zero"]) * direction / C.UNITS_PER_RAD
-        lo2, hi2 = max(lo, u.lower + self.cfg.margin_rad), min(hi, u.upper - self.cfg.margin_rad)
+        lo2 = max(lo, min(u.lower + self.cfg.margin_rad, 0.0))  # inside the URDF, never past the zero pose
+        hi2 = min(hi, max(u.upper - self.cfg.margin_rad, 0.0))
+        if not lo2 <= 0.0 <= hi2 or hi2 - lo2 < self.cfg.min_span_rad:
+            self.stage, self.record, self._goal = 0, {}, None
+            raise ValueError(
+                f"{j.name}: limits [{lo2:.3f}, {hi2:.3f}] rad around the zero are too narrow or exclude it; "
+                "start this joint again: " + self.prompt()
+            )
         if (lo2, hi2) != (lo, hi):
             self.notes.append(f"{j.name}: limits [{lo:.3f}, {hi:.3f}] rad moved inside URDF: [{lo2:.3f}, {hi2:.3f}]")
         self.done.append(replace(j, direction=direction, zero=r["zero"], lower=lo2, upper=hi2))

@@ -1,0 +1,78 @@
+"""The jog tool's logic, driven without a terminal, on the emulator through real pyserial."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from hardware.bus import BusConfig, SerialServoBus
+from hardware.calibration import default_calibration
+from hardware.emulator import ServoEmulator
+from hardware.jog import Jog, JogConfig
+
+
+@pytest.fixture
+def jog(hand):
+    cal = default_calibration(hand)
+    with ServoEmulator(cal.ids) as emu, SerialServoBus(BusConfig(emu.port, timeout_s=0.01)) as bus:
+        yield emu, Jog(bus, cal, config=JogConfig(speed_rad_s=20.0, min_move_s=0.0), home_pose=hand.rest_pose())
+
+
+def settle():
+    time.sleep(0.3)  # servo top speed: 1562 units/s
+
+
+def test_select_step_go(jog):
+    emu, j = jog
+    assert j.select("index_pip") == "index_pip" and j.select(2) == "thumb_mcp_flex"
+    with pytest.raises(ValueError, match="unknown joint"):
+        j.select("toe")
+    j.execute("j index_pip")
+    j.execute("step 10")
+    j.execute("+")
+    out = j.execute("+")
+    assert "index_pip -> 20.0 deg" in out
+    settle()
+    assert j.read()["index_pip"] == pytest.approx(math.radians(20), abs=0.005)
+    assert j.execute("go -30").startswith("index_pip -> -30.0 deg")
+    settle()
+    assert j.read()["index_pip"] == pytest.approx(math.radians(-30), abs=0.005)
+    assert j.read()["wrist"] == pytest.approx(0, abs=0.005)  # only the selected joint moved
+
+
+def test_limits_clip_and_say_so(jog):
+    emu, j = jog
+    j.select("index_mcp_abd")  # URDF [-60°, 0°]
+    m = j.go(math.radians(45))
+    assert m.clipped and m.sent == pytest.approx(0.0)
+    assert "clipped" in j.execute("go -90")
+    assert j.target[j.index] == pytest.approx(j.cal.lower[j.index])
+
+
+def test_home_torque_read_estop(jog, hand):
+    emu, j = jog
+    j.select("wrist")
+    j.go(1.0)
+    settle()
+    assert "home" in j.execute("home")
+    settle()
+    assert np.allclose(j.read_array(), np.clip(hand.rest_pose(), j.cal.lower, j.cal.upper), atol=0.005)
+    assert j.execute("off") == "torque off" and not j.bus.read_torque(1)  # a read follows the write
+    emu.set_position(1, 600)  # move the limp wrist by hand
+    assert "wrist=" in j.execute("read") and j.read()["wrist"] == pytest.approx(100 / 238.732, abs=1e-3)
+    j.execute("on")
+    assert j.bus.read_torque(1) and j.target[0] == pytest.approx(100 / 238.732, abs=1e-3)  # holds where it is
+    j.cfg.speed_rad_s = 0.5
+    j.go(-1.0)
+    time.sleep(0.05)
+    assert "E-STOP" in j.execute("stop")
+    here = j.bus.read_position(1)  # answered after the stop was handled
+    time.sleep(0.1)
+    assert j.bus.read_position(1) == here and 400 < here < 600  # halted part-way
+    assert "commands" in j.execute("help")
+    assert "0:wrist" in j.execute("joints")
+    with pytest.raises(ValueError, match="unknown command"):
+        j.execute("fly")
