@@ -18,7 +18,9 @@ from studio.errors import StudioError
 VERB_MODULES = (
     "studio.cli_hand",
     "studio.dataset_cli",
+    "studio.selfmodel_cli",
     "hardware.cli",
+    "studio.plan_cli",
 )
 
 
