@@ -1,0 +1,215 @@
+"""Motion planning: limits, exact keyframes and zero collisions (hypothesis), the three passes on a colliding path,
+too-fast segments, keyframe errors, and the CLI verbs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from studio.cli import main
+from studio.hand import load_hand
+from studio.limits import JointLimits
+from studio.path import PathConfig, build_path, spline_path
+from studio.physics import CollisionWorld
+from studio.plan import Keyframes, PlanConfig, parse_keyframes, plan_show
+from studio.plan_errors import KeyframeCollisionError, PlanError, SegmentTooFastError
+from studio.show import load_show
+from studio.timing import TimingConfig
+
+HAND = load_hand()
+J = HAND.joint_names.index
+LIMITS = JointLimits.from_hand(HAND)
+
+
+@pytest.fixture(scope="module")
+def world():
+    w = CollisionWorld(HAND)
+    yield w
+    w.close()
+
+
+def pose(**angles: float) -> np.ndarray:
+    q = HAND.rest_pose().copy()
+    for name, v in angles.items():
+        q[J(name)] = v
+    return q
+
+
+def keyframes(times, poses, hold=None) -> Keyframes:
+    n = len(times)
+    hold = np.zeros(n, bool) if hold is None else np.asarray(hold)
+    return Keyframes(np.asarray(times, float), np.asarray(poses, float), hold, [None] * n, [None] * n)
+
+
+# Index finger swinging across the middle finger: both ends are free, the straight motion is not.
+CROSS_A = pose(
+    index_mcp_abd=-0.39,
+    index_mcp_flex=-1.52,
+    index_pip=0.12,
+    middle_mcp_abd=-0.55,
+    middle_mcp_flex=-0.7,
+    middle_pip=0.36,
+)
+CROSS_B = CROSS_A.copy()
+CROSS_B[[J("index_mcp_abd"), J("index_mcp_flex")]] = (-0.29, 0.53)
+
+
+def assert_within_limits(traj, rate: float = 40.0) -> None:
+    """Finite differences on the 40 Hz grid: position, velocity, acceleration and jerk within the limits."""
+    h = 1.0 / rate
+    t = np.arange(int(np.floor(traj.duration * rate)) + 1) * h
+    q = traj.state(t)[0]
+    tol = 1 + 1e-6
+    assert (q >= LIMITS.lower - 1e-9).all() and (q <= LIMITS.upper + 1e-9).all()
+    for order, limit, slack in ((1, LIMITS.velocity, 1e-9), (2, LIMITS.acceleration, 1e-6), (3, LIMITS.jerk, 1e-3)):
+        d = np.abs(np.diff(q, n=order, axis=0)) / h**order
+        assert (d <= limit * tol + slack).all(), (order, (d / limit).max())
+
+
+def assert_collision_free(world, traj, rate: float = 160.0) -> None:
+    t = np.arange(int(np.floor(traj.duration * rate)) + 1) / rate
+    q = np.clip(traj.state(np.union1d(t, traj.key_times))[0], HAND.lower, HAND.upper)
+    assert not world.in_collision(q).any()
+
+
+def assert_keyframes_exact(result, kf: Keyframes) -> None:
+    traj, show = result.trajectory, result.show
+    start = 1 if result.home_added else 0
+    assert np.array_equal(traj.key_times[start:], kf.times)
+    assert np.array_equal(traj.state(kf.times)[0], kf.poses)
+    rows = np.searchsorted(show.times, kf.times)
+    assert np.array_equal(show.times[rows], kf.times) and np.array_equal(show.positions[rows], kf.poses)
+
+
+@st.composite
+def free_keyframes(draw):
+    """2–3 collision-free keyframes (two fingers and the wrist moving) with generous times."""
+    rng = np.random.default_rng(draw(st.integers(0, 2**20)))
+    n = draw(st.integers(2, 3))
+    w = CollisionWorld(HAND)
+    poses = []
+    while len(poses) < n:
+        q = HAND.rest_pose().copy()
+        for finger in rng.choice(["thumb", "index", "middle", "ring", "pinky"], 2, replace=False):
+            for j in ("mcp_abd", "mcp_flex", "pip", "dip"):
+                k = J(f"{finger}_{j}")
+                q[k] = rng.uniform(HAND.lower[k], HAND.upper[k]) * 0.7
+        q[0] = rng.uniform(-0.8, 0.8)
+        if not w.in_collision(q)[0]:
+            poses.append(q)
+    w.close()
+    poses = np.array(poses)
+    steps = np.abs(np.diff(np.concatenate([HAND.rest_pose()[None], poses]), axis=0)) / LIMITS.velocity
+    times = np.cumsum(0.8 + 3.0 * steps.max(axis=1))
+    hold = rng.random(n) < 0.3
+    return keyframes(times, poses, hold)
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(kf=free_keyframes())
+def test_trajectory_within_limits_exact_keyframes_and_collision_free(world, kf):
+    result = plan_show(HAND, kf, world=world)
+    assert_within_limits(result.trajectory)
+    assert_keyframes_exact(result, kf)
+    assert_collision_free(world, result.trajectory)
+    assert result.max_jerk_ratio <= 1 + 1e-9
+    assert result.show.times[0] == 0 and (np.diff(result.show.times) > 0).all()
+
+
+def test_passes_repair_a_path_through_a_colliding_region(world):
+    assert not world.in_collision(np.stack([CROSS_A, CROSS_B])).any()
+    straight = CROSS_A + np.linspace(0, 1, 50)[:, None] * (CROSS_B - CROSS_A)
+    assert world.in_collision(straight).any()  # the precondition: interpolation crosses the neighbour
+    times, poses = np.array([0.0, 1.0, 4.0]), np.stack([HAND.rest_pose(), CROSS_A, CROSS_B])
+    _, spline, _ = spline_path(HAND, times, poses, 40.0)
+    assert world.in_collision(np.clip(spline, HAND.lower, HAND.upper)).any()
+
+    path = build_path(HAND, world, times, poses, PathConfig(seed=3))
+    assert path.repaired.any()
+    assert np.array_equal(path.poses[path.key_index], poses)  # keyframes never perturbed
+    assert not world.in_collision(path.poses).any()
+    for a, b in zip(path.poses[:-1], path.poses[1:]):  # every straight step is free at 1° spacing
+        n = int(np.ceil(np.abs(b - a).max() / np.radians(1.0))) + 1
+        assert not world.in_collision(a + np.linspace(0, 1, n)[:, None] * (b - a)).any()
+
+    kf = keyframes(times[1:], poses[1:])
+    result = plan_show(HAND, kf, world=world)
+    assert_collision_free(world, result.trajectory)
+    assert_keyframes_exact(result, kf)
+    assert_within_limits(result.trajectory)
+
+
+def test_too_fast_segment_is_reported_with_its_feasible_time(world):
+    far = pose(index_mcp_flex=1.4, middle_mcp_flex=1.4, wrist=1.2)
+    kf = keyframes([0.5, 0.6], [far, HAND.rest_pose()], hold=[True, True])
+    with pytest.raises(SegmentTooFastError) as e:
+        plan_show(HAND, kf, world=world)
+    segs = e.value.segments
+    assert [s.index for s in segs] == [0, 1]
+    assert all(s.feasible > s.requested for s in segs)
+    assert "needs at least" in str(e.value) and "--allow-late" in str(e.value)
+    # exactly the reported times are feasible (rest-to-rest segments do not depend on the times)
+    t1 = segs[0].feasible + 1e-6
+    ok = plan_show(HAND, keyframes([t1, t1 + segs[1].feasible + 1e-6], kf.poses, kf.hold), world=world)
+    assert_within_limits(ok.trajectory)
+    # allow_late stretches instead, and says so
+    late = plan_show(HAND, kf, PlanConfig(timing=TimingConfig(allow_late=True)), world=world)
+    assert [s.index for s in late.trajectory.late] == [0, 1]
+    assert late.show.provenance["late_segments"][0]["feasible"] == pytest.approx(segs[0].feasible)
+    assert late.show.duration == pytest.approx(segs[0].feasible + segs[1].feasible)
+
+
+def test_colliding_keyframe_is_reported_not_moved(world):
+    bad = next(
+        CROSS_A + s * (CROSS_B - CROSS_A)
+        for s in np.linspace(0, 1, 50)
+        if world.in_collision(CROSS_A + s * (CROSS_B - CROSS_A))[0]
+    )
+    with pytest.raises(KeyframeCollisionError, match=r"t = 2\.000 s \(.*index.*middle"):
+        plan_show(HAND, keyframes([1.0, 2.0], [CROSS_A, bad]), world=world)
+
+
+def test_home_is_added_unless_the_first_keyframe_is_at_zero(world):
+    q = pose(index_pip=0.8)
+    r = plan_show(HAND, keyframes([1.0], [q]), world=world)
+    assert r.home_added and np.array_equal(r.show.positions[0], HAND.rest_pose()) and len(r.show.keyframes) == 1
+    r = plan_show(HAND, keyframes([0.0, 1.0], [q, HAND.rest_pose()]), world=world)
+    assert not r.home_added and np.array_equal(r.show.positions[0], q)
+
+
+def test_keyframes_file_errors():
+    good = {"t": 1.0, "pose": HAND.pose_to_dict(HAND.rest_pose())}
+    with pytest.raises(PlanError, match="keyframes"):
+        parse_keyframes({"frames": []}, HAND)
+    with pytest.raises(PlanError, match="unknown"):
+        parse_keyframes({"keyframes": [{"t": 1.0, "pose": {**good["pose"], "elbow": 0.0}}]}, HAND)
+    with pytest.raises(PlanError, match="not after"):
+        parse_keyframes({"keyframes": [good, good]}, HAND)
+    with pytest.raises(PlanError, match="outside its limits"):
+        parse_keyframes({"keyframes": [{"t": 1.0, "pose": {**good["pose"], "wrist": 3.0}}]}, HAND)
+    kf = parse_keyframes({"keyframes": [{**good, "hold": True, "source_frame": 4, "loss": 0.3}], "title": "x"}, HAND)
+    assert kf.hold.tolist() == [True] and kf.source_frame == [4] and kf.extra["keyframe_losses"] == [0.3]
+
+
+def test_cli_plan_validate_info_csv(tmp_path, capsys):
+    poses = tmp_path / "POSES.json"
+    frames = [{"t": 0.8, "pose": HAND.pose_to_dict(pose(ring_pip=1.0))}, {"t": 1.6, "pose": HAND.pose_to_dict(pose())}]
+    poses.write_text(json.dumps({"keyframes": frames, "title": "cli"}))
+    out = tmp_path / "show.json"
+    assert main(["plan", str(poses), "--out", str(out), "--csv", str(tmp_path / "a.csv")]) == 0
+    assert load_show(out, HAND).title == "cli" and (tmp_path / "a.csv").is_file()
+    assert main(["validate", str(out)]) == 0
+    assert main(["show-info", str(out)]) == 0
+    assert "keyframes:    2 at 0.800, 1.600" in capsys.readouterr().out
+    assert main(["export-csv", str(out), "--out", str(tmp_path / "b.csv"), "--degrees"]) == 0
+    frames[0]["t"] = 0.05  # too fast: one clear line, exit 2
+    poses.write_text(json.dumps({"keyframes": frames}))
+    assert main(["plan", str(poses), "--out", str(tmp_path / "late.json")]) == 2
+    assert "too fast" in capsys.readouterr().err
+    out.write_text(out.read_text()[:500])
+    assert main(["validate", str(out)]) == 2
+    assert "not valid JSON" in capsys.readouterr().err
