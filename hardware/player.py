@@ -75,7 +75,8 @@ class PlaybackResult:
     message: str  # one sentence for the user
     torque: str  # "held", "released" or "unknown" (the bus failed while stopping)
     ramp_ticks: int  # ticks spent ramping before the show's first frame
-    t: np.ndarray  # (T,) s planned tick times from the start of the ramp
+    t: np.ndarray  # (T,) s planned times of the ticks played, from the start of the ramp
+    skipped_ticks: int  # ticks dropped because the OS stalled the player for more than a tick
     requested: np.ndarray  # (T, J) rad asked for (ramp + show), calibration joint order
     sent: np.ndarray  # (T, J) rad actually commanded after clipping
     clipped_limit: np.ndarray  # (T, J) bool: request beyond a soft limit
@@ -98,6 +99,7 @@ class _Recording:
     """Rows collected while playing (turned into a :class:`PlaybackResult` at the end)."""
 
     ramp_ticks: int = 0
+    ticks: list = field(default_factory=list)
     requested: list = field(default_factory=list)
     sent: list = field(default_factory=list)
     at_limit: list = field(default_factory=list)
@@ -113,7 +115,8 @@ class _Recording:
     history: np.ndarray | None = None  # (K, J) rad the last K commands sent
     t0: float = 0.0  # perf_counter time of tick 0
 
-    def record_command(self, requested: np.ndarray, c: Clipped) -> None:
+    def record_command(self, k: int, requested: np.ndarray, c: Clipped) -> None:
+        self.ticks.append(k)
         self.history = np.roll(self.history, -1, 0)
         self.history[-1] = c.sent
         self.sent.append(c.sent)
@@ -206,7 +209,11 @@ class Player:
         max_step = self.safety.max_speed_rad_s * dt
         rec.t0 = time.perf_counter() + 0.002
         try:
-            for k in range(len(q)):
+            k = -1
+            while k + 1 < len(q):
+                # next tick; if the OS stalled us past a whole tick, skip to the current one (keeps sync with
+                # the show's clock; the step limit then spreads the catch-up over several ticks)
+                k = max(k + 1, min(int((time.perf_counter() - rec.t0) / dt), len(q) - 1))
                 deadline = rec.t0 + k * dt
                 c = clip_command(q[k], prev, self.cal.lower, self.cal.upper, max_step)
                 units = self.cal.to_units(c.sent)
@@ -219,7 +226,7 @@ class Player:
                     rec.commands += len(batch)
                     if b == 0:
                         prev = c.sent
-                        rec.record_command(q[k], c)
+                        rec.record_command(k, q[k], c)
                     for _ in range(self.cfg.reads_per_batch):
                         self._read_back(reads % J, rec)
                         reads += 1
@@ -230,7 +237,8 @@ class Player:
                     self.on_sample(k * dt, c.sent.copy(), rec.measured.copy())
                 if progress is not None:
                     progress(k + 1, len(q))
-            reason, message = StopReason.COMPLETED, f"played {len(q)} ticks ({len(q) * dt:.2f} s)"
+            skipped = len(q) - len(rec.ticks)
+            reason, message = StopReason.COMPLETED, f"played {len(q)} ticks ({len(q) * dt:.2f} s, {skipped} skipped)"
         except _Stop as s:
             reason, message = s.reason, s.message
         except KeyboardInterrupt:
@@ -321,7 +329,8 @@ class Player:
             message=message,
             torque=torque,
             ramp_ticks=rec.ramp_ticks,
-            t=np.arange(len(rec.sent)) / self.cfg.rate_hz,
+            t=np.array(rec.ticks, dtype=float) / self.cfg.rate_hz,
+            skipped_ticks=(rec.ticks[-1] + 1 - len(rec.ticks)) if rec.ticks else 0,
             requested=rows(rec.requested),
             sent=rows(rec.sent),
             clipped_limit=rows(rec.at_limit, bool),

@@ -50,8 +50,9 @@ def test_reaches_the_shows_poses(hand, cal, rig):
     player = Player(bus, cal, PlayerConfig(ramp_speed_rad_s=2.0), on_sample=lambda tt, c, m: seen.append((tt, c, m)))
     r = player.play(t, q, names)
     assert r.ok and r.torque == "held", r.message
-    assert r.ramp_ticks > 0 and len(r.sent) == r.ramp_ticks + len(t)
-    assert np.allclose(r.sent[r.ramp_ticks :], q, atol=1e-9)  # nothing needed clipping
+    assert r.ramp_ticks > 0 and len(r.sent) + r.skipped_ticks == r.ramp_ticks + len(t)
+    k = np.round(r.t * 40).astype(int) - r.ramp_ticks  # show sample of each played tick (ticks may be skipped
+    assert np.allclose(r.sent[k >= 0], q[k[k >= 0]], atol=1e-9)  # when the OS stalls us); nothing clipped
     assert not r.clipped_limit[r.ramp_ticks :].any() and not r.clipped_step.any()
     assert np.abs(measured_rad(emu, cal) - q[-1]).max() < 0.01  # ~1 servo unit of rounding
     assert r.commands == 21 * len(r.sent) and len(seen) == len(r.sent)
@@ -94,7 +95,8 @@ def test_steady_clock(hand, cal, rig):
     t, q, names = show(hand, 1.0)
     r = Player(bus, cal, PlayerConfig(ramp_speed_rad_s=50)).play(t, q, names)
     late = np.abs(r.lateness_s)
-    assert r.ok and np.percentile(late, 50) < 0.002 and late.max() < 0.02  # absolute deadlines: no drift
+    assert r.ok and np.percentile(late, 50) < 0.002  # absolute deadlines: no drift
+    assert np.allclose(np.diff(r.t), 1 / 40) or r.skipped_ticks > 0  # a stall of > 1 tick skips, never slips
 
 
 def test_over_temperature_stops_and_releases(hand, cal, rig):
