@@ -1,0 +1,212 @@
+"""CLIP image embeddings of shadow crops, through open_clip, with differentiable preprocessing (DESIGN §4, §6).
+
+What CLIP sees: the shadow as a person in the audience does (display convention), a black shadow on a white
+backdrop: ``1 − p`` (``invert=True``) replicated to three channels, resized to the model's input size
+(bilinear, antialiased, differentiable) and normalised with the weights' mean/std. Only the image tower is kept,
+frozen.
+
+Weights never come from the network. :func:`load_clip` takes a checkpoint file (``--clip-weights PATH``) or finds
+one already in the open_clip / Hugging Face cache; with none it raises :class:`ClipWeightsError` saying which file
+to provide, or to run with ``--no-clip``. :func:`tiny_clip` builds a small randomly initialised model for tests.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from studio.errors import StudioError
+
+log = logging.getLogger(__name__)
+
+# A small CLIP (about 0.13 M parameters, 32² input) for tests: random weights only, never a real similarity.
+TINY_CLIP_CFG = {
+    "embed_dim": 32,
+    "vision_cfg": {"image_size": 32, "layers": 2, "width": 64, "patch_size": 8, "head_width": 32},
+    "text_cfg": {"context_length": 8, "vocab_size": 64, "width": 32, "heads": 2, "layers": 1},
+}
+OPENAI_MEAN = (0.48145466, 0.4578275, 0.40821073)  # open_clip.constants.OPENAI_DATASET_MEAN
+OPENAI_STD = (0.26862954, 0.26130258, 0.27577711)  # open_clip.constants.OPENAI_DATASET_STD
+
+
+class ClipWeightsError(StudioError):
+    """CLIP weights were asked for but are not on this machine (or cannot be read)."""
+
+
+class ClipImageEncoder(nn.Module):
+    """Frozen CLIP image tower: shadow probabilities ``(B, [1,] S, S)`` in [0, 1] → unit embeddings ``(B, D)``."""
+
+    def __init__(
+        self,
+        visual: nn.Module,
+        image_size: int,
+        mean: tuple[float, float, float] = OPENAI_MEAN,
+        std: tuple[float, float, float] = OPENAI_STD,
+        invert: bool = True,
+        name: str = "",
+    ) -> None:
+        super().__init__()
+        self.visual = visual.eval().requires_grad_(False)
+        self.image_size = int(image_size)  # side of the square input the tower expects, pixels
+        self.invert = invert  # feed 1 − p: black shadow on a white backdrop (display convention)
+        self.name = name  # what was loaded, for logs and outputs (model name and weights file)
+        self.register_buffer("mean", torch.tensor(mean, dtype=torch.float32).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(std, dtype=torch.float32).view(1, 3, 1, 1), persistent=False)
+
+    def train(self, mode: bool = True) -> ClipImageEncoder:
+        """The tower stays in eval mode (frozen; no dropout)."""
+        super().train(mode)
+        self.visual.eval()
+        return self
+
+    def preprocess(self, shadow: torch.Tensor) -> torch.Tensor:
+        """Shadow probabilities ``(B, [1,] S, S)`` → normalised RGB ``(B, 3, image_size, image_size)``."""
+        x = shadow if shadow.ndim == 4 else shadow[:, None]
+        x = 1.0 - x if self.invert else x
+        x = x.expand(-1, 3, -1, -1)
+        if x.shape[-2:] != (self.image_size, self.image_size):
+            size = (self.image_size, self.image_size)
+            x = F.interpolate(x, size=size, mode="bilinear", antialias=True, align_corners=False)
+        return (x - self.mean) / self.std
+
+    def forward(self, shadow: torch.Tensor) -> torch.Tensor:
+        return F.normalize(self.visual(self.preprocess(shadow)).float(), dim=-1)
+
+
+def tiny_clip(seed: int = 0, invert: bool = True) -> ClipImageEncoder:
+    """A small randomly initialised open_clip model (:data:`TINY_CLIP_CFG`), for tests; builds in milliseconds."""
+    from open_clip.model import CLIP, CLIPTextCfg, CLIPVisionCfg
+
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        cfg = TINY_CLIP_CFG
+        model = CLIP(cfg["embed_dim"], CLIPVisionCfg(**cfg["vision_cfg"]), CLIPTextCfg(**cfg["text_cfg"]))
+    return ClipImageEncoder(model.visual, cfg["vision_cfg"]["image_size"], invert=invert, name="tiny-random")
+
+
+def cache_candidates(model_name: str, pretrained: str, cache_dir: str | Path | None = None) -> list[Path]:
+    """Where a cached checkpoint of ``model_name``/``pretrained`` could be (existing or not), best first."""
+    import open_clip
+
+    cfg = open_clip.get_pretrained_cfg(model_name, pretrained) or {}
+    out: list[Path] = []
+    hub = cfg.get("hf_hub", "")
+    if hub:
+        from huggingface_hub import try_to_load_from_cache
+
+        repo, filename = os.path.split(hub)  # "org/model/" → default file names, as open_clip does
+        names = [filename] if filename else []
+        names += ["open_clip_model.safetensors", "open_clip_pytorch_model.bin"]
+        for name in dict.fromkeys(names):
+            found = try_to_load_from_cache(repo, name, cache_dir=str(cache_dir) if cache_dir else None)
+            if isinstance(found, str):
+                out.append(Path(found))
+    url = cfg.get("url", "")
+    if url:
+        out.append(Path(cache_dir or Path.home() / ".cache" / "clip") / os.path.basename(url))
+    return out
+
+
+def _missing_message(model_name: str, pretrained: str, cache_dir: str | Path | None, given: Path | None) -> str:
+    import open_clip
+    from huggingface_hub import constants
+
+    cfg = open_clip.get_pretrained_cfg(model_name, pretrained) or {}
+    hub = cfg.get("hf_hub", "").rstrip("/")
+    where = f"open_clip_model.safetensors from https://huggingface.co/{hub}" if hub else "an open_clip checkpoint"
+    if given is not None:
+        problem = f"CLIP weights file not found: {given}"
+    else:
+        places = [str(Path(cache_dir or constants.HF_HUB_CACHE) / ("models--" + hub.replace("/", "--")))] if hub else []
+        places += [str(p) for p in cache_candidates(model_name, pretrained, cache_dir)]
+        problem = (
+            f"CLIP weights for {model_name} ({pretrained}) are not on this machine (looked in {', '.join(places)}); "
+            "they are never downloaded"
+        )
+    return (
+        f"{problem}. Get {where} on a machine with internet, then pass it with --clip-weights PATH "
+        "(load_clip(weights=PATH)), or run with --no-clip to leave the CLIP term out"
+    )
+
+
+def _load_state(model: nn.Module, path: Path) -> None:
+    """Load a checkpoint file into ``model``: an open_clip state dict, or an OpenAI TorchScript archive."""
+    import open_clip
+
+    try:
+        open_clip.load_checkpoint(model, str(path), strict=True, weights_only=True)
+        return
+    except RuntimeError as e:
+        if "TorchScript" not in str(e):
+            raise
+    state = torch.jit.load(str(path), map_location="cpu").state_dict()
+    keys = set(model.state_dict())
+    missing = keys - set(state)
+    if missing:
+        raise RuntimeError(f"TorchScript archive lacks {len(missing)} weights, e.g. {sorted(missing)[:3]}")
+    model.load_state_dict({k: v for k, v in state.items() if k in keys}, strict=True)
+
+
+def load_clip(
+    model_name: str = "ViT-B-32",
+    weights: str | Path | None = None,
+    cache_dir: str | Path | None = None,
+    pretrained: str = "openai",
+    invert: bool = True,
+    device: str | torch.device = "cpu",
+) -> ClipImageEncoder:
+    """The frozen image tower of open_clip ``model_name`` with local weights only (never a download).
+
+    ``weights``: a checkpoint file (open_clip state dict ``.safetensors``/``.bin``/``.pt``, or OpenAI's TorchScript
+    ``.pt``); None: look in the caches for the ``pretrained`` tag (Hugging Face hub cache, ``~/.cache/clip``, or
+    ``cache_dir``). ``pretrained`` also sets QuickGELU and the normalisation the weights were trained with.
+    Raises :class:`ClipWeightsError` naming the file to provide when none is found or it cannot be loaded.
+    """
+    import open_clip
+
+    if open_clip.get_model_config(model_name) is None:
+        raise ClipWeightsError(f"unknown open_clip model {model_name!r} (e.g. ViT-B-32, ViT-B-16, RN50)")
+    if weights is not None:
+        path = Path(weights).expanduser()
+        if not path.is_file():
+            raise ClipWeightsError(_missing_message(model_name, pretrained, cache_dir, given=path))
+    else:
+        path = next((p for p in cache_candidates(model_name, pretrained, cache_dir) if p.is_file()), None)
+        if path is None:
+            raise ClipWeightsError(_missing_message(model_name, pretrained, cache_dir, given=None))
+    tag = open_clip.get_pretrained_cfg(model_name, pretrained) or {}
+    model = open_clip.create_model(
+        model_name, pretrained=None, force_quick_gelu=bool(tag.get("quick_gelu", False)), device="cpu"
+    )
+    try:
+        _load_state(model, path)
+    except Exception as e:  # any failure to read the user's file is reported as one clear line
+        raise ClipWeightsError(
+            f"cannot load CLIP weights for {model_name} from {path} ({type(e).__name__}: {e}); "
+            "give an open_clip checkpoint of that model with --clip-weights PATH, or run with --no-clip"
+        ) from None
+    image_size = model.visual.image_size
+    image_size = image_size[0] if isinstance(image_size, (tuple, list)) else image_size
+    mean, std = tag.get("mean", OPENAI_MEAN), tag.get("std", OPENAI_STD)
+    log.info("CLIP %s loaded from %s", model_name, path)
+    return ClipImageEncoder(model.visual, image_size, mean, std, invert, name=f"{model_name}:{path}").to(device)
+
+
+def add_clip_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add ``--clip-weights PATH``, ``--clip-model NAME`` and ``--no-clip`` to a verb's parser."""
+    parser.add_argument("--clip-weights", type=Path, default=None, help="local CLIP checkpoint file (never downloaded)")
+    parser.add_argument("--clip-model", default="ViT-B-32", help="open_clip model name of the weights")
+    parser.add_argument("--no-clip", action="store_true", help="leave the CLIP loss terms out (recorded in outputs)")
+
+
+def clip_from_args(args: argparse.Namespace, device: str | torch.device = "cpu") -> ClipImageEncoder | None:
+    """The encoder the options of :func:`add_clip_arguments` ask for; None with ``--no-clip``."""
+    if args.no_clip:
+        return None
+    return load_clip(args.clip_model, weights=args.clip_weights, device=device)
