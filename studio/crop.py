@@ -2,7 +2,7 @@
 
 Every image is compared on a crop: the bounding box of its shadow pixels (probability above a threshold), padded
 by a few pixels, made square about its centre (so the aspect ratio is kept), and resampled to ``size × size``.
-The box is found without gradient; the resampling (``grid_sample`` on an affine grid, supersampled and averaged
+The box is found without gradient; the resampling (``grid_sample`` on an axis-aligned grid, supersampled and averaged
 when it shrinks, so it does not alias) is differentiable in the pixel values. Boxes are in pixel-edge
 coordinates: pixel ``(row i, col j)`` covers ``[j, j + 1] × [i, i + 1]``. Outside the image is lit backdrop (0).
 """
@@ -47,8 +47,8 @@ def square_boxes(images: torch.Tensor, threshold: float = 0.5, pad: float = 5.0)
     about its centre. An image with no such pixel gets the whole image (made square).
     """
     B, H, W = images.shape
-    occ = images.detach() > threshold
-    rows, cols = occ.any(dim=2), occ.any(dim=1)  # (B, H), (B, W)
+    x = images.detach()
+    rows, cols = x.amax(dim=2) > threshold, x.amax(dim=1) > threshold  # (B, H), (B, W): any pixel above
     found = rows.any(dim=1)
     ar_h = torch.arange(H, device=images.device)
     ar_w = torch.arange(W, device=images.device)
@@ -77,16 +77,13 @@ def crop_boxes(images: torch.Tensor, boxes: torch.Tensor, size: int) -> torch.Te
     B, H, W = images.shape
     boxes = boxes.to(images.dtype)
     k = max(1, math.ceil(max(H, W) / size))
-    x0, y0, x1, y1 = boxes.unbind(dim=1)
-    zero = torch.zeros_like(x0)
-    theta = torch.stack(
-        [
-            torch.stack([(x1 - x0) / W, zero, (x0 + x1) / W - 1], dim=1),
-            torch.stack([zero, (y1 - y0) / H, (y0 + y1) / H - 1], dim=1),
-        ],
-        dim=1,
-    )  # (B, 2, 3): output [-1, 1]² → the box in the input's normalised coordinates
-    grid = F.affine_grid(theta, [B, 1, size * k, size * k], align_corners=False)
+    n = size * k
+    u = (torch.arange(n, dtype=images.dtype, device=images.device) + 0.5) / n  # sample centres in (0, 1)
+    x = boxes[:, 0:1] + (boxes[:, 2:3] - boxes[:, 0:1]) * u  # (B, n) pixel-edge coordinates
+    y = boxes[:, 1:2] + (boxes[:, 3:4] - boxes[:, 1:2]) * u
+    gx = (2 * x / W - 1)[:, None, :].expand(B, n, n)  # normalised, align_corners=False
+    gy = (2 * y / H - 1)[:, :, None].expand(B, n, n)
+    grid = torch.stack([gx, gy], dim=-1)  # (B, n, n, 2): an axis-aligned grid, no affine_grid matmul needed
     out = F.grid_sample(images[:, None], grid, mode="bilinear", padding_mode="zeros", align_corners=False)
     if k > 1:
         out = F.avg_pool2d(out, k)
