@@ -2,8 +2,9 @@
 
 The steps, each a config field with a default that loads every target in ``shared/targets`` cleanly:
 
-1. Read the file (PNG, JPEG, GIF (first frame), BMP, …; grey, colour or with an alpha channel) as a grey image.
-   A non-constant alpha channel is the shape (opaque = shadow); otherwise the luminance is.
+1. Read the file (PNG, JPEG, GIF (first frame), BMP, TIFF, …; grey, 16-bit, colour or with an alpha channel) as
+   a grey image. A non-constant alpha channel is the shape (opaque = shadow); otherwise the luminance is
+   (16-bit and float images are stretched from their minimum to their maximum).
 2. Polarity: the border pixels are mostly backdrop, so a dark border (median < 128) means a bright shape on black
    (ASL cut-outs, MPEG-7, DAVIS masks) and a bright border a dark shape on white. The image is turned into
    *shadowness* (0-255, high = shadow) accordingly.
@@ -84,6 +85,10 @@ def read_grey(path: str | Path) -> np.ndarray:
                 alpha = np.asarray(im.convert("RGBA"))[..., 3]
                 if alpha.min() < alpha.max():
                     return np.ascontiguousarray(alpha)
+            if im.mode in ("I", "F") or im.mode.startswith("I;16"):  # 16-bit/float: stretch to 0-255
+                a = np.asarray(im, dtype=np.float64)
+                span = a.max() - a.min()
+                return np.zeros(a.shape, np.uint8) if span == 0 else ((a - a.min()) * (255 / span)).astype(np.uint8)
             return np.asarray(im.convert("L")).copy()
     except UnidentifiedImageError:
         raise TargetError(f"not an image (unknown format): {path}") from None

@@ -155,6 +155,13 @@ def test_alpha_channel_is_the_shape(tmp_path: Path) -> None:
     np.testing.assert_array_equal(load_target(path), disk)
 
 
+def test_sixteen_bit_png(tmp_path: Path) -> None:
+    disk, _ = _ring(64, 20, 0)
+    path = tmp_path / "deep.png"
+    Image.fromarray(disk.astype(np.uint16) * 40000).save(path)
+    np.testing.assert_array_equal(load_target(path), disk)
+
+
 def test_otsu_threshold_on_a_grey_photo() -> None:
     grey = np.full((100, 100), 190, np.uint8)  # light wall
     grey[30:70, 20:60] = 70  # a darker shape
