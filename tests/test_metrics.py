@@ -1,0 +1,207 @@
+"""Baselines and Table 1: every row and column, NaN handling, files written, valid poses, clear CLI errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from studio.baselines import InverseBaseline, NearestNeighbour, NNConfig, RandomImage, TrainingSet
+from studio.cli import main
+from studio.clip_loss import tiny_clip
+from studio.dataset import CollectConfig, collect
+from studio.imitate import Imitator
+from studio.inverse import InverseCNN, InverseConfig, save_inverse
+from studio.metrics import (
+    EXTRA_COLUMNS,
+    LOSS_COLUMNS,
+    METHODS,
+    Evaluator,
+    gather_targets,
+    summarise,
+    to_markdown,
+    write_table,
+)
+from studio.optimize import SearchConfig
+from studio.refine import RefineConfig
+from studio.selfmodel import Checkpoint, SelfModel, SelfModelConfig, save_checkpoint
+from studio.targets import TargetError, find_holes
+
+RES = 32
+TINY_MODEL = SelfModelConfig(resolution=RES, hidden=64, channels=16, min_channels=8, res_blocks=1)
+TINY_INVERSE = InverseConfig(input_size=32, channels=(8, 16), hidden=32)
+SEARCH = SearchConfig(batch=4, iterations=4)
+REFINE = RefineConfig(restarts=2, steps=8)
+
+
+def ring(res: int = RES) -> np.ndarray:
+    """A synthetic target with one hole (an "o")."""
+    img = np.zeros((res, res), np.uint8)
+    cv2.circle(img, (res // 2, res // 2), res // 3, 1, -1)
+    cv2.circle(img, (res // 2, res // 2), res // 8, 0, -1)
+    return img
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory, hand):
+    """A tiny self-model, inverse CNN and shard set on disk, and an imitator around the model."""
+    root = tmp_path_factory.mktemp("metrics")
+    torch.manual_seed(0)
+    model = SelfModel(TINY_MODEL, hand).eval()
+    save_checkpoint(root / "model.pt", model, Checkpoint(TINY_MODEL, hand.hash, {"resolution": RES}))
+    save_inverse(root / "inverse.pt", InverseCNN(TINY_INVERSE, hand), {"resolution": RES}, {})
+    collect(root / "shards", CollectConfig(n=240, shard_size=120, resolution=RES), hand)
+    imitator = Imitator(model=model, search=SEARCH, refine=REFINE)
+    data = TrainingSet.load(root / "shards", hand)
+    return {"root": root, "imitator": imitator, "data": data, "hand": hand}
+
+
+@pytest.fixture(scope="module")
+def table(setup):
+    """Table 1 on two training images and one ring with a hole."""
+    imitator, data = setup["imitator"], setup["data"]
+    evaluator = Evaluator(imitator, InverseCNN(TINY_INVERSE, setup["hand"]), data)
+    plain = [m for m in data.shadows(slice(0, 40)) if not find_holes(m).any()][:2]  # training images, no holes
+    targets = [("pose0", plain[0]), ("pose1", plain[1]), ("ring", ring())]
+    return evaluator.run(targets)
+
+
+def test_training_set_is_the_train_split(setup):
+    assert len(setup["data"]) == 2 * 84  # 0.7 of each 120-pair shard
+    assert setup["data"].shadows(slice(0, 3)).shape == (3, RES, RES)
+
+
+def test_table_has_every_row_and_column(table, tmp_path):
+    assert [r["method"] for r in table.rows] == list(METHODS)
+    for row in table.rows:
+        assert set(LOSS_COLUMNS.values()) | set(EXTRA_COLUMNS.values()) <= set(row)
+        assert row["targets"] == 3 and row["total"] >= row["base"] > 0 or row["method"] == "Nearest Neighbour"
+        assert row["clip"] is None and row["exp_clip"] is None  # no CLIP model: not computed
+    json.dumps(table.rows, allow_nan=False)  # JSON-able (NaN → None)
+    paths = write_table(table, tmp_path / "out")
+    md = open(paths["markdown"]).read()
+    for name in [*METHODS, *LOSS_COLUMNS, *EXTRA_COLUMNS]:
+        assert name in md
+    assert "n/a" in md and "holes" in md and "--no-clip" in md
+    with open(paths["csv"]) as f:
+        rows = list(csv.DictReader(f))
+    assert [r["method"] for r in rows] == list(METHODS) and rows[0]["clip"] == ""
+    with open(paths["per_target"]) as f:
+        assert len(list(csv.DictReader(f))) == 3 * len(METHODS)
+
+
+def test_expressive_terms_only_over_targets_with_holes(table):
+    ring_recs = [r for r in table.records if r["target"] == "ring"]
+    plain = [r for r in table.records if r["target"] != "ring"]
+    assert all(not math.isnan(r["exp_iou"]) for r in ring_recs)
+    assert all(math.isnan(r["exp_iou"]) for r in plain)
+    for row in table.rows:
+        ours = next(r for r in ring_recs if r["method"] == row["method"])
+        assert row["expressive_targets"] == 1 and row["exp_iou"] == pytest.approx(ours["exp_iou"])
+        recs = [r for r in table.records if r["method"] == row["method"]]
+        assert row["total"] == pytest.approx(np.mean([r["total"] for r in recs]))
+    no_holes = summarise(plain)
+    assert all(r["exp_iou"] is None and r["expressive_targets"] == 0 for r in no_holes)
+    assert "| n/a | n/a |" in to_markdown(no_holes)
+
+
+def test_nearest_neighbour_finds_a_training_image(table, setup):
+    nn = {r["target"]: r for r in table.records if r["method"] == "Nearest Neighbour"}
+    assert nn["pose0"]["total"] == pytest.approx(0, abs=1e-6) and nn["pose1"]["base"] == pytest.approx(0, abs=1e-6)
+
+
+def test_nearest_neighbour_matches_exhaustive_search(setup):
+    imitator, data = setup["imitator"], setup["data"]
+    target = imitator.renderer.render_one(setup["hand"].rest_pose())
+    loss_fn = imitator.loss_fn(target)
+    nn = NearestNeighbour(data, imitator.loss_cfg, NNConfig(rank_size=RES, shortlist=8, batch=50, chunk=64))
+    out = nn.query(target, loss_fn)
+    _, comps = loss_fn(torch.from_numpy(data.shadows(slice(None))).float())
+    assert comps["base"][out.index].item() == pytest.approx(comps["base"].min().item(), abs=1e-6)
+
+
+def test_baselines_return_valid_poses(setup):
+    hand, data, imitator = setup["hand"], setup["data"], setup["imitator"]
+    target = ring()
+    inverse = InverseBaseline(InverseCNN(TINY_INVERSE, hand), imitator.renderer)
+    nn = NearestNeighbour(data, imitator.loss_cfg)
+    outs = [RandomImage(data, seed=1).query(), inverse.query(target), nn.query(target, imitator.loss_fn(target))]
+    for out in outs:
+        assert out.theta.shape == (21,)
+        assert np.all(out.theta >= hand.lower - 1e-6) and np.all(out.theta <= hand.upper + 1e-6)
+        assert out.shadow.shape == (RES, RES) and set(np.unique(out.shadow)) <= {0, 1}
+        assert out.seconds >= 0
+    assert outs[0].collides == bool(data.collides[outs[0].index])
+
+
+def test_refinement_does_not_add_collisions(table):
+    rows = {r["method"]: r for r in table.rows}
+    assert rows["Ours"]["collide_pct"] <= rows["Ours w/o refinement"]["collide_pct"]
+    assert rows["Ours"]["seconds"] >= rows["Ours w/o refinement"]["seconds"]
+
+
+def test_clip_columns_filled_with_a_clip_model(setup):
+    imitator = Imitator(model=setup["imitator"].model, clip=tiny_clip(), search=SEARCH, refine=REFINE)
+    result = Evaluator(imitator, InverseCNN(TINY_INVERSE, setup["hand"]), setup["data"]).run([("ring", ring())])
+    for row in result.rows:
+        assert row["clip"] is not None and row["exp_clip"] is not None
+    assert not any("--no-clip" in n for n in result.notes)
+
+
+def test_gather_targets_per_folder(tmp_path):
+    for folder, n in (("a", 3), ("b", 1)):
+        (tmp_path / folder).mkdir()
+        for i in range(n):
+            cv2.imwrite(str(tmp_path / folder / f"{i}.png"), ring() * 255)
+    assert [p.parent.name for p in gather_targets([tmp_path], per_folder=1)] == ["a", "b"]
+    assert len(gather_targets([tmp_path])) == 4
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(TargetError, match="no target images"):
+        gather_targets([tmp_path / "empty"])
+    with pytest.raises(TargetError, match="not found"):
+        gather_targets([tmp_path / "nowhere"])
+
+
+def _evaluate_args(setup, out, *targets) -> list[str]:
+    root = setup["root"]
+    return ["evaluate", *map(str, targets), "--out", str(out), "--model", str(root / "model.pt"),
+            "--inverse", str(root / "inverse.pt"), "--nn-data", str(root / "shards"), "--no-clip", "--quiet",
+            "--search-batch", "2", "--search-iters", "2", "--refine-steps", "3", "--refine-restarts", "2"]  # fmt: skip
+
+
+def test_evaluate_cli_writes_table_and_prints_json_last(setup, tmp_path, capsys):
+    for letter in "ab":
+        (tmp_path / "t" / letter).mkdir(parents=True)
+        for i in range(2):
+            cv2.imwrite(str(tmp_path / "t" / letter / f"{i}.png"), ring(64) * 255)
+    assert main(_evaluate_args(setup, tmp_path / "out", tmp_path / "t") + ["--per-folder", "1"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert [r["method"] for r in summary["rows"]] == list(METHODS)
+    assert summary["rows"][0]["targets"] == 2
+    assert (tmp_path / "out" / "table1.md").is_file() and (tmp_path / "out" / "table1.csv").is_file()
+
+
+def test_evaluate_cli_errors_are_one_line(setup, tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    assert main(_evaluate_args(setup, tmp_path / "out", tmp_path / "empty")) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no target images" in err and "empty" in err
+
+    bad = tmp_path / "bad.png"
+    bad.write_bytes(b"this is not an image")
+    assert main(_evaluate_args(setup, tmp_path / "out", bad)) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "bad.png" in err
+
+    good = tmp_path / "good.png"
+    cv2.imwrite(str(good), ring(64) * 255)
+    args = _evaluate_args(setup, tmp_path / "out", good)
+    args[args.index("--nn-data") + 1] = str(tmp_path / "no-shards")
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "collect" in err
