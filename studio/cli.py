@@ -19,6 +19,7 @@ VERB_MODULES = (
     "studio.cli_hand",
     "studio.dataset_cli",
     "studio.selfmodel_cli",
+    "studio.metrics_cli",
     "hardware.cli",
     "studio.plan_cli",
 )
