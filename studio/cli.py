@@ -20,6 +20,7 @@ VERB_MODULES = (
     "studio.dataset_cli",
     "studio.selfmodel_cli",
     "studio.metrics_cli",
+    "studio.imitate_cli",
     "hardware.cli",
     "studio.plan_cli",
 )

@@ -179,8 +179,7 @@ def _render_one(T, piece_link, piece_pts, piece_n, piece_r, light, zb, half, sca
         _fill_convex(img, hx, hy, k, ur, vr)
 
 
-@njit(cache=True, parallel=True)
-def render_batch(theta, parent, T_origin, axis, piece_link, piece_pts, piece_n, piece_r, light, zb, half, res, M):
+def _render_batch(theta, parent, T_origin, axis, piece_link, piece_pts, piece_n, piece_r, light, zb, half, res, M):
     """``theta (B, J)`` → shadows ``(B, res, res)`` uint8 (1 = shadow). Window side ``2*half`` metres."""
     B, J = theta.shape
     out = np.zeros((B, res, res), dtype=np.uint8)
@@ -199,6 +198,13 @@ def render_batch(theta, parent, T_origin, axis, piece_link, piece_pts, piece_n, 
             T, piece_link, piece_pts, piece_n, piece_r, light, zb, half, scale, M, out[b], px, py, hx, hy, ur, vr
         )
     return out
+
+
+# The same kernel compiled twice: threads over the batch for large batches, and serial for small ones, where
+# waking the thread pool costs more than the work (refinement renders 8 shadows per step).
+render_batch = njit(cache=True, parallel=True)(_render_batch)
+render_batch_serial = njit(cache=True)(_render_batch)
+SERIAL_BELOW = 64  # batches smaller than this use the serial kernel
 
 
 @njit(cache=True, parallel=True)

@@ -140,12 +140,13 @@ class ShadowRenderer:
     def render(self, theta: np.ndarray, check: bool = True) -> np.ndarray:
         """Shadows of poses ``theta (B, 21)`` rad → ``(B, H, W)`` uint8. ``check=False`` skips validation
         (callers that sampled within limits themselves)."""
-        from studio.raster import render_batch
+        from studio.raster import SERIAL_BELOW, render_batch, render_batch_serial
 
         th = self.hand.check_theta(theta) if check else np.atleast_2d(np.asarray(theta, np.float64))
         th = np.ascontiguousarray(th, dtype=np.float64)
         jt, pc, rig = self.joints, self.pieces, self.rig
-        return render_batch(
+        kernel = render_batch_serial if len(th) < SERIAL_BELOW else render_batch
+        return kernel(
             th, jt.parent, jt.T_origin, jt.axis, pc.link, pc.points, pc.count, pc.radius,
             self._light, float(rig.backdrop_z), rig.window / 2, rig.resolution, self.ring_points,
         )  # fmt: skip
