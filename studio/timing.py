@@ -147,9 +147,17 @@ class SegmentTimer:
         if len(q) > 2:
             v[1:-1] = CubicSpline(tau, q, bc_type=((1, v0), (1, v1)), axis=0)(tau[1:-1], 1)
         vmax = self.cfg.velocity_margin * self.limits.velocity
-        v = np.clip(v, -vmax, vmax)
+        v = self.inward(q, np.clip(v, -vmax, vmax))
         v[stop] = 0.0
         return v
+
+    def inward(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Zero each velocity component that heads out through a joint limit closer than its braking distance
+        (v²/2a + |v|·a/j, a jerk-limited stop), so no piece overshoots a limit."""
+        lim = self.limits
+        brake = v**2 / (2 * lim.acceleration) + np.abs(v) * lim.acceleration / lim.jerk
+        out = ((v < 0) & (q - brake <= lim.lower)) | ((v > 0) & (q + brake >= lim.upper))
+        return np.where(out, 0.0, v)
 
     def time(self, t0: float, t1: float, tau, q, v, stop) -> tuple[list[Piece] | None, float]:
         """Pieces from t0 to t1 through states (q, v); (None, feasible) when Σ shortest times > t1 − t0."""
@@ -179,6 +187,14 @@ class SegmentTimer:
         raise PlanError(f"could not fit the motion between t = {t0:.3f} s and t = {t1:.3f} s to its duration")
 
 
+def _overshoots(traj: Trajectory, limits: JointLimits, tol: float = 1e-9) -> bool:
+    """True when the piece leaves a joint's position limits (Ruckig may swing out to fill a long duration)."""
+    ext = traj.position_extrema
+    lo = np.array([e.min for e in ext])
+    hi = np.array([e.max for e in ext])
+    return bool((lo < limits.lower - tol).any() or (hi > limits.upper + tol).any())
+
+
 def _colliding(world: CollisionWorld, pieces: list[Piece], t0: float, t1: float, rate: float):
     """Check-grid times ``(T,)`` in [t0, t1] (ends included) and their penetration flags ``(T,)``."""
     grid = np.arange(np.ceil(t0 * rate), np.floor(t1 * rate) + 1) / rate
@@ -191,8 +207,8 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg):
     """Rounds of timing + checking for segment ``s``; returns (pieces, restart previous?, checks).
 
     Round 1 times keyframe to keyframe directly; when that collides, the segment's path corners become via-points
-    (passed with spline velocities); pieces that still collide are made rest-to-rest at both ends, which makes them
-    the straight, collision-checked line between two corners.
+    (passed with spline velocities); pieces that still collide, or swing out of a joint's limits, are made
+    rest-to-rest at both ends, which makes them the straight, collision-checked line between two corners.
     """
     a, b = path.key_index[s], path.key_index[s + 1]
     t0 = float(np.sum(duration[:s]))
@@ -208,19 +224,21 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg):
             continue
         t, bad = _colliding(world, got, t0, t0 + duration[s], rate)
         checks += len(t)
-        if not bad.any():
+        over = [k for k, p in enumerate(got) if _overshoots(p.traj, timer.limits)]  # a time-filling swing
+        if not bad.any() and not over:
             return got, False, checks
-        if len(idx) == 2 and not at_rest.all():
+        if len(idx) == 2 and not at_rest.all() and bad.any():
             idx = [int(i) for i in np.flatnonzero(path.corner[a : b + 1]) + a]
             if len(idx) > 2:
                 continue
         starts = np.array([p.t0 for p in got])
         added = []
-        for k in np.unique(np.clip(np.searchsorted(starts, t[bad], side="right") - 1, 0, len(got) - 1)):
+        hit = np.clip(np.searchsorted(starts, t[bad], side="right") - 1, 0, len(got) - 1)
+        for k in np.union1d(hit, over).astype(int):
             if at_rest[k] and at_rest[k + 1]:  # missed between the path check's samples: split at a path point
                 if idx[k + 1] - idx[k] < 2:
                     raise PathError(
-                        f"the motion near t = {t[bad][0]:.3f} s collides even along the repaired path; "
+                        f"the motion near t = {got[k].t0:.3f} s collides even along the repaired path; "
                         "move the neighbouring keyframes apart or add a keyframe in between"
                     )
                 added.append((idx[k] + idx[k + 1]) // 2)
@@ -250,7 +268,7 @@ def time_path(
     rate = cfg.rate_hz * cfg.check_factor
     ki = path.key_index
     req_t = path.times[ki]
-    kv = np.array(key_velocity, dtype=float)
+    kv = timer.inward(path.poses[ki], np.array(key_velocity, dtype=float))
     duration = np.diff(req_t)  # per segment; grows only where a segment is stretched
     slow: dict[int, SegmentTiming] = {}
     pieces: list[list[Piece]] = [[] for _ in duration]

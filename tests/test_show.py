@@ -51,10 +51,10 @@ finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
 )
 def test_round_trip_is_lossless(tmp_path, n, seed, title, offset, losses):
     rng = np.random.default_rng(seed)
-    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.01, 0.05, n - 1))])
+    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.02, 0.05, n - 1))])
     # small random steps keep the speed under the velocity limit
     q = np.clip(
-        rng.uniform(HAND.lower, HAND.upper)[None] + np.cumsum(rng.normal(0, 0.01, (n, 21)), 0), HAND.lower, HAND.upper
+        rng.uniform(HAND.lower, HAND.upper)[None] + np.cumsum(rng.normal(0, 0.004, (n, 21)), 0), HAND.lower, HAND.upper
     )
     show = Show.from_samples(
         HAND, t, q, title=title, calibration="cal/servos.yaml",
