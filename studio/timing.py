@@ -6,12 +6,12 @@ Open-source Ruckig plans one state-to-state motion at a time, so the trajectory 
   time-synchronised, ``Synchronization.Time``), passing each keyframe with the spline's velocity (zero where the
   artist holds, at home and at the end) and zero acceleration, stretched to the keyframe times with
   ``minimum_duration``.
-* The motion is sampled at ``check_factor`` × the show rate and collision-checked. Where it collides, points of
-  the repaired path (``studio.path``) become **via-points**: the segment is re-timed through them, each via passed
-  with the velocity of a clamped cubic spline through the segment's states, the durations split in proportion to
-  the path's nominal times but never below each piece's shortest feasible time. Rounds repeat until the segment is
-  collision-free; between two adjacent path points the motion falls back to rest-to-rest, phase-synchronised
-  (a straight joint-space line, which the repair pass checked).
+* The motion is sampled at ``check_factor`` × the show rate and collision-checked. Where it collides, the corners
+  of the repaired path (``studio.path``: points joined by collision-checked straight lines) become **via-points**:
+  the segment is re-timed through them, each via passed with the velocity of a clamped cubic spline through the
+  segment's states, the durations split in proportion to the path's nominal times but never below each piece's
+  shortest feasible time. A piece that still collides (or swings out of a joint's limits) becomes rest-to-rest and
+  phase-synchronised: the straight, checked line between its corners (split at a path point if needed).
 * A segment whose shortest feasible time exceeds its requested time raises ``SegmentTooFastError`` with every
   such segment and its feasible time; with ``allow_late`` the segment is stretched and later keyframes shift
   (reported in the result, never silent).
