@@ -55,6 +55,7 @@ def _validate(args: argparse.Namespace) -> int:
 
 def _info(args: argparse.Namespace) -> int:
     show = load_show(args.show, load_hand(args.urdf))
+    media = f"{show.media.kind} {show.media.path} (offset {show.media.offset_s:+.3f} s)" if show.media else "-"
     speed = np.abs(np.diff(show.positions, axis=0)) / np.diff(show.times)[:, None] if len(show.times) > 1 else None
     lines = [
         f"title:        {show.title}",
@@ -64,7 +65,7 @@ def _info(args: argparse.Namespace) -> int:
         f"duration:     {show.duration:.3f} s, {len(show.times)} samples at {show.rate_hz:g} Hz",
         f"keyframes:    {len(show.keyframes)} at "
         + ", ".join(f"{k.t:.3f}{' (hold)' if k.hold else ''}" for k in show.keyframes),
-        f"media:        {f'{show.media.kind} {show.media.path} (offset {show.media.offset_s:+.3f} s)' if show.media else '-'}",
+        f"media:        {media}",
     ]
     if speed is not None:
         j = int(np.argmax((speed / show.limits.velocity).max(axis=0)))
