@@ -11,6 +11,7 @@ terms are NaN, and the Exp. columns are means over the targets that have holes. 
 from __future__ import annotations
 
 import csv
+import json
 import math
 import threading
 import time
@@ -215,11 +216,14 @@ def to_markdown(rows: list[dict], notes: Sequence[str] = ()) -> str:
 
 
 def write_table(result: EvalResult, out: Path) -> dict[str, str]:
-    """Write ``table1.md``, ``table1.csv`` (one row per method) and ``per_target.csv``; returns their paths."""
+    """Write ``table1.md``, ``table1.csv`` (one row per method), ``per_target.csv`` and ``settings.json`` (model,
+    losses with ``use_clip``, search, refinement, Nearest Neighbour); returns their paths."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    paths = {"markdown": out / "table1.md", "csv": out / "table1.csv", "per_target": out / "per_target.csv"}
+    paths = {"markdown": out / "table1.md", "csv": out / "table1.csv", "per_target": out / "per_target.csv",
+             "settings": out / "settings.json"}  # fmt: skip
     paths["markdown"].write_text(to_markdown(result.rows, result.notes))
+    paths["settings"].write_text(json.dumps(result.settings, indent=2, default=str))
     keys = ["method", *LOSS_COLUMNS.values(), "collide_pct", "seconds", "targets", "expressive_targets"]
     with open(paths["csv"], "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")

@@ -33,6 +33,18 @@ def _train_inverse(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    import torch
+
+    threads = torch.get_num_threads()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    try:
+        return _run_evaluation(args)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _run_evaluation(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from studio.clip_loss import clip_from_args
@@ -56,7 +68,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     paths = write_table(result, Path(args.out))
     if not args.quiet:
         print(Path(paths["markdown"]).read_text())
-    print(json.dumps({"files": paths, "rows": result.rows}, allow_nan=False, default=str))
+    summary = {"files": paths, "clip": imitator.loss_cfg.use_clip, "rows": result.rows}
+    print(json.dumps(summary, allow_nan=False, default=str))
     return 0
 
 
@@ -75,6 +88,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--refine-steps", type=int, default=1000, help="hill-climbing steps per restart (paper 1000)")
     p.add_argument("--refine-restarts", type=int, default=8, help="hill-climbing restarts (paper 8)")
     p.add_argument("--seed", type=int, default=0, help="seed of the search, refinement and Random baseline")
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch CPU threads (default 1: fastest on shared cores; 0 = torch's default)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar and no table on stdout (JSON only)")
     add_clip_arguments(p)
     p.set_defaults(func=_evaluate)

@@ -179,10 +179,14 @@ def test_evaluate_cli_writes_table_and_prints_json_last(setup, tmp_path, capsys)
         (tmp_path / "t" / letter).mkdir(parents=True)
         for i in range(2):
             cv2.imwrite(str(tmp_path / "t" / letter / f"{i}.png"), ring(64) * 255)
+    threads = torch.get_num_threads()
     assert main(_evaluate_args(setup, tmp_path / "out", tmp_path / "t") + ["--per-folder", "1"]) == 0
+    assert torch.get_num_threads() == threads  # --threads is restored afterwards
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert [r["method"] for r in summary["rows"]] == list(METHODS)
-    assert summary["rows"][0]["targets"] == 2
+    assert summary["rows"][0]["targets"] == 2 and summary["clip"] is False
+    settings = json.loads((tmp_path / "out" / "settings.json").read_text())
+    assert settings["losses"]["use_clip"] is False and settings["refine"]["steps"] == 3
     assert (tmp_path / "out" / "table1.md").is_file() and (tmp_path / "out" / "table1.csv").is_file()
 
 
