@@ -207,11 +207,14 @@ render_batch_serial = njit(cache=True)(_render_batch)
 SERIAL_BELOW = 64  # batches smaller than this use the serial kernel
 
 
-@njit(cache=True, parallel=True)
-def fk_batch(theta, parent, T_origin, axis):
+def _fk_batch(theta, parent, T_origin, axis):
     """``theta (B, J)`` → ``T_world_link (B, J+1, 4, 4)`` (the compiled twin of ``kinematics.fk_numpy``)."""
     B, J = theta.shape
     out = np.empty((B, J + 1, 4, 4))
     for b in prange(B):
         _fk_one(theta[b], parent, T_origin, axis, out[b])
     return out
+
+
+fk_batch = njit(cache=True, parallel=True)(_fk_batch)
+fk_batch_serial = njit(cache=True)(_fk_batch)

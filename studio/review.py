@@ -173,7 +173,7 @@ def scalar_series(recording: dict[str, dict], entity: str, timeline: str = "opt_
     """``(time, value)`` pairs of a ``Scalars`` entity read by :func:`read_recording`."""
     values: list[tuple[int, float]] = []
     for batch in recording.get(entity, {}).get("batches", []):
-        cols = batch.to_pydict()
-        for t, v in zip(cols[timeline], cols["Scalars:scalars"]):
+        times = batch.column(timeline).to_pylist()
+        for t, v in zip(times, batch.column("Scalars:scalars").to_pylist()):
             values.append((int(t), float(v[0])))
     return sorted(values)

@@ -157,10 +157,11 @@ class ShadowRenderer:
 
     def fk(self, theta: np.ndarray) -> np.ndarray:
         """Compiled FK: ``theta (B, 21)`` → ``T_world_link (B, L, 4, 4)``."""
-        from studio.raster import fk_batch
+        from studio.raster import SERIAL_BELOW, fk_batch, fk_batch_serial
 
         th = np.ascontiguousarray(np.atleast_2d(theta), dtype=np.float64)
-        return fk_batch(th, self.joints.parent, self.joints.T_origin, self.joints.axis)
+        kernel = fk_batch_serial if len(th) < SERIAL_BELOW else fk_batch
+        return kernel(th, self.joints.parent, self.joints.T_origin, self.joints.axis)
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:

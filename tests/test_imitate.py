@@ -1,0 +1,178 @@
+"""Search + refinement on targets rendered from known poses; refinement never collides; review and CLI outputs."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from studio.imitate import DEFAULT_MODEL, Imitator
+from studio.losses import ImageLoss, LossConfig
+from studio.optimize import CPU_SEARCH, SearchConfig, gradient_search, initial_poses
+from studio.physics import CollisionWorld
+from studio.refine import RefineConfig, Refiner
+from studio.sampling import sample_poses
+from studio.selfmodel import SelfModel, SelfModelConfig, load_selfmodel
+from studio.shadow import Rig, ShadowRenderer, iou
+
+if not DEFAULT_MODEL.is_file():
+    pytest.skip(f"shipped self-model missing: {DEFAULT_MODEL}", allow_module_level=True)
+
+
+@pytest.fixture(scope="module")
+def imitator(hand):
+    torch.set_num_threads(2)
+    model, _ = load_selfmodel(DEFAULT_MODEL, hand, device="cpu")
+    return Imitator(model, loss_cfg=LossConfig(use_clip=False, crop_size=model.cfg.resolution))
+
+
+def free_poses(hand, n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    with CollisionWorld(hand) as world:
+        out = []
+        while len(out) < n:
+            q = sample_poses(hand, 1, rng)[0][0]
+            if not world.in_collision(q)[0]:
+                out.append(q)
+    return np.stack(out)
+
+
+def test_search_and_refinement_recover_a_rendered_pose(imitator, hand):
+    scores = []
+    for q in free_poses(hand, 3, seed=21):
+        target = imitator.renderer.render_one(q)
+        result = imitator.imitate(target)
+        assert result.collision_free
+        scores.append(float(iou(result.shadow, target)))
+    assert min(scores) >= 0.9, scores
+
+
+def test_search_lowers_the_self_model_loss(imitator, hand):
+    target = imitator.renderer.render_one(free_poses(hand, 1, seed=5)[0])
+    loss_fn = imitator.loss_fn(target)
+    res = gradient_search(imitator.model, loss_fn, replace(CPU_SEARCH, iterations=60, log_every=5))
+    start = res.curve[0][1]
+    assert res.loss < start and res.curve[-1][1] <= start
+    assert res.batch_theta.shape == (CPU_SEARCH.batch, 21)
+    assert np.all(res.batch_theta >= hand.lower - 1e-5) and np.all(res.batch_theta <= hand.upper + 1e-5)
+    assert res.loss == pytest.approx(res.batch_loss.min(), rel=1e-5)
+
+
+def test_initial_poses_respect_limits_and_include_rest(hand):
+    cfg = SearchConfig(batch=16)
+    th = initial_poses(hand, cfg)
+    assert th.shape == (16, 21) and np.allclose(th[0], hand.rest_pose())
+    near = initial_poses(hand, cfg, init=hand.rest_pose())
+    assert np.all(near >= hand.lower) and np.all(near <= hand.upper)
+    assert np.abs(near - hand.rest_pose()).max() < 0.3
+
+
+def test_cancel_stops_search_early(hand):
+    import threading
+
+    model = SelfModel(SelfModelConfig(resolution=32, hidden=32, channels=16, min_channels=8, res_blocks=1), hand)
+    target = ShadowRenderer(hand, Rig(resolution=32)).render_one(hand.rest_pose())
+    cancel = threading.Event()
+    seen = []
+
+    def progress(step, total, best):
+        seen.append(step)
+        cancel.set()
+
+    res = gradient_search(model, ImageLoss(target, LossConfig(use_clip=False, crop_size=32)),
+                          SearchConfig(batch=4, iterations=100, log_every=1), progress=progress, cancel=cancel)  # fmt: skip
+    assert res.cancelled and res.iterations == 1 and seen == [1]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_refinement_output_never_collides(hand, seed):
+    """Start from a badly colliding pose: the answer is collision-free, or says clearly that none was found."""
+    renderer = ShadowRenderer(hand, Rig(resolution=64))
+    colliding = hand.rest_pose()
+    rng = np.random.default_rng(seed)
+    colliding[hand.joint_names.index("middle_mcp_abd")] = np.radians(-15 - 10 * seed)
+    colliding[hand.joint_names.index("ring_mcp_abd")] = rng.uniform(0.3, 0.9)
+    target = renderer.render_one(free_poses(hand, 1, seed=seed)[0])
+    refiner = Refiner(renderer)
+    assert refiner.world.in_collision(colliding)[0]
+    res = refiner.refine(ImageLoss(target, LossConfig(use_clip=False, crop_size=64)), colliding,
+                         RefineConfig(steps=150, seed=seed))  # fmt: skip
+    assert res.start_collides
+    if res.collision_free:
+        assert not refiner.world.in_collision(res.theta)[0]
+        assert np.isfinite(res.loss)
+        assert np.all(res.theta >= hand.lower) and np.all(res.theta <= hand.upper)
+    else:
+        assert "no collision-free pose" in res.message and res.loss == float("inf")
+
+
+def test_refinement_never_worsens_a_free_start(hand):
+    renderer = ShadowRenderer(hand, Rig(resolution=64))
+    q_target, q_start = free_poses(hand, 2, seed=8)
+    loss_fn = ImageLoss(renderer.render_one(q_target), LossConfig(use_clip=False, crop_size=64))
+    res = Refiner(renderer).refine(loss_fn, q_start, RefineConfig(steps=100))
+    assert res.collision_free and res.loss <= res.start_loss
+    assert [b for _, b in res.curve] == sorted((b for _, b in res.curve), reverse=True)
+
+
+def test_review_recording_reads_back(imitator, hand, tmp_path):
+    from studio.review import log_imitation, read_recording, scalar_series
+
+    imitator_fast = Imitator(imitator.model, loss_cfg=imitator.loss_cfg,
+                             search=replace(CPU_SEARCH, iterations=30), refine=RefineConfig(steps=100))  # fmt: skip
+    target = imitator.renderer.render_one(free_poses(hand, 1, seed=3)[0])
+    result = imitator_fast.imitate(target)
+    path = log_imitation(tmp_path / "review.rrd", result, hand, name="t")
+    rec = read_recording(path)
+    for entity in ("/images/target", "/images/self_model", "/images/rendered", "/images/overlay"):
+        assert entity in rec, sorted(rec)
+    assert rec["/images/target"]["static"]
+    search = scalar_series(rec, "/loss/search/best")
+    assert [t for t, _ in search] == [s for s, _, _ in result.search.curve]
+    # refinement continues the timeline after the search; steps before a first collision-free pose have no value
+    n = result.search.iterations
+    finite = [(n + s, b) for s, b in result.refine.curve if np.isfinite(b)]
+    assert finite and scalar_series(rec, "/loss/refine/best") == pytest.approx(finite)
+    shells = [e for e in rec if e.endswith(("/shell/capsules", "/shell/boxes"))]
+    assert len(shells) == 22 and all(rec[e]["static"] for e in shells)  # one shell per link, static
+    assert "/world/hand/forearm/palm/index_knuckle/index_proximal" in rec
+    assert "opt_step" in rec["/world/hand/forearm/palm"]["timelines"]
+
+
+def test_imitate_cli_writes_everything(tmp_path):
+    target = DEFAULT_MODEL.parent.parent / "targets" / "asl_v.jpeg"
+    out = tmp_path / "out"
+    proc = subprocess.run(
+        [sys.executable, "-m", "studio.cli", "imitate", str(target), "--out", str(out), "--no-clip", "--quiet",
+         "--search-iters", "40", "--refine-steps", "100"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert summary["collision_free"] is True and summary["no_clip"] is True
+    assert 0 <= summary["iou_loss"] <= 1 and summary["total"] > 0 and summary["seconds"] > 0
+    for name in ("pose.json", "shadow.png", "compare.png", "review.rrd"):
+        assert (out / name).is_file(), name
+    pose = json.loads((out / "pose.json").read_text())
+    assert len(pose["pose"]) == 21 and pose["provenance"]["no_clip"] is True
+    assert pose["loss"]["clip"] is None  # not computed: recorded as null, never as a fake 0
+
+
+def test_imitate_cli_errors(tmp_path):
+    bad = tmp_path / "empty.png"
+    import cv2
+
+    cv2.imwrite(str(bad), np.zeros((32, 32), np.uint8))
+    for args, message in (
+        ((str(tmp_path / "absent.png"),), "not found"),
+        ((str(bad),), "no shadow"),
+        ((str(bad), "--model", str(tmp_path / "none.pt")), "checkpoint not found"),
+    ):
+        proc = subprocess.run([sys.executable, "-m", "studio.cli", "imitate", *args, "--out", str(tmp_path / "o"),
+                               "--no-clip"], capture_output=True, text=True, timeout=300)  # fmt: skip
+        assert proc.returncode == 2 and message in proc.stderr.lower() and "Traceback" not in proc.stderr, proc.stderr
