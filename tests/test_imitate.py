@@ -84,8 +84,9 @@ def test_cancel_stops_search_early(hand):
         seen.append(step)
         cancel.set()
 
-    res = gradient_search(model, ImageLoss(target, LossConfig(use_clip=False, crop_size=32)),
-                          SearchConfig(batch=4, iterations=100, log_every=1), progress=progress, cancel=cancel)  # fmt: skip
+    loss_fn = ImageLoss(target, LossConfig(use_clip=False, crop_size=32))
+    cfg = SearchConfig(batch=4, iterations=100, log_every=1)
+    res = gradient_search(model, loss_fn, cfg, progress=progress, cancel=cancel)
     assert res.cancelled and res.iterations == 1 and seen == [1]
 
 
