@@ -82,9 +82,19 @@ def display(mask: np.ndarray) -> np.ndarray:
     return (255 * (1.0 - np.clip(np.asarray(mask, dtype=float), 0, 1))).astype(np.uint8)
 
 
-def overlay(target: np.ndarray, shadow: np.ndarray) -> np.ndarray:
-    """RGB ``(H, W, 3)``: both = black, target only = red, shadow only = blue, neither = white."""
-    t, s = target.astype(bool), shadow.astype(bool)
+def overlay(target: np.ndarray, shadow: np.ndarray, aligned: bool = True) -> np.ndarray:
+    """RGB ``(H, W, 3)``: both = black, target only = red, shadow only = blue, neither = white.
+
+    ``aligned``: compare the bounding-box crops the losses compare (position and scale removed), as the
+    optimiser sees them, at the target's resolution."""
+    if aligned:
+        from studio.crop import align
+
+        size = target.shape[-1]
+        t = align(np.asarray(target, np.float32), size)[0][0].numpy() > 0.5
+        s = align(np.asarray(shadow, np.float32), size)[0][0].numpy() > 0.5
+    else:
+        t, s = target.astype(bool), shadow.astype(bool)
     img = np.full(t.shape + (3,), 255, np.uint8)
     img[t & ~s] = (220, 40, 40)
     img[s & ~t] = (40, 90, 220)
