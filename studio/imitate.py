@@ -44,6 +44,20 @@ class ImitationResult:
     timings: dict[str, float] = field(default_factory=dict)  # seconds per stage
 
 
+def distinct_best(batch_theta: np.ndarray, batch_loss: np.ndarray, k: int, min_dist: float = 0.3) -> list:
+    """Up to ``k`` of the best poses ``(B, 21)`` by loss, each at least ``min_dist`` rad (max over joints) from
+    those already taken, best first (the batch often converges to a few basins: refine different ones)."""
+    taken: list[np.ndarray] = []
+    for i in np.argsort(batch_loss):
+        if not np.isfinite(batch_loss[i]):
+            continue
+        if all(np.abs(batch_theta[i] - t).max() >= min_dist for t in taken):
+            taken.append(batch_theta[i])
+        if len(taken) == k:
+            break
+    return taken
+
+
 class Imitator:
     """Reusable machinery for imitating still targets."""
 
@@ -56,6 +70,7 @@ class Imitator:
         search: SearchConfig | None = None,
         refine: RefineConfig | None = None,
         device: str | None = None,
+        candidates: int = 4,
     ):
         if model is None:
             model, _ = load_selfmodel(Path(model_path or DEFAULT_MODEL), device=device)
@@ -68,6 +83,7 @@ class Imitator:
         self.refine_cfg = refine or RefineConfig()
         self.renderer = ShadowRenderer(self.hand, Rig(resolution=self.resolution))
         self.refiner = Refiner(self.renderer)
+        self.candidates = candidates  # distinct best search results refined (each with the full schedule)
 
     def load(self, path: Path) -> np.ndarray:
         """A target file → ``(R, R)`` uint8 mask framed like the model's images (TargetError when unusable)."""
@@ -99,7 +115,12 @@ class Imitator:
         result = None
         theta, shadow, comps = search.theta, shadow0, {k: float(v[0]) for k, v in comps0.items()}
         if refine:
-            result = self.refiner.refine(loss_fn, search.theta, self.refine_cfg, stage("refine"), cancel)
+            for start in distinct_best(search.batch_theta, search.batch_loss, self.candidates):
+                if cancel is not None and cancel.is_set():
+                    break
+                r = self.refiner.refine(loss_fn, start, self.refine_cfg, stage("refine"), cancel)
+                if result is None or r.loss < result.loss:
+                    result = r
             if result.collision_free:
                 theta, comps = result.theta, result.components
                 shadow = self.renderer.render_one(theta)

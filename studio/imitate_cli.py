@@ -43,6 +43,7 @@ def write_json_atomic(path: Path, data: dict) -> None:
 
 
 def _imitate(args: argparse.Namespace) -> int:
+    import torch
     from tqdm import tqdm
 
     from studio.cli_hand import write_shadow_png
@@ -54,6 +55,7 @@ def _imitate(args: argparse.Namespace) -> int:
     from studio.review import log_imitation
     from studio.selfmodel import load_selfmodel
 
+    torch.set_num_threads(args.threads)  # one thread is far faster when the cores are shared, and close otherwise
     target_path = Path(args.target)
     model, info = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
     clip = clip_from_args(args, device=next(model.parameters()).device)
@@ -61,7 +63,7 @@ def _imitate(args: argparse.Namespace) -> int:
                      iterations=args.search_iters or CPU_SEARCH.iterations, seed=args.seed)  # fmt: skip
     refine = RefineConfig(steps=args.refine_steps, seed=args.seed)
     loss_cfg = LossConfig(use_clip=clip is not None, crop_size=model.cfg.resolution)
-    imitator = Imitator(model, loss_cfg=loss_cfg, clip=clip, search=search, refine=refine)
+    imitator = Imitator(model, loss_cfg=loss_cfg, clip=clip, search=search, refine=refine, candidates=args.candidates)
     target = imitator.load(target_path)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -81,7 +83,7 @@ def _imitate(args: argparse.Namespace) -> int:
     provenance = {
         "target": str(target_path), "model": str(args.model or DEFAULT_MODEL), "model_metrics": info.metrics,
         "clip": None if clip is None else clip.name, "no_clip": clip is None, "loss_config": loss_cfg.to_dict(),
-        "search": asdict(search), "refine": asdict(refine), "hand_hash": hand.hash,
+        "search": asdict(search), "refine": asdict(refine), "candidates": args.candidates, "hand_hash": hand.hash,
     }  # fmt: skip
     write_json_atomic(out / "pose.json", {
         "pose": hand.pose_to_dict(result.theta), "loss": _finite(result.loss), "collision_free": result.collision_free,
@@ -114,7 +116,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--search-iters", type=int, default=None, help="gradient steps")
     p.add_argument("--refine-steps", type=int, default=1000, help="hill-climbing steps per chain (default 1000)")
     p.add_argument("--no-refine", action="store_true", help="skip the collision-aware refinement")
+    p.add_argument("--candidates", type=int, default=4, help="distinct best search results refined (default 4)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     add_clip_arguments(p)

@@ -89,7 +89,10 @@ class Refiner:
         cur = np.clip(start + rng.normal(0, cfg.restart_noise, (cfg.restarts, self.hand.dof)), lo, hi)
         cur[0] = start
         cur_loss, _ = self.score(loss_fn, cur)
-        cur_loss[self.world.in_collision(cur, check=False)] = np.inf  # a colliding start accepts any free pose
+        # A colliding chain has loss +inf: it accepts any collision-free proposal, and meanwhile any proposal that
+        # lowers its collision score S_col (so a chain that starts deep in collision can climb out of it).
+        cur_col = self.world.collision_score(cur, check=False)
+        cur_loss[self.world.in_collision(cur, check=False)] = np.inf
         best_i = int(np.argmin(cur_loss))
         best_theta, best_loss = cur[best_i].copy(), float(cur_loss[best_i])
         curve, evaluations, sigma, cancelled = [], cfg.restarts + 1, cfg.sigma0, False
@@ -101,13 +104,20 @@ class Refiner:
             loss, _ = self.score(loss_fn, prop)
             evaluations += len(prop)
             better = loss < cur_loss
+            accepted = np.zeros(len(prop), dtype=bool)
             if better.any():
                 free = ~self.world.in_collision(prop[better], check=False)
                 accept = np.flatnonzero(better)[free]
                 cur[accept], cur_loss[accept] = prop[accept], loss[accept]
+                accepted[accept] = True
                 i = int(np.argmin(cur_loss))
                 if cur_loss[i] < best_loss:
                     best_theta, best_loss = cur[i].copy(), float(cur_loss[i])
+            stuck = np.flatnonzero(~np.isfinite(cur_loss) & ~accepted)  # chains still in collision
+            if len(stuck):
+                col = self.world.collision_score(prop[stuck], check=False)
+                lower = col < cur_col[stuck]
+                cur[stuck[lower]], cur_col[stuck[lower]] = prop[stuck[lower]], col[lower]
             sigma = max(cfg.sigma_min, sigma * cfg.decay)
             if step % cfg.log_every == 0 or step == cfg.steps:
                 curve.append((step, best_loss))
