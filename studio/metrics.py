@@ -170,7 +170,8 @@ class Evaluator:
         im = self.imitator
         return {
             "resolution": im.resolution, "losses": im.loss_cfg.to_dict(), "clip": getattr(im.clip, "name", None),
-            "search": asdict(im.search_cfg), "refine": asdict(im.refine_cfg), "training_images": self.training_size,
+            "search": asdict(im.search_cfg), "refine": asdict(im.refine_cfg), "refined_candidates": im.candidates,
+            "training_images": self.training_size,
             "nn": asdict(self.cfg.nn), "nn_setup_seconds": round(self.nn_setup_seconds, 2),
         }  # fmt: skip
 
@@ -189,7 +190,8 @@ class Evaluator:
             "searched poses before refinement). Seconds: wall time per target on this machine.",
             f"Random and Nearest Neighbour draw from {self.training_size} training images (aligning them once per "
             f"run took {self.nn_setup_seconds:.1f} s, not in the per-target seconds); ours: gradient search batch "
-            f"{s.batch} × {s.iterations} iterations, refinement {r.restarts} restarts × {r.steps} steps.",
+            f"{s.batch} × {s.iterations} iterations, refinement {r.restarts} restarts × {r.steps} steps from each "
+            f"of the {im.candidates} best distinct search results.",
         ]
         if not lc.use_clip:
             notes.append("CLIP off (--no-clip): CLIP and Exp. CLIP not computed (n/a); Base = 0.06·MAE + 0.4·IoU loss.")
