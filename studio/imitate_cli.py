@@ -1,6 +1,7 @@
 """``shadow-studio imitate TARGET --out DIR``: one still target end to end.
 
-Writes ``pose.json`` (joint names → radians, plus losses and provenance), ``shadow.png`` (the final pose's rendered
+Writes ``pose.json`` (joint names → radians, plus losses and provenance; its ``keyframes`` list is what
+``shadow-studio plan`` reads), ``shadow.png`` (the final pose's rendered
 shadow), ``compare.png`` (target | self-model | rendered | overlay), ``review.rrd`` (Rerun) and prints a JSON
 summary last.
 """
@@ -85,7 +86,10 @@ def _imitate(args: argparse.Namespace) -> int:
         "clip": None if clip is None else clip.name, "no_clip": clip is None, "loss_config": loss_cfg.to_dict(),
         "search": asdict(search), "refine": asdict(refine), "candidates": args.candidates, "hand_hash": hand.hash,
     }  # fmt: skip
+    keyframe = {"t": args.at, "pose": hand.pose_to_dict(result.theta), "hold": True, "target": str(target_path),
+                "loss": result.loss["total"]}  # fmt: skip
     write_json_atomic(out / "pose.json", {
+        "keyframes": [keyframe],  # the shape `shadow-studio plan` reads
         "pose": hand.pose_to_dict(result.theta), "loss": _finite(result.loss), "collision_free": result.collision_free,
         "unrefined": {"pose": hand.pose_to_dict(result.search.theta), "loss": _finite(result.unrefined_loss),
                       "collides": result.unrefined_collides, "self_model_loss": result.search.loss},
@@ -117,6 +121,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--refine-steps", type=int, default=1000, help="hill-climbing steps per chain (default 1000)")
     p.add_argument("--no-refine", action="store_true", help="skip the collision-aware refinement")
     p.add_argument("--candidates", type=int, default=4, help="distinct best search results refined (default 4)")
+    p.add_argument("--at", type=float, default=2.0, help="time of this pose in a show, s (pose.json keyframe)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")

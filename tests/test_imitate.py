@@ -163,6 +163,16 @@ def test_imitate_cli_writes_everything(tmp_path):
     pose = json.loads((out / "pose.json").read_text())
     assert len(pose["pose"]) == 21 and pose["provenance"]["no_clip"] is True
     assert pose["loss"]["clip"] is None  # not computed: recorded as null, never as a fake 0
+    # pose.json is a keyframes file: plan a show from it (rest pose at t = 0 → this pose at t = 2 s)
+    assert pose["keyframes"][0]["t"] == 2.0 and pose["keyframes"][0]["pose"] == pose["pose"]
+    show = out / "show.json"
+    planned = subprocess.run([sys.executable, "-m", "studio.cli", "plan", str(out / "pose.json"), "--out", str(show)],
+                             capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert planned.returncode == 0, planned.stderr
+    from studio.show import load_show
+
+    loaded = load_show(show)
+    assert np.allclose(loaded.positions[-1], [pose["pose"][n] for n in loaded.joint_names], atol=1e-9)
 
 
 def test_imitate_cli_errors(tmp_path):
