@@ -14,9 +14,9 @@ import time
 
 import numpy as np
 
-from studio.hand import load_hand
-from studio.physics import CollisionWorld
-from studio.sampling import sample_poses
+from studio.sim.hand import load_hand
+from studio.sim.physics import CollisionWorld
+from studio.sim.sampling import sample_poses
 
 
 def main() -> None:

@@ -11,11 +11,11 @@ import time
 
 import numpy as np
 
-from studio.hand import load_hand
-from studio.limits import JointLimits
-from studio.physics import CollisionWorld
-from studio.plan import Keyframes, plan_show
-from studio.sampling import sample_poses
+from studio.motion.limits import JointLimits
+from studio.motion.plan import Keyframes, plan_show
+from studio.sim.hand import load_hand
+from studio.sim.physics import CollisionWorld
+from studio.sim.sampling import sample_poses
 
 
 def main(n_keyframes: int = 10, seed: int = 7) -> dict:

@@ -23,8 +23,8 @@ import numpy as np
 from hardware.bus import BusConfig, SerialServoBus
 from hardware.calibration import load_calibration
 from hardware.player import Player, _sleep_until
-from studio.hand import load_hand
-from studio.show import Show, load_show, save_show
+from studio.motion.show import Show, load_show, save_show
+from studio.sim.hand import load_hand
 
 
 def make_show(hand, seconds: float, cal) -> Show:
@@ -61,7 +61,7 @@ def main() -> None:
     cal = load_calibration(None, hand)
     ref = sleep_only_jitter_ms()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "studio.cli", "emulate"],
+        [sys.executable, "-m", "studio.cli.main", "emulate"],
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         text=True,

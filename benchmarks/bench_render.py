@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from studio.hand import load_hand
-from studio.sampling import sample_poses
-from studio.shadow import Rig, ShadowRenderer, iou
-from studio.shadow_reference import PyBulletShadowCamera
+from studio.sim.hand import load_hand
+from studio.sim.sampling import sample_poses
+from studio.sim.shadow import Rig, ShadowRenderer, iou
+from studio.sim.shadow_reference import PyBulletShadowCamera
 
 
 def pybullet_rate(cam: PyBulletShadowCamera, poses: np.ndarray) -> tuple[float, np.ndarray]:

@@ -28,7 +28,7 @@ def main() -> int:
     parser.add_argument("--out", default=str(ROOT / "runs" / "table1"), help="folder for the table files")
     parser.add_argument("extra", nargs="*", help="more `shadow-studio evaluate` options, after --")
     args = parser.parse_args()
-    cli = [sys.executable, "-m", "studio.cli"]
+    cli = [sys.executable, "-m", "studio.cli.main"]
     if not Path(args.data).is_dir():
         collect = [*cli, "collect", "--resolution", "128", "--n", "50000", "--out", args.data, "--quiet"]
         subprocess.run(collect, check=True, cwd=ROOT)

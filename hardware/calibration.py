@@ -23,15 +23,16 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from studio.assets import asset
 
 from hardware import constants as C
 from hardware.errors import CalibrationError
-from studio.hand import ASSETS, Hand
+from studio.sim.hand import Hand
 
 log = logging.getLogger(__name__)
 
 FORMAT_NAME = "shadow-studio-calibration"
-DEFAULT_CALIBRATION = ASSETS / "calibration.yaml"
+DEFAULT_CALIBRATION = asset("calibration.yaml")
 TOL = 1e-6  # rad slack when comparing against the URDF limits
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 from hardware import constants as C
 from hardware.bus import ServoBus
 from hardware.calibration import Calibration, JointCalibration, validate
-from studio.hand import Hand
+from studio.sim.hand import Hand
 
 STAGES = ("zero", "lower", "upper")
 PROMPTS = {

@@ -12,7 +12,7 @@ SHARED = Path(__file__).resolve().parents[2] / "shared"
 
 @pytest.fixture(scope="session")
 def hand():
-    from studio.hand import load_hand
+    from studio.sim.hand import load_hand
 
     return load_hand()
 

@@ -78,11 +78,11 @@ def test_gen_urdf_check():
 
 
 def test_shipped_pose_renders_like_library(tmp_path, hand):
-    from studio.shadow import Rig, ShadowRenderer
+    from studio.sim.shadow import Rig, ShadowRenderer
 
     run("render", "random", "--seed", "4", "--out", str(tmp_path / "r.png"), "--mask", "--resolution", "64")
     mask = (cv2.imread(str(tmp_path / "r.png"), cv2.IMREAD_GRAYSCALE) > 127).astype(np.uint8)
-    from studio.sampling import sample_poses
+    from studio.sim.sampling import sample_poses
 
     theta = sample_poses(hand, 1, np.random.default_rng(4))[0][0]
     assert np.array_equal(mask, ShadowRenderer(hand, Rig(resolution=64)).render_one(theta))

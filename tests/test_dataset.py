@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from studio.dataset import MANIFEST, CollectConfig, OnTheFlyBatches, ShardStream, collect
 from studio.errors import ShardError
-from studio.shadow import Rig, ShadowRenderer
-from studio.shards import list_shards, read_shard, shard_path, write_shard
+from studio.learn.dataset import MANIFEST, CollectConfig, OnTheFlyBatches, ShardStream, collect
+from studio.learn.shards import list_shards, read_shard, shard_path, write_shard
+from studio.sim.shadow import Rig, ShadowRenderer
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from studio.sampling import SamplerConfig, finger_joint_indices, sample_poses
+from studio.sim.sampling import SamplerConfig, finger_joint_indices, sample_poses
 
 
 def test_rest_pose_within_limits(hand):

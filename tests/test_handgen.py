@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-from studio.hand import DEFAULT_URDF, parse_urdf
-from studio.handgen import FINGER_JOINTS, FINGERS, HandSpec, generate_urdf
+from studio.sim.hand import DEFAULT_URDF, parse_urdf
+from studio.sim.handgen import FINGER_JOINTS, FINGERS, HandSpec, generate_urdf
 
 
 def test_shipped_urdf_is_generated():

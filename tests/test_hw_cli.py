@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hardware.calibration import load_calibration
-from studio.cli import main
+from studio.cli.main import main
 
 
 @pytest.fixture
@@ -63,7 +63,7 @@ def test_jog_and_calibrate_read_stdin(emulate, capsys, monkeypatch, tmp_path, ha
 
 
 def test_play_dry_run(hand, tmp_path, capsys):
-    from studio.show import Show, save_show
+    from studio.motion.show import Show, save_show
 
     t = np.arange(0, 0.5, 1 / 40)
     q = np.tile(hand.rest_pose(), (len(t), 1))

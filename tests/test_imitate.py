@@ -11,14 +11,15 @@ import numpy as np
 import pytest
 import torch
 
-from studio.imitate import DEFAULT_MODEL, Imitator
-from studio.losses import ImageLoss, LossConfig
-from studio.optimize import CPU_SEARCH, SearchConfig, gradient_search, initial_poses
-from studio.physics import CollisionWorld
-from studio.refine import RefineConfig, Refiner
-from studio.sampling import sample_poses
-from studio.selfmodel import SelfModel, SelfModelConfig, load_selfmodel
-from studio.shadow import Rig, ShadowRenderer, iou
+from studio.imitate.losses import ImageLoss, LossConfig
+from studio.imitate.refine import RefineConfig, Refiner
+from studio.imitate.search import CPU_SEARCH, SearchConfig, gradient_search, initial_poses
+from studio.imitate.still import DEFAULT_MODEL, Imitator
+from studio.imitate.targets import SAMPLE_DIR
+from studio.learn.selfmodel import SelfModel, SelfModelConfig, load_selfmodel
+from studio.sim.physics import CollisionWorld
+from studio.sim.sampling import sample_poses
+from studio.sim.shadow import Rig, ShadowRenderer, iou
 
 if not DEFAULT_MODEL.is_file():
     pytest.skip(f"shipped self-model missing: {DEFAULT_MODEL}", allow_module_level=True)
@@ -123,7 +124,7 @@ def test_refinement_never_worsens_a_free_start(hand):
 
 
 def test_review_recording_reads_back(imitator, hand, tmp_path):
-    from studio.review import log_imitation, read_recording, scalar_series
+    from studio.review.rerun import log_imitation, read_recording, scalar_series
 
     imitator_fast = Imitator(imitator.model, loss_cfg=imitator.loss_cfg,
                              search=replace(CPU_SEARCH, iterations=30), refine=RefineConfig(steps=100))  # fmt: skip
@@ -139,7 +140,9 @@ def test_review_recording_reads_back(imitator, hand, tmp_path):
     # refinement continues the timeline after the search; steps before a first collision-free pose have no value
     n = result.search.iterations
     finite = [(n + s, b) for s, b in result.refine.curve if np.isfinite(b)]
-    assert finite and scalar_series(rec, "/loss/refine/best") == pytest.approx(finite)
+    got = scalar_series(rec, "/loss/refine/best")
+    assert finite and [t for t, _ in got] == [t for t, _ in finite]
+    assert [b for _, b in got] == pytest.approx([b for _, b in finite])
     shells = [e for e in rec if e.endswith(("/shell/capsules", "/shell/boxes"))]
     assert len(shells) == 22 and all(rec[e]["static"] for e in shells)  # one shell per link, static
     assert "/world/hand/forearm/palm/index_knuckle/index_proximal" in rec
@@ -147,7 +150,7 @@ def test_review_recording_reads_back(imitator, hand, tmp_path):
 
 
 def test_imitate_cli_writes_everything(tmp_path):
-    target = DEFAULT_MODEL.parent.parent / "targets" / "asl_v.jpeg"
+    target = SAMPLE_DIR / "asl_v.jpeg"
     out = tmp_path / "out"
     proc = subprocess.run(
         [sys.executable, "-m", "studio.cli", "imitate", str(target), "--out", str(out), "--no-clip", "--quiet",
@@ -169,7 +172,7 @@ def test_imitate_cli_writes_everything(tmp_path):
     planned = subprocess.run([sys.executable, "-m", "studio.cli", "plan", str(out / "pose.json"), "--out", str(show)],
                              capture_output=True, text=True, timeout=300)  # fmt: skip
     assert planned.returncode == 0, planned.stderr
-    from studio.show import load_show
+    from studio.motion.show import load_show
 
     loaded = load_show(show)
     assert np.allclose(loaded.positions[-1], [pose["pose"][n] for n in loaded.joint_names], atol=1e-9)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from studio.cli import main
-from studio.dataset import CollectConfig, collect
-from studio.inverse import (
+from studio.cli.main import main
+from studio.learn.dataset import CollectConfig, collect
+from studio.learn.inverse import (
     InverseCheckpointError,
     InverseCNN,
     InverseConfig,
@@ -19,7 +19,7 @@ from studio.inverse import (
     save_inverse,
     train_inverse,
 )
-from studio.shadow import Rig, ShadowRenderer
+from studio.sim.shadow import Rig, ShadowRenderer
 
 TINY = InverseConfig(input_size=32, channels=(8, 16), hidden=32)
 TINY_TRAIN = dict(resolution=32, steps=60, batch_size=32, eval_every=30, eval_size=128, lr=3e-3, warmup=5, threads=1)

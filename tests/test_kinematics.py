@@ -8,9 +8,9 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from studio.kinematics import TorchFK, fk_numpy
-from studio.sampling import sample_poses
-from studio.shadow import ShadowRenderer
+from studio.sim.kinematics import TorchFK, fk_numpy
+from studio.sim.sampling import sample_poses
+from studio.sim.shadow import ShadowRenderer
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +73,7 @@ def test_torch_fk_cuda_matches_cpu(hand, poses):
 @given(seed=st.integers(0, 2**31 - 1))
 def test_fk_composition_law(hand, seed):
     """T_world_child = T_world_parent · T_parent_joint · Rot(axis, q) for every joint, and rotations stay rigid."""
-    from studio.kinematics import axis_angle_matrices
+    from studio.sim.kinematics import axis_angle_matrices
 
     theta = sample_poses(hand, 1, np.random.default_rng(seed))[0]
     T = fk_numpy(hand, theta)[0]

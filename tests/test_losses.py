@@ -1,4 +1,4 @@
-"""studio.crop, studio.clip_loss, studio.losses: values on hand-made masks, crop invariances, gradients, CLIP."""
+"""studio.imitate.crop, .clip_loss, .losses: values on hand-made masks, crop invariances, gradients, CLIP."""
 
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from studio.clip_loss import (
+from studio.errors import StudioError
+from studio.imitate.clip_loss import (
     TINY_CLIP_CFG,
     ClipWeightsError,
     add_clip_arguments,
@@ -23,10 +24,9 @@ from studio.clip_loss import (
     load_clip,
     tiny_clip,
 )
-from studio.crop import align, as_image_batch, pad_pixels, square_boxes
-from studio.errors import StudioError
-from studio.losses import COMPONENTS, ImageLoss, LossConfig, mae, soft_iou, temporal_loss
-from studio.targets import find_holes, load_target, shadow_box, square_frame
+from studio.imitate.crop import align, as_image_batch, pad_pixels, square_boxes
+from studio.imitate.losses import COMPONENTS, ImageLoss, LossConfig, mae, soft_iou, temporal_loss
+from studio.imitate.targets import find_holes, load_target, shadow_box, square_frame
 
 CFG = LossConfig(crop_size=64)  # small crops: CPU tests in milliseconds
 

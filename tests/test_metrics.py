@@ -11,13 +11,9 @@ import numpy as np
 import pytest
 import torch
 
-from studio.baselines import InverseBaseline, NearestNeighbour, NNConfig, RandomImage, TrainingSet
-from studio.cli import main
-from studio.clip_loss import tiny_clip
-from studio.dataset import CollectConfig, collect
-from studio.imitate import Imitator
-from studio.inverse import InverseCNN, InverseConfig, save_inverse
-from studio.metrics import (
+from studio.cli.main import main
+from studio.evaluate.baselines import InverseBaseline, NearestNeighbour, NNConfig, RandomImage, TrainingSet
+from studio.evaluate.table1 import (
     EXTRA_COLUMNS,
     LOSS_COLUMNS,
     METHODS,
@@ -27,10 +23,14 @@ from studio.metrics import (
     to_markdown,
     write_table,
 )
-from studio.optimize import SearchConfig
-from studio.refine import RefineConfig
-from studio.selfmodel import Checkpoint, SelfModel, SelfModelConfig, save_checkpoint
-from studio.targets import TargetError, find_holes
+from studio.imitate.clip_loss import tiny_clip
+from studio.imitate.refine import RefineConfig
+from studio.imitate.search import SearchConfig
+from studio.imitate.still import Imitator
+from studio.imitate.targets import TargetError, find_holes
+from studio.learn.dataset import CollectConfig, collect
+from studio.learn.inverse import InverseCNN, InverseConfig, save_inverse
+from studio.learn.selfmodel import Checkpoint, SelfModel, SelfModelConfig, save_checkpoint
 
 RES = 32
 TINY_MODEL = SelfModelConfig(resolution=RES, hidden=64, channels=16, min_channels=8, res_blocks=1)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from studio.physics import CollisionConfig, CollisionWorld
-from studio.sampling import sample_poses
+from studio.sim.physics import CollisionConfig, CollisionWorld
+from studio.sim.sampling import sample_poses
 
 
 @pytest.fixture(scope="module")

@@ -10,15 +10,15 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from studio.cli import main
-from studio.hand import load_hand
-from studio.limits import JointLimits
-from studio.path import PathConfig, build_path, spline_path
-from studio.physics import CollisionWorld
-from studio.plan import Keyframes, PlanConfig, parse_keyframes, plan_show
-from studio.plan_errors import KeyframeCollisionError, PlanError, SegmentTooFastError
-from studio.show import load_show
-from studio.timing import TimingConfig
+from studio.cli.main import main
+from studio.motion.errors import KeyframeCollisionError, PlanError, SegmentTooFastError
+from studio.motion.limits import JointLimits
+from studio.motion.path import PathConfig, build_path, spline_path
+from studio.motion.plan import Keyframes, PlanConfig, parse_keyframes, plan_show
+from studio.motion.show import load_show
+from studio.motion.timing import TimingConfig
+from studio.sim.hand import load_hand
+from studio.sim.physics import CollisionWorld
 
 HAND = load_hand()
 J = HAND.joint_names.index

@@ -7,14 +7,14 @@ import pytest
 import torch
 
 from studio.errors import StudioError
-from studio.selfmodel import (
+from studio.learn.selfmodel import (
     CheckpointError,
     SelfModel,
     SelfModelConfig,
     load_selfmodel,
     read_checkpoint,
 )
-from studio.train import TrainConfig, lr_at, train
+from studio.learn.train import TrainConfig, lr_at, train
 
 TINY = dict(resolution=32, hidden=64, channels=16, min_channels=8, res_blocks=1)
 
@@ -75,7 +75,7 @@ def test_tiny_model_trains_resumes_and_reloads(tmp_path, hand):
 def test_loss_falls_in_seconds(hand):
     torch.manual_seed(0)
     model = SelfModel(SelfModelConfig(**TINY), hand)
-    from studio.dataset import OnTheFlyBatches
+    from studio.learn.dataset import OnTheFlyBatches
 
     opt = torch.optim.Adam(model.parameters(), 3e-3)
     losses = []
@@ -101,7 +101,7 @@ def test_checkpoint_errors(tmp_path, hand):
 
 
 def test_checkpoint_for_another_hand_refused(tmp_path, hand):
-    from studio.selfmodel import Checkpoint, save_checkpoint
+    from studio.learn.selfmodel import Checkpoint, save_checkpoint
 
     model = SelfModel(SelfModelConfig(**TINY), hand)
     save_checkpoint(tmp_path / "m.pt", model, Checkpoint(model.cfg, "ffffffffffffffff", {}))

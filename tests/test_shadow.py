@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from studio.sampling import sample_poses
-from studio.shadow import Rig, ShadowRenderer, iou
-from studio.shadow_reference import PyBulletShadowCamera
+from studio.sim.sampling import sample_poses
+from studio.sim.shadow import Rig, ShadowRenderer, iou
+from studio.sim.shadow_reference import PyBulletShadowCamera
 
 
 @pytest.fixture(scope="module")

@@ -11,8 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from studio.errors import StudioError
-from studio.hand import load_hand
-from studio.show import KeyframeMarker, MediaRef, Show, ShowError, export_csv, load_show, save_show, show_schema
+from studio.motion.show import KeyframeMarker, MediaRef, Show, ShowError, export_csv, load_show, save_show, show_schema
+from studio.sim.hand import load_hand
 
 HAND = load_hand()
 

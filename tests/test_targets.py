@@ -1,4 +1,4 @@
-"""studio.targets: real targets load cleanly, real openings survive hole filling, bad files raise TargetError."""
+"""studio.imitate.targets: real targets load cleanly, openings survive hole filling, bad files raise TargetError."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from PIL import Image
 
 from studio.errors import StudioError
-from studio.targets import (
+from studio.imitate.targets import (
     DEFAULT_TARGET,
     SAMPLE_DIR,
     TargetConfig,

@@ -1,0 +1,113 @@
+"""Verbs ``plan``, ``validate``, ``show-info`` and ``export-csv``: the face of ``studio.motion``."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from studio.motion.limits import LimitsConfig
+from studio.motion.plan import PlanConfig, load_keyframes, plan_show
+from studio.motion.show import export_csv, load_show, save_show
+from studio.sim.hand import load_hand
+
+
+def _plan(args: argparse.Namespace) -> int:
+    hand = load_hand(args.urdf)
+    kf = load_keyframes(args.poses, hand)
+    base = PlanConfig()
+    limits = dataclasses.replace(
+        base.limits,
+        velocity_scale=args.velocity_scale if args.velocity_scale is not None else base.limits.velocity_scale,
+        acceleration=args.acceleration if args.acceleration is not None else base.limits.acceleration,
+        jerk=args.jerk if args.jerk is not None else base.limits.jerk,
+    )
+    cfg = dataclasses.replace(
+        base,
+        limits=limits,
+        path=dataclasses.replace(base.path, seed=args.seed),
+        timing=dataclasses.replace(base.timing, allow_late=args.allow_late),
+    )
+    result = plan_show(hand, kf, cfg, title=args.title)
+    out = save_show(result.show, args.out, hand)
+    for seg in result.trajectory.late:
+        print(f"warning: {seg.describe()}; stretched, later keyframes are late by the difference")
+    s = result.show
+    print(
+        f"planned {len(s.keyframes)} keyframes{' (+ home at t = 0)' if result.home_added else ''}: "
+        f"{s.duration:.3f} s, {len(s.times)} samples at {s.rate_hz:g} Hz, "
+        f"{int(result.path.repaired.sum())} path points repaired, {int(result.path.refined.sum())} fingertip-refined, "
+        f"{result.collision_checks} collision checks, max jerk {result.max_jerk_ratio:.0%} of its limit"
+    )
+    print(f"wrote {out}")
+    if args.csv:
+        print(f"wrote {export_csv(result.show, args.csv)}")
+    return 0
+
+
+def _validate(args: argparse.Namespace) -> int:
+    show = load_show(args.show, load_hand(args.urdf))
+    print(f"{args.show}: valid show, version {show.format_version}, {len(show.times)} samples, {show.duration:.3f} s")
+    return 0
+
+
+def _info(args: argparse.Namespace) -> int:
+    show = load_show(args.show, load_hand(args.urdf))
+    media = f"{show.media.kind} {show.media.path} (offset {show.media.offset_s:+.3f} s)" if show.media else "-"
+    speed = np.abs(np.diff(show.positions, axis=0)) / np.diff(show.times)[:, None] if len(show.times) > 1 else None
+    lines = [
+        f"title:        {show.title}",
+        f"format:       version {show.format_version}, created {show.created}",
+        f"hand:         {show.hand_hash} ({len(show.joint_names)} joints)",
+        f"calibration:  {show.calibration or '-'}",
+        f"duration:     {show.duration:.3f} s, {len(show.times)} samples at {show.rate_hz:g} Hz",
+        f"keyframes:    {len(show.keyframes)} at "
+        + ", ".join(f"{k.t:.3f}{' (hold)' if k.hold else ''}" for k in show.keyframes),
+        f"media:        {media}",
+    ]
+    if speed is not None:
+        j = int(np.argmax((speed / show.limits.velocity).max(axis=0)))
+        ratio = speed[:, j].max() / show.limits.velocity[j]
+        lines.append(f"peak speed:   {show.joint_names[j]} at {ratio:.0%} of its velocity limit")
+    late = show.provenance.get("late_segments") or []
+    lines.append(f"late:         {len(late)} segment(s) stretched" if late else "late:         none")
+    print("\n".join(lines))
+    return 0
+
+
+def _csv(args: argparse.Namespace) -> int:
+    show = load_show(args.show, load_hand(args.urdf))
+    print(f"wrote {export_csv(show, args.out, degrees=args.degrees)}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the motion verbs to ``shadow-studio``."""
+    d = LimitsConfig()
+    p = sub.add_parser("plan", help="plan a collision-free, jerk-limited show through keyframes (POSES.json)")
+    p.add_argument("poses", type=Path, help='keyframes: {"keyframes": [{"t": s, "pose": {joint: rad}}, ...]}')
+    p.add_argument("--out", type=Path, required=True, help="show file to write (JSON)")
+    p.add_argument("--title", default=None, help="show title (default: the keyframes file's, else 'untitled')")
+    p.add_argument("--csv", type=Path, default=None, help="also export the samples as CSV")
+    p.add_argument("--allow-late", action="store_true", help="stretch too-fast segments instead of failing")
+    p.add_argument("--velocity-scale", type=float, default=None, help=f"fraction of URDF speed ({d.velocity_scale})")
+    p.add_argument("--acceleration", type=float, default=None, help=f"rad/s² limit ({d.acceleration})")
+    p.add_argument("--jerk", type=float, default=None, help=f"rad/s³ limit ({d.jerk})")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the repair passes")
+    p.add_argument("--urdf", type=Path, default=None, help="hand URDF (default: the shipped hand)")
+    p.set_defaults(func=_plan)
+
+    for name, fn, text in (("validate", _validate, "check a show file"), ("show-info", _info, "describe a show")):
+        p = sub.add_parser(name, help=text)
+        p.add_argument("show", type=Path, help="show file (JSON)")
+        p.add_argument("--urdf", type=Path, default=None, help="hand URDF (default: the shipped hand)")
+        p.set_defaults(func=fn)
+
+    p = sub.add_parser("export-csv", help="export a show's samples as CSV (t, one column per joint)")
+    p.add_argument("show", type=Path, help="show file (JSON)")
+    p.add_argument("--out", type=Path, required=True, help="CSV file to write")
+    p.add_argument("--degrees", action="store_true", help="angles in degrees instead of radians")
+    p.add_argument("--urdf", type=Path, default=None, help="hand URDF (default: the shipped hand)")
+    p.set_defaults(func=_csv)

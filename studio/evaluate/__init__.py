@@ -1,0 +1,1 @@
+"""The paper's evaluations: baselines (random, inverse CNN, nearest neighbour) and Table 1."""

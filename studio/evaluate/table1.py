@@ -1,0 +1,247 @@
+"""The paper's Table 1 (DESIGN §4): every method on a list of still targets, measured the same way.
+
+Each method gives a pose and its shadow: Random and Nearest Neighbour a training image (a rendered shadow of a
+training pose), the inverse CNN and ours the exact renderer's shadow of their pose (ours before and after
+refinement). One :class:`~studio.imitate.losses.ImageLoss` per target scores every method's shadow. The
+expressive region of a still target is its holes (:func:`studio.imitate.targets.find_holes`): for a target without holes
+the expressive terms are NaN, and the Exp. columns are means over the targets that have holes. Rows are plain JSON-able dicts
+(NaN → None); :func:`write_table` writes them as Markdown and CSV.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from studio.evaluate.baselines import (
+    BaselineOutput,
+    InverseBaseline,
+    NearestNeighbour,
+    NNConfig,
+    RandomImage,
+    TrainingSet,
+)
+from studio.imitate.still import Imitator
+from studio.imitate.targets import IMAGE_SUFFIXES, TargetError, find_holes, find_target_files
+from studio.learn.inverse import InverseCNN
+
+METHODS = ("Random", "Inverse CNN", "Nearest Neighbour", "Ours w/o refinement", "Ours")
+LOSS_COLUMNS = {  # Table 1 header → loss component (studio.imitate.losses.COMPONENTS)
+    "Total": "total", "Base": "base", "CLIP": "clip", "MAE": "mae", "IoU loss": "iou_loss",
+    "Exp. IoU": "exp_iou", "Exp. CLIP": "exp_clip",
+}  # fmt: skip
+EXTRA_COLUMNS = {"In collision (%)": "collide_pct", "Seconds / target": "seconds"}
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """How ``evaluate`` runs the baselines (ours is configured by the :class:`~studio.imitate.still.Imitator`)."""
+
+    seed: int = 0  # seed of the Random baseline's draws
+    nn: NNConfig = field(default_factory=NNConfig)  # Nearest Neighbour search settings
+
+
+@dataclass
+class EvalResult:
+    """Table 1 and what it was computed from (plain data)."""
+
+    rows: list[dict]  # one per method (METHODS order): method, the loss keys, collide_pct, seconds, counts
+    records: list[dict]  # one per (target, method): target, method, loss components, collides, seconds
+    notes: list[str]  # how the table was measured (printed under it)
+    settings: dict = field(default_factory=dict)  # model, losses, search and refinement settings
+
+
+def gather_targets(paths: Sequence[str | Path], per_folder: int | None = None) -> list[Path]:
+    """Target files from files and folders: a folder gives its images and those of each sub-folder (first
+    ``per_folder`` of each, by name). Raises :class:`TargetError` for a missing path or when nothing is found."""
+    if per_folder is not None and per_folder < 1:
+        raise ValueError("--per-folder must be at least 1")
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_file():
+            out.append(p)
+            continue
+        if not p.is_dir():
+            raise TargetError(f"target file or folder not found: {p}")
+        folders = [p, *sorted(d for d in p.iterdir() if d.is_dir())]
+        found = [f for d in folders for f in find_target_files(d)[:per_folder]]
+        if not found:
+            raise TargetError(f"no target images ({', '.join(IMAGE_SUFFIXES)}) in {p} or its sub-folders")
+        out += found
+    return out
+
+
+@torch.no_grad()
+def score(loss_fn, shadow: np.ndarray) -> dict[str, float]:
+    """Loss components of one shadow ``(H, W)`` under a target's :class:`ImageLoss` (NaN = not computed)."""
+    _, comps = loss_fn(torch.from_numpy(np.asarray(shadow, dtype=np.float32)[None]))
+    return {k: float(v[0]) for k, v in comps.items()}
+
+
+def _nan_to_none(x: float) -> float | None:
+    return None if x is None or (isinstance(x, float) and math.isnan(x)) else x
+
+
+def summarise(records: list[dict]) -> list[dict]:
+    """Per-method means over targets (NaN-aware: each loss over the targets where it was computed)."""
+    rows = []
+    for method in METHODS:
+        recs = [r for r in records if r["method"] == method]
+        if not recs:
+            continue
+        row: dict = {"method": method, "targets": len(recs)}
+        for key in LOSS_COLUMNS.values():
+            vals = np.array([r[key] for r in recs], dtype=float)
+            vals = vals[~np.isnan(vals)]
+            row[key] = float(vals.mean()) if len(vals) else None
+        row["expressive_targets"] = int(sum(not math.isnan(r["exp_iou"]) for r in recs))
+        row["collide_pct"] = 100.0 * float(np.mean([r["collides"] for r in recs]))
+        row["seconds"] = float(np.mean([r["seconds"] for r in recs]))
+        rows.append(row)
+    return rows
+
+
+class Evaluator:
+    """Runs every method of Table 1 on targets; holds the imitator and the baselines between targets."""
+
+    def __init__(
+        self,
+        imitator: Imitator,
+        inverse: InverseCNN | Path,
+        training: TrainingSet | Path,
+        cfg: EvalConfig | None = None,
+    ):
+        from studio.learn.inverse import load_inverse
+
+        self.cfg = cfg or EvalConfig()
+        self.imitator = imitator
+        inv = inverse if isinstance(inverse, InverseCNN) else load_inverse(Path(inverse), imitator.hand)[0]
+        data = training if isinstance(training, TrainingSet) else TrainingSet.load(Path(training), imitator.hand)
+        self.random = RandomImage(data, self.cfg.seed)
+        self.inverse = InverseBaseline(inv, imitator.renderer, imitator.refiner.world)
+        t0 = time.perf_counter()
+        self.nn = NearestNeighbour(data, imitator.loss_cfg, self.cfg.nn)
+        self.nn_setup_seconds = time.perf_counter() - t0  # aligning the training images, once per run
+        self.training_size = len(data)
+
+    def evaluate_target(self, name: str, target: np.ndarray, cancel: threading.Event | None = None) -> list[dict]:
+        """One record per method for one ``(R, R)`` target mask."""
+        holes = find_holes(target)
+        expressive = holes if holes.any() else None
+        loss_fn = self.imitator.loss_fn(target, expressive)
+        ours = self.imitator.imitate(target, expressive, refine=True, cancel=cancel)
+        unrefined = BaselineOutput(ours.search.theta, ours.unrefined_shadow, ours.unrefined_collides,
+                                   ours.timings["search"])  # fmt: skip
+        final = BaselineOutput(ours.theta, ours.shadow, not ours.collision_free, ours.seconds)
+        outputs = {
+            "Random": self.random.query(),
+            "Inverse CNN": self.inverse.query(target),
+            "Nearest Neighbour": self.nn.query(target, loss_fn),
+            "Ours w/o refinement": unrefined,
+            "Ours": final,
+        }
+        records = []
+        for method, out in outputs.items():
+            rec = {"target": name, "method": method, **score(loss_fn, out.shadow)}
+            rec |= {"collides": out.collides, "seconds": out.seconds, "theta": [float(x) for x in out.theta]}
+            records.append(rec)
+        return records
+
+    def run(
+        self,
+        targets: Sequence[tuple[str, np.ndarray]],
+        progress: Callable[[int, int, str], None] | None = None,
+        cancel: threading.Event | None = None,
+    ) -> EvalResult:
+        """Evaluate ``(name, (R, R) mask)`` targets; ``progress(done, total, name)`` after each target."""
+        records: list[dict] = []
+        for i, (name, target) in enumerate(targets):
+            if cancel is not None and cancel.is_set():
+                break
+            records += self.evaluate_target(name, target, cancel)
+            if progress:
+                progress(i + 1, len(targets), name)
+        rows = summarise(records)
+        return EvalResult(rows, records, self.notes(rows), self.settings())
+
+    def settings(self) -> dict:
+        im = self.imitator
+        return {
+            "resolution": im.resolution, "losses": im.loss_cfg.to_dict(), "clip": getattr(im.clip, "name", None),
+            "search": asdict(im.search_cfg), "refine": asdict(im.refine_cfg), "refined_candidates": im.candidates,
+            "training_images": self.training_size,
+            "nn": asdict(self.cfg.nn), "nn_setup_seconds": round(self.nn_setup_seconds, 2),
+        }  # fmt: skip
+
+    def notes(self, rows: list[dict]) -> list[str]:
+        im, n = self.imitator, rows[0]["targets"] if rows else 0
+        k = rows[0]["expressive_targets"] if rows else 0
+        lc, s, r = im.loss_cfg, im.search_cfg, im.refine_cfg
+        notes = [
+            f"{n} targets at {im.resolution}²; every method's shadow (Random, Nearest Neighbour: the training image "
+            f"itself; the others: the rendered shadow of their pose) scored by the same image loss on "
+            f"{lc.crop_size}² aligned crops. Lower is better.",
+            f"Exp. IoU / Exp. CLIP: the expressive region of a still target is its holes; means over the {k} of {n} "
+            f"targets that have holes (n/a: none has). Total = Base + expressive term for those targets, Base alone "
+            f"for the others.",
+            "In collision: share of each method's poses whose skeleton penetrates itself (Ours w/o refinement: the "
+            "searched poses before refinement). Seconds: wall time per target on this machine.",
+            f"Random and Nearest Neighbour draw from {self.training_size} training images (aligning them once per "
+            f"run took {self.nn_setup_seconds:.1f} s, not in the per-target seconds); ours: gradient search batch "
+            f"{s.batch} × {s.iterations} iterations, refinement {r.restarts} restarts × {r.steps} steps from each "
+            f"of the {im.candidates} best distinct search results.",
+        ]
+        if not lc.use_clip:
+            notes.append("CLIP off (--no-clip): CLIP and Exp. CLIP not computed (n/a); Base = 0.06·MAE + 0.4·IoU loss.")
+        return notes
+
+
+def _fmt(x: float | None, key: str) -> str:
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return "n/a"
+    return f"{x:.1f}" if key in ("collide_pct", "seconds") else f"{x:.3f}"
+
+
+def to_markdown(rows: list[dict], notes: Sequence[str] = ()) -> str:
+    """Table 1 as a Markdown table (best Total in bold) followed by its notes."""
+    cols = {**LOSS_COLUMNS, **EXTRA_COLUMNS}
+    totals = [r["total"] for r in rows if r.get("total") is not None]
+    best = min(totals) if totals else None
+    lines = ["| Method | " + " | ".join(cols) + " |", "|---|" + "---:|" * len(cols)]
+    for r in rows:
+        cells = [_fmt(r.get(key), key) for key in cols.values()]
+        if best is not None and r.get("total") == best:
+            cells[0] = f"**{cells[0]}**"
+        lines.append(f"| {r['method']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines + [""] + [f"- {n}" for n in notes]) + "\n"
+
+
+def write_table(result: EvalResult, out: Path) -> dict[str, str]:
+    """Write ``table1.md``, ``table1.csv`` (one row per method), ``per_target.csv`` and ``settings.json`` (model,
+    losses with ``use_clip``, search, refinement, Nearest Neighbour); returns their paths."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {"markdown": out / "table1.md", "csv": out / "table1.csv", "per_target": out / "per_target.csv",
+             "settings": out / "settings.json"}  # fmt: skip
+    paths["markdown"].write_text(to_markdown(result.rows, result.notes))
+    paths["settings"].write_text(json.dumps(result.settings, indent=2, default=str))
+    keys = ["method", *LOSS_COLUMNS.values(), "collide_pct", "seconds", "targets", "expressive_targets"]
+    with open(paths["csv"], "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
+        w.writeheader()
+        w.writerows({k: "" if r.get(k) is None else r[k] for k in keys} for r in result.rows)
+    rec_keys = ["target", "method", *LOSS_COLUMNS.values(), "collides", "seconds"]
+    with open(paths["per_target"], "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=rec_keys, extrasaction="ignore")
+        w.writeheader()
+        w.writerows({k: "" if _nan_to_none(r[k]) is None else r[k] for k in rec_keys} for r in result.records)
+    return {k: str(v) for k, v in paths.items()}

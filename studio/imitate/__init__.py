@@ -1,0 +1,1 @@
+"""From a target to poses: targets, crops, losses, gradient search, refinement, one still end to end."""

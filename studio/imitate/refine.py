@@ -1,0 +1,139 @@
+"""Collision-aware refinement: hill climbing on the *rendered* shadow (DESIGN §4 "Refinement").
+
+Chains start from the best pose (chain 0 exactly there, the others at N(0, 0.25 rad) around it, clipped to the
+limits) and take ``steps`` proposals each: ``θ' = clip(θ + N(0, σ))`` with σ from 0.08 rad shrinking ×0.995 per
+step to a floor of 0.01 rad. A proposal is accepted only if it is collision-free and lowers the image loss of the
+shadow the exact renderer casts. The paper's 8 restarts run here as 8 parallel chains, so each step renders,
+scores and collision-checks one batch. The answer is the best collision-free pose any chain visited.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from studio.imitate.losses import ImageLoss
+from studio.sim.physics import CollisionWorld
+from studio.sim.shadow import ShadowRenderer
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    """Hill-climbing schedule (paper defaults)."""
+
+    restarts: int = 8  # chains (the paper's restarts), run in parallel
+    steps: int = 1000  # proposals per chain
+    restart_noise: float = 0.25  # std, rad, of the chains' start around the best pose (chain 0 starts on it)
+    sigma0: float = 0.08  # initial proposal std, rad
+    decay: float = 0.995  # σ multiplier per step
+    sigma_min: float = 0.01  # σ floor, rad
+    seed: int = 0  # proposal noise seed
+    log_every: int = 10  # record the best loss every this many steps
+
+
+@dataclass
+class RefineResult:
+    """What refinement returns (plain data)."""
+
+    theta: np.ndarray  # (21,) rad: best collision-free pose found (the start pose if none was)
+    loss: float  # its rendered-shadow loss (inf if no collision-free pose was found)
+    components: dict[str, float]  # its loss components
+    collision_free: bool  # False: no collision-free pose was found; ``theta`` is then the (colliding) start
+    start_loss: float  # rendered-shadow loss of the start pose
+    start_collides: bool  # the start pose penetrates itself
+    curve: list[tuple[int, float]] = field(default_factory=list)  # (step, best collision-free loss)
+    evaluations: int = 0  # shadows rendered and scored
+    cancelled: bool = False
+
+    @property
+    def message(self) -> str:
+        if self.collision_free:
+            return f"collision-free pose found, loss {self.start_loss:.4f} → {self.loss:.4f}"
+        return "no collision-free pose was found near the start pose; try more restarts or a larger restart noise"
+
+
+class Refiner:
+    """Holds the renderer and the collision world so repeated refinements reuse them."""
+
+    def __init__(self, renderer: ShadowRenderer, world: CollisionWorld | None = None):
+        self.renderer = renderer
+        self.hand = renderer.hand
+        self.world = world or CollisionWorld(self.hand)
+
+    @torch.no_grad()
+    def score(self, loss_fn: ImageLoss, theta: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Rendered-shadow losses of poses ``(B, 21)`` → totals ``(B,)`` and components."""
+        shadows = torch.from_numpy(self.renderer.render(theta, check=False)).float()
+        total, comps = loss_fn(shadows)
+        return total.double().numpy(), {k: v.double().numpy() for k, v in comps.items()}
+
+    def refine(
+        self,
+        loss_fn: ImageLoss,
+        theta_start: np.ndarray,
+        cfg: RefineConfig | None = None,
+        progress: Callable[[int, int, float], None] | None = None,
+        cancel: threading.Event | None = None,
+    ) -> RefineResult:
+        cfg = cfg or RefineConfig()
+        lo, hi = self.hand.lower, self.hand.upper
+        start = self.hand.check_theta(theta_start)[0]
+        rng = np.random.default_rng(cfg.seed)
+        start_loss = float(self.score(loss_fn, start[None])[0][0])
+        start_collides = bool(self.world.in_collision(start, check=False)[0])
+
+        cur = np.clip(start + rng.normal(0, cfg.restart_noise, (cfg.restarts, self.hand.dof)), lo, hi)
+        cur[0] = start
+        cur_loss, _ = self.score(loss_fn, cur)
+        # A colliding chain has loss +inf: it accepts any collision-free proposal, and meanwhile any proposal that
+        # lowers its collision score S_col (so a chain that starts deep in collision can climb out of it).
+        cur_col = self.world.collision_score(cur, check=False)
+        cur_loss[self.world.in_collision(cur, check=False)] = np.inf
+        best_i = int(np.argmin(cur_loss))
+        best_theta, best_loss = cur[best_i].copy(), float(cur_loss[best_i])
+        curve, evaluations, sigma, cancelled = [], cfg.restarts + 1, cfg.sigma0, False
+        for step in range(1, cfg.steps + 1):
+            if cancel is not None and cancel.is_set():
+                cancelled = True
+                break
+            prop = np.clip(cur + rng.normal(0, sigma, cur.shape), lo, hi)
+            loss, _ = self.score(loss_fn, prop)
+            evaluations += len(prop)
+            better = loss < cur_loss
+            accepted = np.zeros(len(prop), dtype=bool)
+            if better.any():
+                free = ~self.world.in_collision(prop[better], check=False)
+                accept = np.flatnonzero(better)[free]
+                cur[accept], cur_loss[accept] = prop[accept], loss[accept]
+                accepted[accept] = True
+                i = int(np.argmin(cur_loss))
+                if cur_loss[i] < best_loss:
+                    best_theta, best_loss = cur[i].copy(), float(cur_loss[i])
+            stuck = np.flatnonzero(~np.isfinite(cur_loss) & ~accepted)  # chains still in collision
+            if len(stuck):
+                col = self.world.collision_score(prop[stuck], check=False)
+                lower = col < cur_col[stuck]
+                cur[stuck[lower]], cur_col[stuck[lower]] = prop[stuck[lower]], col[lower]
+            sigma = max(cfg.sigma_min, sigma * cfg.decay)
+            if step % cfg.log_every == 0 or step == cfg.steps:
+                curve.append((step, best_loss))
+                if progress:
+                    progress(step, cfg.steps, best_loss)
+        found = bool(np.isfinite(best_loss))
+        theta = best_theta if found else start
+        _, comps = self.score(loss_fn, theta[None])
+        return RefineResult(
+            theta=theta,
+            loss=best_loss if found else float("inf"),
+            components={k: float(v[0]) for k, v in comps.items()},
+            collision_free=found,
+            start_loss=start_loss,
+            start_collides=start_collides,
+            curve=curve,
+            evaluations=evaluations,
+            cancelled=cancelled,
+        )

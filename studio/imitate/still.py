@@ -1,0 +1,144 @@
+"""One still target end to end (engine side, pure compute): search the self-model, refine on the renderer.
+
+``Imitator`` holds the self-model, the renderer, the collision world and (optionally) CLIP, so many targets
+(``evaluate``) reuse them. It returns plain data; the CLI and the studio write files and review logs.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from studio.assets import asset
+from studio.imitate.losses import ImageLoss, LossConfig
+from studio.imitate.refine import RefineConfig, Refiner, RefineResult
+from studio.imitate.search import CPU_SEARCH, SearchConfig, SearchResult, gradient_search
+from studio.imitate.targets import load_target
+from studio.learn.selfmodel import SelfModel, load_selfmodel
+from studio.sim.shadow import Rig, ShadowRenderer
+
+DEFAULT_MODEL = asset("models/selfmodel_cpu128.pt", must_exist=False)  # the shipped 128² CPU self-model
+
+
+@dataclass
+class ImitationResult:
+    """Everything one imitation produced (plain data)."""
+
+    target: np.ndarray  # (R, R) uint8 target mask in the model's frame, 1 = shadow
+    search: SearchResult  # gradient search through the self-model
+    predicted: np.ndarray  # (R, R) float self-model image of the searched pose
+    unrefined_shadow: np.ndarray  # (R, R) uint8 rendered shadow of the searched pose
+    unrefined_loss: dict[str, float]  # rendered-shadow loss components of the searched pose
+    unrefined_collides: bool  # the searched pose penetrates itself
+    refine: RefineResult | None  # hill climbing (None when skipped)
+    theta: np.ndarray  # (21,) rad final pose (refined when refinement ran and found a free pose)
+    shadow: np.ndarray  # (R, R) uint8 rendered shadow of the final pose
+    loss: dict[str, float]  # rendered-shadow loss components of the final pose
+    collision_free: bool  # the final pose does not penetrate itself
+    seconds: float  # wall time of search + refinement
+    timings: dict[str, float] = field(default_factory=dict)  # seconds per stage
+
+
+def distinct_best(batch_theta: np.ndarray, batch_loss: np.ndarray, k: int, min_dist: float = 0.3) -> list:
+    """Up to ``k`` of the best poses ``(B, 21)`` by loss, each at least ``min_dist`` rad (max over joints) from
+    those already taken, best first (the batch often converges to a few basins: refine different ones)."""
+    taken: list[np.ndarray] = []
+    for i in np.argsort(batch_loss):
+        if not np.isfinite(batch_loss[i]):
+            continue
+        if all(np.abs(batch_theta[i] - t).max() >= min_dist for t in taken):
+            taken.append(batch_theta[i])
+        if len(taken) == k:
+            break
+    return taken
+
+
+class Imitator:
+    """Reusable machinery for imitating still targets."""
+
+    def __init__(
+        self,
+        model: SelfModel | None = None,
+        model_path: Path | None = None,
+        loss_cfg: LossConfig | None = None,
+        clip=None,
+        search: SearchConfig | None = None,
+        refine: RefineConfig | None = None,
+        device: str | None = None,
+        candidates: int = 4,
+    ):
+        if model is None:
+            model, _ = load_selfmodel(Path(model_path or DEFAULT_MODEL), device=device)
+        self.model = model
+        self.hand = model.hand
+        self.resolution = model.cfg.resolution
+        self.loss_cfg = loss_cfg or LossConfig(use_clip=clip is not None, crop_size=self.resolution)
+        self.clip = clip
+        self.search_cfg = search or CPU_SEARCH
+        self.refine_cfg = refine or RefineConfig()
+        self.renderer = ShadowRenderer(self.hand, Rig(resolution=self.resolution))
+        self.refiner = Refiner(self.renderer)
+        self.candidates = candidates  # distinct best search results refined (each with the full schedule)
+
+    def load(self, path: Path) -> np.ndarray:
+        """A target file → ``(R, R)`` uint8 mask framed like the model's images (TargetError when unusable)."""
+        return load_target(path, size=self.resolution)
+
+    def loss_fn(self, target: np.ndarray, expressive: np.ndarray | None = None) -> ImageLoss:
+        return ImageLoss(target, self.loss_cfg, self.clip, expressive)
+
+    def imitate(
+        self,
+        target: np.ndarray,
+        expressive: np.ndarray | None = None,
+        refine: bool = True,
+        progress: Callable[[str, int, int, float], None] | None = None,
+        cancel: threading.Event | None = None,
+    ) -> ImitationResult:
+        """Search then (optionally) refine. ``progress(stage, step, total, best_loss)``."""
+        t0 = time.perf_counter()
+        loss_fn = self.loss_fn(target, expressive)
+        stage = (lambda name: lambda s, n, b: progress(name, s, n, b)) if progress else (lambda name: None)
+        search = gradient_search(self.model, loss_fn, self.search_cfg, progress=stage("search"), cancel=cancel)
+        t1 = time.perf_counter()
+        with torch.no_grad():
+            device = next(self.model.parameters()).device
+            predicted = self.model(torch.tensor(search.theta[None], dtype=torch.float32, device=device))
+        shadow0 = self.renderer.render_one(search.theta)
+        _, comps0 = self.refiner.score(loss_fn, search.theta[None])
+        collides0 = bool(self.refiner.world.in_collision(search.theta)[0])
+        result = None
+        theta, shadow, comps = search.theta, shadow0, {k: float(v[0]) for k, v in comps0.items()}
+        if refine:
+            for start in distinct_best(search.batch_theta, search.batch_loss, self.candidates):
+                if cancel is not None and cancel.is_set():
+                    break
+                r = self.refiner.refine(loss_fn, start, self.refine_cfg, stage("refine"), cancel)
+                if result is None or r.loss < result.loss:
+                    result = r
+            if result.collision_free:
+                theta, comps = result.theta, result.components
+                shadow = self.renderer.render_one(theta)
+        t2 = time.perf_counter()
+        collision_free = not bool(self.refiner.world.in_collision(theta)[0])
+        return ImitationResult(
+            target=np.asarray(target, dtype=np.uint8),
+            search=search,
+            predicted=predicted[0, 0].cpu().numpy(),
+            unrefined_shadow=shadow0,
+            unrefined_loss={k: float(v[0]) for k, v in comps0.items()},
+            unrefined_collides=collides0,
+            refine=result,
+            theta=theta,
+            shadow=shadow,
+            loss=comps,
+            collision_free=collision_free,
+            seconds=t2 - t0,
+            timings={"search": t1 - t0, "refine": t2 - t1},
+        )

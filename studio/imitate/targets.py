@@ -1,0 +1,238 @@
+"""Still targets: an image file → a binary shadow mask ``(H, W)`` uint8, 1 = shadow (DESIGN §1).
+
+The steps, each a config field with a default that loads every target in ``shared/targets`` cleanly:
+
+1. Read the file (PNG, JPEG, GIF (first frame), BMP, TIFF, …; grey, 16-bit, colour or with an alpha channel) as
+   a grey image. A non-constant alpha channel is the shape (opaque = shadow); otherwise the luminance is
+   (16-bit and float images are stretched from their minimum to their maximum).
+2. Polarity: the border pixels are mostly backdrop, so a dark border (median < 128) means a bright shape on black
+   (ASL cut-outs, MPEG-7, DAVIS masks) and a bright border a dark shape on white. The image is turned into
+   *shadowness* (0-255, high = shadow) accordingly.
+3. Threshold the shadowness: a fixed level (default 25, right for the ASL cut-outs: dark skin stays shadow) or
+   Otsu (``threshold=None``, for photographs whose backdrop is not black).
+4. Keep the largest 8-connected pieces (``max_components``, ``min_component_share`` of the largest).
+5. Fill holes (4-connected backdrop regions not touching the border) unless they are real openings. A hole is a
+   real opening when its *core* (its surely-backdrop pixels, shadowness ≤ ``backdrop_level`` × threshold) covers at
+   least ``min_hole_area`` and at least ``min_core_share`` of the hole. Dark creases between the fingers of a fist
+   are mid-dark skin (shadowness 5-25) with little true black, so they fill; the opening of an ASL "o" shows the
+   black backdrop and stays. In binary images every hole pixel is core, so only the area counts.
+
+:func:`square_frame` turns a mask into the square ``size × size`` frame the optimiser works in, and
+:func:`find_holes` gives the holes of a single mask (the hole part of the expressive region, DESIGN §4).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from PIL import Image, ImageOps, UnidentifiedImageError
+
+from studio.assets import asset
+from studio.errors import StudioError
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".gif", ".bmp", ".tif", ".tiff", ".webp")
+SAMPLE_DIR = asset("targets")  # bundled sample targets (ASL letters, MPEG-7 silhouettes), SOURCE.txt beside them
+DEFAULT_TARGET = SAMPLE_DIR / "asl_o.jpeg"  # the default example: ASL "o", whose opening is an expressive hole
+
+
+class TargetError(StudioError):
+    """A target file is missing, unreadable, not an image, or holds no usable shadow."""
+
+
+@dataclass(frozen=True)
+class TargetConfig:
+    """How an image becomes a binary shadow mask (defaults load the ASL, MPEG-7 and DAVIS targets)."""
+
+    polarity: str = "auto"  # "auto" (border = backdrop), "bright" (white shape on black), "dark" (black on white)
+    threshold: float | None = 25.0  # shadowness (0-255, after polarity) above which a pixel is shadow; None = Otsu
+    max_components: int = 3  # keep at most this many 8-connected shadow pieces, largest first
+    min_component_share: float = 0.1  # drop pieces smaller than this fraction of the largest piece (specks)
+    min_hole_area: float = 0.015  # smallest real opening's core: < 1 → fraction of the shadow area, ≥ 1 → pixels
+    min_core_share: float = 0.3  # a hole whose core is less than this share of its area is a crease and is filled
+    backdrop_level: float = 0.25  # core pixels: shadowness ≤ backdrop_level × threshold (surely backdrop)
+    frame: str = "shadow"  # load_target(size=…) frames "shadow" (its bounding box + margin) or the whole "image"
+    margin: float = 0.1  # frame margin around the shadow box on each side, fraction of the box's longer side
+
+    def __post_init__(self) -> None:
+        if self.polarity not in ("auto", "bright", "dark"):
+            raise ValueError(f"polarity must be 'auto', 'bright' or 'dark', not {self.polarity!r}")
+        if self.frame not in ("shadow", "image"):
+            raise ValueError(f"frame must be 'shadow' or 'image', not {self.frame!r}")
+        if self.threshold is not None and not 0 <= self.threshold < 255:
+            raise ValueError("threshold must be a grey level in [0, 255) or None (Otsu)")
+        if self.max_components < 1 or self.min_hole_area < 0 or self.margin < 0:
+            raise ValueError("max_components must be ≥ 1, min_hole_area and margin ≥ 0")
+
+
+def read_grey(path: str | Path) -> np.ndarray:
+    """The image at ``path`` as grey levels ``(H, W)`` uint8 (alpha, when it varies, is the shape)."""
+    path = Path(path)
+    if not path.exists():
+        raise TargetError(f"target file not found: {path}")
+    if not path.is_file():
+        raise TargetError(f"target is not a file: {path}")
+    try:
+        with Image.open(path) as im:
+            im.seek(0)
+            im = ImageOps.exif_transpose(im)
+            if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
+                alpha = np.asarray(im.convert("RGBA"))[..., 3]
+                if alpha.min() < alpha.max():
+                    return np.ascontiguousarray(alpha)
+            if im.mode in ("I", "F") or im.mode.startswith("I;16"):  # 16-bit/float: stretch to 0-255
+                a = np.asarray(im, dtype=np.float64)
+                span = a.max() - a.min()
+                return np.zeros(a.shape, np.uint8) if span == 0 else ((a - a.min()) * (255 / span)).astype(np.uint8)
+            return np.asarray(im.convert("L")).copy()
+    except UnidentifiedImageError:
+        raise TargetError(f"not an image (unknown format): {path}") from None
+    except (OSError, ValueError, SyntaxError) as e:
+        raise TargetError(f"unreadable image ({e}): {path}") from None
+
+
+def shadowness(grey: np.ndarray, polarity: str = "auto") -> np.ndarray:
+    """Grey ``(H, W)`` uint8 → shadowness ``(H, W)`` uint8, high = shadow, by the polarity rule (module doc)."""
+    if polarity == "auto":
+        border = np.concatenate([grey[0], grey[-1], grey[:, 0], grey[:, -1]])
+        polarity = "bright" if np.median(border) < 128 else "dark"
+    return grey if polarity == "bright" else 255 - grey
+
+
+def keep_largest_components(mask: np.ndarray, max_components: int = 1, min_share: float = 0.0) -> np.ndarray:
+    """The ``max_components`` largest 8-connected pieces of ``mask`` at least ``min_share`` × the largest."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return np.zeros_like(mask, dtype=np.uint8)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    order = np.argsort(areas)[::-1][:max_components]
+    keep = [1 + i for i in order if areas[i] >= min_share * areas[order[0]]]
+    return np.isin(labels, keep).astype(np.uint8)
+
+
+def _hole_labels(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """4-connected backdrop regions of ``mask``: labels ``(H, W)`` and the ids of those not touching the border."""
+    _, labels = cv2.connectedComponents((mask == 0).astype(np.uint8), connectivity=4)
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    ids = np.setdiff1d(np.unique(labels[mask == 0]), border)
+    return labels, ids
+
+
+def find_holes(mask: np.ndarray) -> np.ndarray:
+    """Holes of a shadow mask ``(H, W)``: backdrop pixels not 4-connected to the image border, ``(H, W)`` uint8."""
+    labels, ids = _hole_labels(mask)
+    return np.isin(labels, ids).astype(np.uint8)
+
+
+def fill_holes(
+    mask: np.ndarray,
+    shade: np.ndarray | None = None,
+    core_level: float = 0.0,
+    min_hole_area: float = TargetConfig.min_hole_area,
+    min_core_share: float = TargetConfig.min_core_share,
+) -> np.ndarray:
+    """Fill the crease holes of ``mask`` ``(H, W)`` and keep the real openings (module doc, step 5).
+
+    ``shade`` is the shadowness ``(H, W)`` the mask came from (None: the mask is all there is, every hole pixel is
+    core); ``core_level`` the shadowness at or below which a pixel is surely backdrop; ``min_hole_area`` and
+    ``min_core_share`` as in :class:`TargetConfig`.
+    """
+    labels, ids = _hole_labels(mask)
+    out = mask.astype(np.uint8).copy()
+    if len(ids) == 0:
+        return out
+    area = np.bincount(labels.ravel(), minlength=labels.max() + 1)
+    core_px = (labels if shade is None else np.where(shade <= core_level, labels, 0)).ravel()
+    core = np.bincount(core_px, minlength=labels.max() + 1)
+    min_area = min_hole_area * int(mask.sum()) if min_hole_area < 1 else min_hole_area
+    fill = [i for i in ids if core[i] < min_area or core[i] < min_core_share * area[i]]
+    out[np.isin(labels, fill)] = 1
+    return out
+
+
+def mask_from_grey(grey: np.ndarray, cfg: TargetConfig | None = None, source: str = "<array>") -> np.ndarray:
+    """Grey image ``(H, W)`` uint8 → shadow mask ``(H, W)`` uint8 (steps 2-5); errors name ``source``."""
+    cfg = cfg or TargetConfig()
+    if grey.ndim != 2 or min(grey.shape) < 2:
+        raise TargetError(f"image must be at least 2×2 pixels, got shape {grey.shape}: {source}")
+    shade = shadowness(grey, cfg.polarity)
+    if cfg.threshold is None:
+        if shade.min() == shade.max():
+            raise TargetError(f"empty target: the image is one flat grey level {shade.min()}, no shadow: {source}")
+        level, _ = cv2.threshold(shade, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    else:
+        level = cfg.threshold
+    mask = (shade > level).astype(np.uint8)
+    if not mask.any():
+        raise TargetError(f"empty target: no shadow pixels (none above grey level {level:.0f}): {source}")
+    if mask.all():
+        raise TargetError(f"every pixel is shadow (no backdrop, check the polarity/threshold): {source}")
+    mask = keep_largest_components(mask, cfg.max_components, cfg.min_component_share)
+    mask = fill_holes(mask, shade, cfg.backdrop_level * level, cfg.min_hole_area, cfg.min_core_share)
+    if mask.all():
+        raise TargetError(f"every pixel is shadow after filling holes (no backdrop left): {source}")
+    return mask
+
+
+def shadow_box(mask: np.ndarray) -> tuple[int, int, int, int]:
+    """Bounding box of the shadow pixels as pixel edges ``(row0, row1, col0, col1)`` (row1/col1 exclusive)."""
+    rows, cols = np.nonzero(mask)
+    if len(rows) == 0:
+        raise TargetError("empty mask: no shadow pixels to frame")
+    return int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+
+
+def square_frame(
+    mask: np.ndarray, size: int, box: tuple[int, int, int, int] | None = None, margin: float = 0.0
+) -> np.ndarray:
+    """Mask ``(H, W)`` → the square ``(size, size)`` uint8 frame the optimiser works in.
+
+    ``box`` ``(row0, row1, col0, col1)`` is the region to frame (None: the whole image); it is grown by ``margin``
+    × its longer side on each side, padded with backdrop to a square about its centre (aspect ratio kept) and
+    resized by area averaging, then thresholded at half coverage.
+    """
+    if size < 1:
+        raise ValueError("size must be a positive number of pixels")
+    r0, r1, c0, c1 = box if box is not None else (0, mask.shape[0], 0, mask.shape[1])
+    longer = max(r1 - r0, c1 - c0)
+    side = max(1, longer + 2 * int(round(margin * longer)))  # same parity as the box: centred to the pixel
+    top = (r0 + r1 - side) // 2
+    left = (c0 + c1 - side) // 2
+    canvas = np.zeros((side, side), np.float32)
+    sr0, sr1 = max(top, 0), min(top + side, mask.shape[0])
+    sc0, sc1 = max(left, 0), min(left + side, mask.shape[1])
+    if sr1 > sr0 and sc1 > sc0:
+        canvas[sr0 - top : sr1 - top, sc0 - left : sc1 - left] = mask[sr0:sr1, sc0:sc1]
+    resized = cv2.resize(canvas, (size, size), interpolation=cv2.INTER_AREA)
+    return (resized >= 0.5).astype(np.uint8)
+
+
+def load_target(path: str | Path, size: int | None = None, cfg: TargetConfig | None = None) -> np.ndarray:
+    """Load a still target as a shadow mask ``(H, W)`` uint8, 1 = shadow; with ``size``, framed ``(size, size)``.
+
+    ``cfg`` defaults to ``TargetConfig()``. Raises :class:`TargetError` naming the file for a missing, unreadable
+    or non-image file, an empty target (no shadow) or an all-shadow one.
+    """
+    cfg = cfg or TargetConfig()
+    mask = mask_from_grey(read_grey(path), cfg, source=str(path))
+    if size is None:
+        return mask
+    box = shadow_box(mask) if cfg.frame == "shadow" else None
+    framed = square_frame(mask, size, box, cfg.margin if cfg.frame == "shadow" else 0.0)
+    if not framed.any():
+        raise TargetError(f"the shadow vanishes at {size}×{size} pixels (too small to frame): {path}")
+    log.debug("target %s: %d shadow pixels at %d²", path, int(framed.sum()), size)
+    return framed
+
+
+def find_target_files(folder: str | Path) -> list[Path]:
+    """Image files directly in ``folder`` (sorted by name), by suffix (:data:`IMAGE_SUFFIXES`)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise TargetError(f"target folder not found: {folder}")
+    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)

@@ -1,0 +1,215 @@
+"""Self-exploration data: collect (sample poses → render shadows → shards), stream shards to torch, or render
+batches on the fly.
+
+A dataset folder holds ``dataset.json`` (the collection config, rig and hand hash) and ``shard_#####.npz``
+files (``studio.learn.shards``). Collection is resumable: shard ``k`` is drawn from the seed ``(seed, k)``, finished
+shards are never rewritten, and re-running the same command continues where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from studio.errors import ShardError
+from studio.learn.shards import SHARD_FORMAT, Shard, list_shards, pack_masks, read_shard, shard_path, write_shard
+from studio.sim.hand import Hand, load_hand
+from studio.sim.sampling import SamplerConfig, sample_poses
+from studio.sim.shadow import Rig, ShadowRenderer
+
+log = logging.getLogger(__name__)
+MANIFEST = "dataset.json"
+SPLITS = {"train": (0.0, 0.7), "val": (0.7, 0.9), "test": (0.9, 1.0), "all": (0.0, 1.0)}  # share of each shard
+
+
+@dataclass(frozen=True)
+class CollectConfig:
+    """What ``shadow-studio collect`` makes."""
+
+    n: int = 20000  # total number of (pose, shadow) pairs
+    shard_size: int = 5000  # samples per shard file
+    seed: int = 0  # shard k is drawn from the seed sequence (seed, k)
+    resolution: int = 256  # shadow image side, pixels
+    window: float = 0.6  # backdrop window side, metres (see studio.sim.shadow.Rig)
+
+    def __post_init__(self) -> None:
+        if self.n < 1 or self.shard_size < 1:
+            raise ValueError("--n and --shard-size must be positive")
+
+    @property
+    def num_shards(self) -> int:
+        return (self.n + self.shard_size - 1) // self.shard_size
+
+    def rig(self) -> Rig:
+        return Rig(window=self.window, resolution=self.resolution)
+
+
+def _manifest(cfg: CollectConfig, hand: Hand, sampler: SamplerConfig) -> dict:
+    rig = cfg.rig()
+    return {
+        "format": SHARD_FORMAT,
+        "collect": asdict(cfg),
+        "sampler": asdict(sampler),
+        "rig": rig.to_dict(),
+        "rig_hash": rig.hash,
+        "hand_hash": hand.hash,
+        "joint_names": hand.joint_names,
+    }
+
+
+def make_shard(hand: Hand, renderer: ShadowRenderer, world, n: int, seed: int, index: int, sampler) -> Shard:
+    """Draw and render one shard's samples (pure compute apart from the collision world)."""
+    rng = np.random.default_rng([seed, index])
+    theta, mode = sample_poses(hand, n, rng, sampler)
+    masks = renderer.render(theta, check=False)
+    collides = world.in_collision(theta, check=False)
+    meta = {
+        "format": SHARD_FORMAT,
+        "rig": renderer.rig.to_dict(),
+        "rig_hash": renderer.rig.hash,
+        "hand_hash": hand.hash,
+        "joint_names": hand.joint_names,
+        "resolution": renderer.rig.resolution,
+        "index": index,
+        "seed": seed,
+    }
+    return Shard(theta.astype(np.float32), pack_masks(masks), mode, collides, meta)
+
+
+def collect(
+    out: Path,
+    cfg: CollectConfig | None = None,
+    hand: Hand | None = None,
+    sampler: SamplerConfig | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    cancel: threading.Event | None = None,
+) -> dict:
+    """Fill ``out`` with ``cfg.n`` samples in shards; resumes an interrupted run of the same config.
+
+    ``progress(done_samples, total)`` is called after each shard; setting ``cancel`` stops after the current
+    shard (finished shards stay). Returns ``{"written", "skipped", "samples", "folder"}``.
+    """
+    from studio.sim.physics import CollisionWorld
+
+    cfg = cfg or CollectConfig()
+    hand = hand or load_hand()
+    sampler = sampler or SamplerConfig()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    manifest = json.loads(json.dumps(_manifest(cfg, hand, sampler)))  # as it reads back from disk
+    mpath = out / MANIFEST
+    if mpath.exists():
+        old = json.loads(mpath.read_text())
+        if old != manifest:
+            raise ShardError(
+                f"{out} already holds a different dataset (config, rig or hand differ); "
+                "use another --out folder or the same options as before"
+            )
+    else:
+        mpath.write_text(json.dumps(manifest, indent=2, sort_keys=True))
+    renderer = ShadowRenderer(hand, cfg.rig())
+    written = skipped = done = 0
+    with CollisionWorld(hand) as world:
+        for k in range(cfg.num_shards):
+            if cancel is not None and cancel.is_set():
+                break
+            n_k = min(cfg.shard_size, cfg.n - k * cfg.shard_size)
+            path = shard_path(out, k)
+            if path.exists():
+                try:
+                    if len(read_shard(path, hand.hash, renderer.rig.hash)) == n_k:
+                        skipped += 1
+                        done += n_k
+                        if progress:
+                            progress(done, cfg.n)
+                        continue
+                except ShardError as e:
+                    log.warning("rewriting damaged shard: %s", e)
+            write_shard(path, make_shard(hand, renderer, world, n_k, cfg.seed, k, sampler))
+            written += 1
+            done += n_k
+            if progress:
+                progress(done, cfg.n)
+    return {"written": written, "skipped": skipped, "samples": done, "folder": str(out)}
+
+
+class ShardStream:
+    """Streams ``(theta (B, 21) float32, masks (B, 1, H, W) float32)`` torch batches from a shard folder.
+
+    ``split`` takes the 0.7 / 0.2 / 0.1 train / val / test share of every shard (``"all"`` takes everything);
+    shards are read one at a time, so memory stays at one shard. Also a torch ``IterableDataset`` (each
+    DataLoader worker reads a disjoint subset of the shards).
+    """
+
+    def __init__(self, folder: Path, split: str = "train", batch_size: int = 64, shuffle: bool = True,
+                 seed: int = 0, hand: Hand | None = None):  # fmt: skip
+        if split not in SPLITS:
+            raise ValueError(f"split must be one of {list(SPLITS)}, got {split!r}")
+        self.paths = list_shards(folder)
+        self.split, self.batch_size, self.shuffle, self.seed = split, batch_size, shuffle, seed
+        self.hand_hash = (hand or load_hand()).hash
+        self.epoch = 0
+
+    def _rows(self, n: int) -> np.ndarray:
+        lo, hi = SPLITS[self.split]
+        return np.arange(int(round(lo * n)), int(round(hi * n)))
+
+    def __len__(self) -> int:
+        """Number of samples in this split (reads only shard metadata sizes)."""
+        total = 0
+        for p in self.paths:
+            with np.load(p) as z:
+                total += len(self._rows(len(z["theta"])))
+        return total
+
+    def __iter__(self) -> Iterator[tuple]:
+        import torch
+
+        paths = self.paths
+        try:
+            info = torch.utils.data.get_worker_info()
+        except AttributeError:
+            info = None
+        if info is not None:
+            paths = paths[info.id :: info.num_workers]
+        rng = np.random.default_rng([self.seed, self.epoch])
+        self.epoch += 1
+        order = rng.permutation(len(paths)) if self.shuffle else np.arange(len(paths))
+        for i in order:
+            shard = read_shard(paths[i], self.hand_hash)
+            rows = self._rows(len(shard))
+            if self.shuffle:
+                rows = rng.permutation(rows)
+            for s in range(0, len(rows), self.batch_size):
+                r = np.sort(rows[s : s + self.batch_size])
+                theta = torch.from_numpy(shard.theta[r].astype(np.float32))
+                masks = torch.from_numpy(shard.masks(r).astype(np.float32))[:, None]
+                yield theta, masks
+
+
+class OnTheFlyBatches:
+    """Endless (or ``num_batches``-long) stream of freshly sampled and rendered torch batches."""
+
+    def __init__(self, batch_size: int = 64, resolution: int = 128, seed: int = 0, num_batches: int | None = None,
+                 hand: Hand | None = None, sampler: SamplerConfig | None = None):  # fmt: skip
+        self.hand = hand or load_hand()
+        self.renderer = ShadowRenderer(self.hand, Rig(resolution=resolution))
+        self.batch_size, self.seed, self.num_batches = batch_size, seed, num_batches
+        self.sampler = sampler or SamplerConfig()
+
+    def __iter__(self) -> Iterator[tuple]:
+        import torch
+
+        rng = np.random.default_rng(self.seed)
+        k = 0
+        while self.num_batches is None or k < self.num_batches:
+            theta, _ = sample_poses(self.hand, self.batch_size, rng, self.sampler)
+            masks = self.renderer.render(theta, check=False)
+            yield torch.from_numpy(theta.astype(np.float32)), torch.from_numpy(masks.astype(np.float32))[:, None]
+            k += 1

@@ -1,0 +1,224 @@
+"""Motion planning: keyframes → collision-free path → jerk-limited timed trajectory → show (DESIGN §4 "Motion").
+
+Keyframes file (``POSES.json``, as ``imitate``/``imitate-video`` write it)::
+
+    {"keyframes": [{"t": 1.5, "pose": {"wrist": 0.1, ...}, "hold": false,            # t in s, angles in rad
+                    "source_frame": 12, "target": "frames/012.png", "loss": 0.21}, ...],
+     "title": "...", "loss_weights": {...}}                                           # optional
+
+**Home.** A show starts at rest: when the first keyframe is later than t = 0, the hand's rest pose
+(``hand.rest_pose()``) is prepended as a held keyframe at t = 0 (the "home" keyframe); when the first keyframe is at
+t = 0 it is the start pose instead. The first and last keyframes are passed at rest (zero velocity), as are keyframes
+marked ``"hold": true``; every other keyframe is passed with the spline's velocity.
+
+**How the passes enter the trajectory.** ``studio.motion.path`` builds a collision-free path (spline, repair, fingertip
+refinement); ``studio.motion.timing`` times keyframe to keyframe with Ruckig and threads repaired/refined path points as
+via-points wherever the direct motion would collide, then checks the result at 4× the show rate. So the final
+trajectory hits every keyframe exactly at its time, stays within every limit, and is collision-free at every check.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path as FilePath
+from typing import Any
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from studio.motion.errors import KeyframeCollisionError, PlanError
+from studio.motion.limits import JointLimits, LimitsConfig
+from studio.motion.path import Path, PathConfig, build_path
+from studio.motion.show import KeyframeMarker, Show
+from studio.motion.timing import TimedTrajectory, TimingConfig, time_path
+from studio.sim.hand import Hand
+from studio.sim.physics import CollisionWorld
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PlanConfig:
+    """Everything the planner needs besides the keyframes."""
+
+    path: PathConfig = field(default_factory=PathConfig)  # spline, repair and fingertip passes
+    timing: TimingConfig = field(default_factory=TimingConfig)  # Ruckig timing and checking
+    limits: LimitsConfig = field(default_factory=LimitsConfig)  # velocity/acceleration/jerk limits
+    min_segment_s: float = 1e-3  # keyframes closer in time than this are an error
+
+
+@dataclass
+class Keyframes:
+    """Artist keyframes: ``times (K,) s`` strictly increasing, ``poses (K, 21) rad``, ``hold (K,) bool``."""
+
+    times: np.ndarray
+    poses: np.ndarray
+    hold: np.ndarray
+    source_frame: list[int | None]  # video/target frame of each keyframe, if known
+    target: list[str | None]  # target reference of each keyframe, if known
+    extra: dict[str, Any] = field(default_factory=dict)  # title, loss_weights, per-keyframe losses
+
+
+def parse_keyframes(doc: Any, hand: Hand) -> Keyframes:
+    """Validate a POSES.json document; raises ``PlanError`` saying which keyframe is wrong."""
+    if not isinstance(doc, dict) or not isinstance(doc.get("keyframes"), list) or not doc["keyframes"]:
+        raise PlanError('a keyframes file must be {"keyframes": [{"t": seconds, "pose": {joint: rad}}, ...]}')
+    times, poses, hold, frames, targets, losses = [], [], [], [], [], []
+    for i, k in enumerate(doc["keyframes"]):
+        if not isinstance(k, dict) or "t" not in k or not isinstance(k.get("pose"), dict):
+            raise PlanError(f'keyframe {i} needs "t" (seconds) and "pose" ({{joint: rad}})')
+        try:
+            t = float(k["t"])
+            q = hand.pose_from_dict(k["pose"])
+            hand.check_theta(q)
+        except (TypeError, ValueError) as e:
+            raise PlanError(f"keyframe {i} (t = {k.get('t')}): {e}") from None
+        if not np.isfinite(t) or t < 0:
+            raise PlanError(f"keyframe {i}: time {k['t']!r} must be a finite number of seconds ≥ 0")
+        times.append(t)
+        poses.append(q)
+        hold.append(bool(k.get("hold", False)))
+        frames.append(k.get("source_frame"))
+        targets.append(k.get("target"))
+        losses.append(k.get("loss", k.get("losses")))
+    times_a = np.array(times)
+    if (np.diff(times_a) <= 0).any():
+        i = int(np.flatnonzero(np.diff(times_a) <= 0)[0]) + 1
+        raise PlanError(f"keyframe {i} (t = {times[i]}) is not after keyframe {i - 1} (t = {times[i - 1]})")
+    extra = {k: doc[k] for k in ("title", "loss_weights", "media", "calibration") if k in doc}
+    if any(x is not None for x in losses):
+        extra["keyframe_losses"] = losses
+    return Keyframes(times_a, np.array(poses), np.array(hold), frames, targets, extra)
+
+
+def load_keyframes(path: str | FilePath, hand: Hand) -> Keyframes:
+    """Read and validate a POSES.json file."""
+    path = FilePath(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"keyframes file not found: {path}")
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise PlanError(f"{path}: not valid JSON at line {e.lineno} column {e.colno}: {e.msg}") from None
+    return parse_keyframes(doc, hand)
+
+
+def with_home(hand: Hand, kf: Keyframes) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """``(times, poses, at_rest, home_added)``: home (rest pose, t = 0) prepended unless a keyframe is at t = 0."""
+    at_rest = kf.hold.copy()
+    at_rest[[0, -1]] = True
+    if kf.times[0] == 0.0:
+        return kf.times, kf.poses, at_rest, False
+    return (
+        np.concatenate([[0.0], kf.times]),
+        np.concatenate([hand.rest_pose()[None], kf.poses]),
+        np.concatenate([[True], at_rest]),
+        True,
+    )
+
+
+def keyframe_velocities(times: np.ndarray, poses: np.ndarray, at_rest: np.ndarray, hand: Hand) -> np.ndarray:
+    """(K, 21) rad/s: the not-a-knot spline's velocity at each keyframe; 0 where at rest or where that joint falls
+    back to linear interpolation (its spline leaves the limits)."""
+    v = np.zeros_like(poses)
+    if len(times) >= 3:
+        spline = CubicSpline(times, poses, bc_type="not-a-knot", axis=0)
+        dense = spline(np.linspace(times[0], times[-1], 40 * len(times)))
+        inside = ~((dense < hand.lower - 1e-9) | (dense > hand.upper + 1e-9)).any(axis=0)
+        v[:, inside] = spline(times, 1)[:, inside]
+    v[at_rest] = 0.0
+    return v
+
+
+@dataclass
+class PlanResult:
+    """What ``plan_show`` returns: the show plus everything needed to inspect how it was made."""
+
+    show: Show
+    trajectory: TimedTrajectory
+    path: Path
+    home_added: bool  # True when the rest pose was prepended at t = 0
+    collision_checks: int  # poses scored/checked by the passes and along the trajectory
+    max_jerk_ratio: float  # largest |jerk| used / its limit (≤ 1)
+
+
+def check_keyframes(world: CollisionWorld, poses: np.ndarray, times: np.ndarray) -> None:
+    """Raise ``KeyframeCollisionError`` naming each keyframe in self-collision and its touching links."""
+    bad = np.flatnonzero(world.in_collision(poses))
+    if bad.size:
+        parts = []
+        for i in bad:
+            touching = ", ".join(f"{c.link_a}–{c.link_b}" for c in world.contacts(poses[i]) if c.distance < 0)
+            parts.append(f"t = {times[i]:.3f} s ({touching})")
+        raise KeyframeCollisionError(
+            f"{bad.size} keyframe(s) are in self-collision: {'; '.join(parts)}. Keyframes are never moved: "
+            "refine those poses (shadow-studio refine) or edit them"
+        )
+
+
+def plan_show(
+    hand: Hand,
+    keyframes: Keyframes,
+    cfg: PlanConfig | None = None,
+    world: CollisionWorld | None = None,
+    progress: Callable[[str, float], None] | None = None,
+    title: str | None = None,
+) -> PlanResult:
+    """Plan a show through ``keyframes``. Raises ``KeyframeCollisionError``, ``PathError``, ``SegmentTooFastError``."""
+    cfg = cfg or PlanConfig()
+    own_world = world is None
+    world = world or CollisionWorld(hand)
+    try:
+        times, poses, at_rest, home = with_home(hand, keyframes)
+        if (np.diff(times) < cfg.min_segment_s).any():
+            raise PlanError(f"keyframes must be at least {cfg.min_segment_s} s apart (home is at t = 0)")
+        check_keyframes(world, poses, times)
+        limits = JointLimits.from_hand(hand, cfg.limits)
+        if progress:
+            progress("path", 0.0)
+        path = build_path(hand, world, times, poses, cfg.path)
+        if progress:
+            progress("timing", 0.5)
+        kv = keyframe_velocities(times, poses, at_rest, hand)
+        traj = time_path(path, kv, limits, world, cfg.timing)
+        show = sample_show(hand, traj, keyframes, home, limits, cfg, title)
+        if progress:
+            progress("done", 1.0)
+    finally:
+        if own_world:
+            world.close()
+    return PlanResult(show, traj, path, home, traj.collision_checks, traj.max_jerk_ratio(limits.jerk))
+
+
+def sample_show(
+    hand: Hand, traj: TimedTrajectory, kf: Keyframes, home: bool, limits: JointLimits, cfg: PlanConfig, title
+) -> Show:
+    """Sample ``traj`` on the 40 Hz grid plus every keyframe time (so keyframes are samples) into a show."""
+    rate = cfg.timing.rate_hz
+    grid = np.arange(int(np.floor(traj.duration * rate + 1e-9)) + 1) / rate
+    times = np.union1d(grid, traj.key_times)
+    times = times[np.concatenate([[True], np.diff(times) > 1e-9])]
+    times[np.searchsorted(times, traj.key_times - 1e-9)] = traj.key_times  # snap near-duplicates onto keyframes
+    positions = np.clip(traj.state(times)[0], hand.lower, hand.upper)
+    key_t = traj.key_times[1:] if home else traj.key_times
+    markers = [
+        KeyframeMarker(float(t), kf.source_frame[i], kf.target[i], bool(kf.hold[i])) for i, t in enumerate(key_t)
+    ]
+    extra = dict(kf.extra)
+    provenance = {
+        "planner": "studio.motion.plan",
+        "home_added": home,
+        "requested_times": kf.times.tolist(),
+        "late_segments": [asdict(s) for s in traj.late],
+        "config": json.loads(json.dumps(asdict(cfg), default=str)),
+    }
+    for key in ("loss_weights", "keyframe_losses"):
+        if key in extra:
+            provenance[key] = extra[key]
+    return Show.from_samples(
+        hand, times, positions, title=title or extra.get("title", "untitled"), keyframes=markers, limits=limits,
+        calibration=extra.get("calibration"), provenance=provenance,
+    )  # fmt: skip
