@@ -3,8 +3,8 @@
 The network sees the shadow the way the losses do: the bounding-box crop of its pixels, padded and made square
 (:func:`studio.imitate.crop.align`), so a target framed by :func:`studio.imitate.targets.load_target` and a
 shadow in the rig's window look alike. ``crop (B, 1, S, S) → strided convs → FC → theta (B, 21) rad``; the output is the
-joints' range centre plus a learnt offset, and predictions are clipped to the joint limits. Training pairs come from the renderer
-(fresh every step) or from shards; checkpoints carry the config, the hand hash, the rig and metrics.
+joints' range centre plus a learnt offset, and predictions are clipped to the joint limits. Training pairs come
+from the renderer (fresh every step) or from shards; checkpoints carry the config, the hand hash, the rig and metrics.
 """
 
 from __future__ import annotations
