@@ -7,19 +7,19 @@ Each shard holds ``n`` samples:
 - ``collides``: ``(n,)`` bool, the pose's skeleton self-collides;
 - ``meta``: a JSON string with the format version, the rig (dict + hash), the hand hash, joint names, the
   resolution, the shard index and the seed.
-Writes are atomic (temporary file, then rename), so a shard on disk is either complete or absent.
+Writes are atomic (``studio.atomic``), so a shard on disk is either complete or absent.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from studio.atomic import write_with
 from studio.errors import ShardError
 
 SHARD_FORMAT = 1
@@ -57,21 +57,18 @@ def pack_masks(masks: np.ndarray) -> np.ndarray:
 
 
 def write_shard(path: Path, shard: Shard) -> None:
-    """Write atomically: a partially written shard never appears under ``path``."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        np.savez_compressed(
+    """Write atomically (``studio.atomic``): a partially written shard never appears under ``path``."""
+    write_with(
+        path,
+        lambda f: np.savez_compressed(
             f,
             masks=shard.masks_packed,
             theta=shard.theta.astype(np.float32),
             mode=shard.mode.astype(np.int8),
             collides=shard.collides.astype(bool),
             meta=np.array(json.dumps(shard.meta, sort_keys=True)),
-        )
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+        ),
+    )
 
 
 def read_shard(path: Path, expect_hand_hash: str | None = None, expect_rig_hash: str | None = None) -> Shard:

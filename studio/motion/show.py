@@ -10,7 +10,7 @@ Layout (version 1)::
      "media": null | {"path", "kind": "audio"|"video", "offset_s"},      # media time = show time + offset_s
      "provenance": {"loss_weights": {...}, "keyframe_losses": [...], ...}}
 
-Writes are atomic (temp file + ``os.replace``); floats are written with Python's shortest round-trip repr, so a
+Writes are atomic (``studio.atomic``); floats are written with Python's shortest round-trip repr, so a
 save/load round trip is lossless. Loading reports every problem found, one clear message each.
 """
 
@@ -19,8 +19,6 @@ from __future__ import annotations
 import csv
 import json
 import logging
-import os
-import tempfile
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from functools import lru_cache
@@ -30,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from studio.atomic import write_text
 from studio.errors import StudioError
 from studio.motion.limits import JointLimits
 from studio.motion.show_checks import FORMAT_NAME, show_problems
@@ -201,22 +200,6 @@ def _dumps(doc: dict[str, Any]) -> str:
     return text.replace('"\\u0000SAMPLES\\u0000"', "[\n" + body + "\n  ]") + "\n"
 
 
-def write_atomic(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` via a temp file in the same folder and ``os.replace`` (never half-written)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def save_show(show: Show, path: str | Path, hand: Hand | None = None) -> Path:
     """Validate ``show`` and write it atomically to ``path``; returns the path. Raises ``ShowError``."""
     if not show.created:
@@ -225,7 +208,7 @@ def save_show(show: Show, path: str | Path, hand: Hand | None = None) -> Path:
     problems = show_problems(doc, hand, schema=show_schema())
     if problems:
         raise ShowError(problems, path)
-    write_atomic(path, _dumps(doc))
+    write_text(path, _dumps(doc))
     return Path(path)
 
 
@@ -268,5 +251,5 @@ def export_csv(show: Show, path: str | Path, degrees: bool = False) -> Path:
     q = np.degrees(show.positions) if degrees else show.positions
     for t, row in zip(show.times, q):
         w.writerow([repr(float(t))] + [repr(float(v)) for v in row])
-    write_atomic(path, buf.getvalue())
+    write_text(path, buf.getvalue())
     return Path(path)
