@@ -1,0 +1,70 @@
+"""Shadow Studio's public API: what a notebook or a script uses, re-exported from the stages (DESIGN §3).
+
+    import studio
+    target = studio.load_target(studio.DEFAULT_TARGET, size=128)   # (128, 128) uint8, 1 = shadow
+    result = studio.imitate_still(target)                          # search → refine: a collision-free pose
+    keyframes = studio.Keyframes.at([2.0], [result.theta])          # hold that pose at t = 2 s
+    show = studio.plan_show(studio.load_hand(), keyframes).show      # jerk-limited, collision-checked
+    studio.save_show(show, "show.json")
+
+Names are imported on first use (``studio.X`` loads only the stage that defines ``X``), so ``import studio`` and
+the command line stay quick; ``dir(studio)`` lists them all.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+# name → the module that defines it, grouped by stage
+_API: dict[str, str] = {
+    # the hand and its world
+    "Hand": "studio.sim.hand",
+    "load_hand": "studio.sim.hand",
+    "Rig": "studio.sim.shadow",
+    "ShadowRenderer": "studio.sim.shadow",
+    "CollisionWorld": "studio.sim.physics",
+    # learning
+    "SelfModel": "studio.learn.selfmodel",
+    "load_selfmodel": "studio.learn.selfmodel",
+    # targets and imitation
+    "DEFAULT_TARGET": "studio.imitate.targets",
+    "SAMPLE_DIR": "studio.imitate.targets",
+    "TargetError": "studio.imitate.targets",
+    "load_target": "studio.imitate.targets",
+    "find_holes": "studio.imitate.targets",
+    "LossConfig": "studio.imitate.losses",
+    "ImageLoss": "studio.imitate.losses",
+    "SearchConfig": "studio.imitate.search",
+    "CPU_SEARCH": "studio.imitate.search",
+    "RefineConfig": "studio.imitate.refine",
+    "Imitator": "studio.imitate.still",
+    "ImitationResult": "studio.imitate.still",
+    "imitate_still": "studio.imitate.still",
+    # motion and the show file
+    "Keyframes": "studio.motion.plan",
+    "load_keyframes": "studio.motion.plan",
+    "PlanConfig": "studio.motion.plan",
+    "plan_show": "studio.motion.plan",
+    "Show": "studio.motion.show",
+    "save_show": "studio.motion.show",
+    "load_show": "studio.motion.show",
+    "export_csv": "studio.motion.show",
+    # errors
+    "StudioError": "studio.errors",
+}
+
+__all__ = sorted(_API)
+
+
+def __getattr__(name: str) -> Any:
+    module = _API.get(name)
+    if module is None:
+        raise AttributeError(f"module 'studio' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_API))

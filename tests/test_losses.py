@@ -1,4 +1,4 @@
-"""studio.imitate.crop, .clip_loss, .losses: values on hand-made masks, crop invariances, gradients, CLIP."""
+"""studio.sim.crop, .clip_loss, .losses: values on hand-made masks, crop invariances, gradients, CLIP."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from studio.imitate.clip_loss import (
     load_clip,
     tiny_clip,
 )
-from studio.imitate.crop import align, as_image_batch, pad_pixels, square_boxes
+from studio.sim.crop import align, as_image_batch, pad_pixels, square_boxes
 from studio.imitate.losses import COMPONENTS, ImageLoss, LossConfig, mae, soft_iou, temporal_loss
 from studio.imitate.targets import find_holes, load_target, shadow_box, square_frame
 

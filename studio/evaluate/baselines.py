@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from studio.imitate.crop import align
+from studio.sim.crop import align
 from studio.imitate.losses import ImageLoss, LossConfig, mae, soft_iou
 from studio.learn.dataset import SPLITS
 from studio.learn.inverse import InverseCNN

@@ -1,7 +1,7 @@
 """Image losses between predicted and target shadows (DESIGN §4 "Losses"), in torch, per sample.
 
 Images are probabilities in [0, 1], 1 = shadow, as ``(B, H, W)`` or ``(B, 1, H, W)``. Both sides are compared on
-crops aligned by :mod:`studio.imitate.crop` (the target is cropped once; each prediction by the box of its pixels above
+crops aligned by :mod:`studio.sim.crop` (the target is cropped once; each prediction by the box of its pixels above
 0.5), so the losses ignore where the shadow sits and, up to the fixed pad, how large it is:
 
 - ``L_base = 0.06·MAE + 0.4·(1 − IoU) + 0.02·(1 − cos(CLIP(pred), CLIP(target)))``
@@ -24,7 +24,7 @@ import torch
 
 from studio.errors import StudioError
 from studio.imitate.clip_loss import ClipImageEncoder
-from studio.imitate.crop import as_image_batch, crop_boxes, square_boxes
+from studio.sim.crop import as_image_batch, crop_boxes, square_boxes
 
 COMPONENTS = ("total", "base", "mae", "iou_loss", "clip", "expr", "exp_iou", "exp_clip", "temporal")
 

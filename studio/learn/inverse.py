@@ -1,7 +1,7 @@
 """The inverse-CNN baseline (DESIGN §4 "Baselines"): a shadow image → joint angles, trained with MSE.
 
 The network sees the shadow the way the losses do: the bounding-box crop of its pixels, padded and made square
-(:func:`studio.imitate.crop.align`), so a target framed by :func:`studio.imitate.targets.load_target` and a
+(:func:`studio.sim.crop.align`), so a target framed by :func:`studio.imitate.targets.load_target` and a
 shadow in the rig's window look alike. ``crop (B, 1, S, S) → strided convs → FC → theta (B, 21) rad``; the output is the
 joints' range centre plus a learnt offset, and predictions are clipped to the joint limits. Training pairs come
 from the renderer (fresh every step) or from shards; checkpoints carry the config, the hand hash, the rig and metrics.
@@ -21,7 +21,7 @@ import torch
 from torch import nn
 
 from studio.errors import StudioError
-from studio.imitate.crop import align
+from studio.sim.crop import align
 from studio.learn.train import lr_at
 from studio.sim.hand import Hand, load_hand
 from studio.sim.sampling import sample_poses

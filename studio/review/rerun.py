@@ -88,7 +88,7 @@ def overlay(target: np.ndarray, shadow: np.ndarray, aligned: bool = True) -> np.
     ``aligned``: compare the bounding-box crops the losses compare (position and scale removed), as the
     optimiser sees them, at the target's resolution."""
     if aligned:
-        from studio.imitate.crop import align
+        from studio.sim.crop import align
 
         size = target.shape[-1]
         t = align(np.asarray(target, np.float32), size)[0][0].numpy() > 0.5
