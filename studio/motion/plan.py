@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path as FilePath
 from typing import Any
@@ -60,6 +60,18 @@ class Keyframes:
     source_frame: list[int | None]  # video/target frame of each keyframe, if known
     target: list[str | None]  # target reference of each keyframe, if known
     extra: dict[str, Any] = field(default_factory=dict)  # title, loss_weights, per-keyframe losses
+
+    @classmethod
+    def at(cls, times: Sequence[float], poses: Sequence[np.ndarray] | np.ndarray, hold: bool = True) -> Keyframes:
+        """Keyframes from ``times (K,) s`` and ``poses (K, 21) rad`` (held at rest unless ``hold=False``)."""
+        times_a = np.asarray(times, dtype=float).reshape(-1)
+        poses_a = np.asarray(poses, dtype=float).reshape(len(times_a), -1)
+        if len(times_a) == 0 or not np.isfinite(times_a).all() or (times_a < 0).any():
+            raise PlanError("keyframe times must be finite seconds ≥ 0, at least one")
+        if (np.diff(times_a) <= 0).any():
+            raise PlanError(f"keyframe times must increase strictly: {times_a.tolist()}")
+        n = len(times_a)
+        return cls(times_a, poses_a, np.full(n, bool(hold)), [None] * n, [None] * n)
 
 
 def parse_keyframes(doc: Any, hand: Hand) -> Keyframes:
