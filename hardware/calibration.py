@@ -16,8 +16,6 @@ limits in rad, inside the URDF limits and inside the servo's 0..1000 travel.
 from __future__ import annotations
 
 import logging
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,6 +25,7 @@ from studio.assets import asset
 
 from hardware import constants as C
 from hardware.errors import CalibrationError
+from studio.atomic import write_text
 from studio.sim.hand import Hand
 
 log = logging.getLogger(__name__)
@@ -201,7 +200,7 @@ def load_calibration(path: str | Path | None, hand: Hand) -> Calibration:
 
 
 def save_calibration(cal: Calibration, path: str | Path) -> None:
-    """Write ``cal`` as YAML atomically (temp file + rename)."""
+    """Write ``cal`` as YAML atomically (``studio.atomic``)."""
     doc = {
         "format": FORMAT_NAME,
         "version": 1,
@@ -217,9 +216,5 @@ def save_calibration(cal: Calibration, path: str | Path) -> None:
             for j in cal.joints
         },
     }
-    p = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=p.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write("# Joint ↔ servo map (shadow-studio calibrate). units = zero + direction·θ·238.73; limits in rad.\n")
-        yaml.safe_dump(doc, f, sort_keys=False, default_flow_style=None)
-    os.replace(tmp, p)
+    head = "# Joint ↔ servo map (shadow-studio calibrate). units = zero + direction·θ·238.73; limits in rad.\n"
+    write_text(path, head + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None))

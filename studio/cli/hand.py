@@ -32,11 +32,16 @@ def write_shadow_png(path: Path, mask: np.ndarray, as_mask: bool = False) -> Non
     """Save a shadow ``(H, W)`` {0,1}: dark shadow on a light backdrop, or white-on-black with ``as_mask``."""
     import cv2
 
+    from studio.atomic import write_bytes
+
     img = (mask.astype(np.uint8) * 255) if as_mask else ((1 - mask.astype(np.uint8)) * 255)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), img):
-        raise StudioError(f"{path}: could not write the PNG (check the folder and the .png extension)")
+    try:
+        ok, png = cv2.imencode(Path(path).suffix or ".png", img)
+    except cv2.error:
+        ok = False
+    if not ok:
+        raise StudioError(f"{path}: could not encode the image (use a .png extension)")
+    write_bytes(path, png.tobytes())  # atomic (studio.atomic)
 
 
 def _render(args: argparse.Namespace) -> int:

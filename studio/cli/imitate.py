@@ -11,11 +11,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
+
+from studio.atomic import write_bytes, write_json
 
 
 def _finite(d: dict) -> dict:
@@ -33,14 +34,10 @@ def write_compare_png(path: Path, result) -> None:
     tiles = [np.repeat(t[..., None], 3, axis=2) for t in tiles] + [overlay(result.target, result.shadow)]
     gap = np.full((tiles[0].shape[0], 4, 3), 128, np.uint8)
     row = np.concatenate([x for t in tiles for x in (t, gap)][:-1], axis=1)
-    if not cv2.imwrite(str(path), cv2.cvtColor(row, cv2.COLOR_RGB2BGR)):
-        raise OSError(f"could not write {path}")
-
-
-def write_json_atomic(path: Path, data: dict) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2))
-    os.replace(tmp, path)
+    ok, png = cv2.imencode(".png", cv2.cvtColor(row, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise OSError(f"could not encode {path} as PNG")
+    write_bytes(path, png.tobytes())
 
 
 def _imitate(args: argparse.Namespace) -> int:
@@ -88,7 +85,7 @@ def _imitate(args: argparse.Namespace) -> int:
     }  # fmt: skip
     keyframe = {"t": args.at, "pose": hand.pose_to_dict(result.theta), "hold": True, "target": str(target_path),
                 "loss": result.loss["total"]}  # fmt: skip
-    write_json_atomic(out / "pose.json", {
+    write_json(out / "pose.json", {
         "keyframes": [keyframe],  # the shape `shadow-studio plan` reads
         "pose": hand.pose_to_dict(result.theta), "loss": _finite(result.loss), "collision_free": result.collision_free,
         "unrefined": {"pose": hand.pose_to_dict(result.search.theta), "loss": _finite(result.unrefined_loss),
