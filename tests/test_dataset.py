@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from studio.errors import ShardError
 from studio.learn.dataset import MANIFEST, CollectConfig, OnTheFlyBatches, ShardStream, collect
@@ -44,6 +45,7 @@ def test_shard_round_trip_is_exact(small_dataset, hand):
 def test_resume_never_rewrites_finished_shards(small_dataset, hand):
     out, cfg, _ = small_dataset
     stamps = {p: p.stat().st_mtime_ns for p in list_shards(out)}
+    before = read_shard(shard_path(out, 1))
     shard_path(out, 1).unlink()
     summary = collect(out, cfg, hand)
     assert summary["written"] == 1 and summary["skipped"] == 2
@@ -51,7 +53,8 @@ def test_resume_never_rewrites_finished_shards(small_dataset, hand):
         if p.name != "shard_00001.npz":
             assert p.stat().st_mtime_ns == t
     # the re-made shard is identical: shard k is drawn from the seed (seed, k)
-    assert np.array_equal(read_shard(shard_path(out, 1)).theta, read_shard(shard_path(out, 1)).theta)
+    again = read_shard(shard_path(out, 1))
+    assert np.array_equal(before.theta, again.theta) and np.array_equal(before.masks_packed, again.masks_packed)
 
 
 def test_resume_is_deterministic(tmp_path, hand):
@@ -120,10 +123,53 @@ def test_shard_stream_splits(small_dataset, hand):
         assert masks.dtype.is_floating_point and set(masks.unique().tolist()) <= {0.0, 1.0}
         seen += len(theta)
     assert seen == 50
-    # splits are disjoint
-    train = {tuple(t.tolist()) for b, _ in ShardStream(out, "train", hand=hand) for t in b}
-    test = {tuple(t.tolist()) for b, _ in ShardStream(out, "test", hand=hand) for t in b}
-    assert not train & test
+    # splits are disjoint and together make up "all"
+    rows = {s: _samples(ShardStream(out, s, hand=hand)) for s in ("train", "val", "test", "all")}
+    keys = {s: set(r) for s, r in rows.items()}
+    assert not keys["train"] & keys["val"] and not keys["train"] & keys["test"] and not keys["val"] & keys["test"]
+    assert keys["train"] | keys["val"] | keys["test"] == keys["all"] and len(keys["all"]) == 250
+
+
+def _samples(batches) -> dict[tuple, bytes]:
+    """``{joint vector: its mask's bytes}`` of a stream of batches; fails on a repeated sample."""
+    out: dict[tuple, bytes] = {}
+    for theta, masks in batches:
+        assert len(theta) == len(masks)
+        for t, m in zip(theta, masks):
+            key = tuple(t.tolist())
+            assert key not in out, "sample read twice"
+            out[key] = m.numpy().tobytes()
+    return out
+
+
+@pytest.mark.filterwarnings("ignore:This DataLoader will create 4 worker processes")
+@pytest.mark.parametrize("workers", [2, 4])  # 3 shards: 2 workers split the shards, 4 split each shard's rows
+def test_dataloader_workers_read_each_sample_exactly_once(small_dataset, hand, workers):
+    from torch.utils.data import DataLoader, IterableDataset
+
+    out, _, _ = small_dataset
+    for split, n in (("train", 175), ("val", 50), ("test", 25)):
+        stream = ShardStream(out, split, batch_size=16, hand=hand)
+        assert isinstance(stream, IterableDataset)
+        single = _samples(ShardStream(out, split, batch_size=16, shuffle=False, hand=hand))
+        assert len(single) == n
+        loader = DataLoader(stream, batch_size=None, num_workers=workers)
+        orders = []
+        for epoch in (0, 1):
+            stream.set_epoch(epoch)
+            batches = list(loader)
+            assert _samples(batches) == single, f"{split}, epoch {epoch}: samples missing, extra or mispaired"
+            orders.append(torch.cat([theta for theta, _ in batches]))
+        if split == "train":  # (a val/test share of a shard fits in one batch, whose rows are kept sorted)
+            assert not torch.equal(orders[0], orders[1]), "set_epoch did not reshuffle"
+
+
+def test_on_the_fly_workers_do_not_repeat_each_other(hand):
+    from torch.utils.data import DataLoader
+
+    stream = OnTheFlyBatches(batch_size=4, resolution=32, num_batches=5, hand=hand)
+    batches = list(DataLoader(stream, batch_size=None, num_workers=2))
+    assert len(batches) == 5 and len(_samples(batches)) == 20
 
 
 def test_on_the_fly_batches(hand):

@@ -1,5 +1,6 @@
 """Self-exploration data: collect (sample poses → render shadows → shards), stream shards to torch, or render
-batches on the fly.
+batches on the fly. Both streams are torch ``IterableDataset``s of whole batches (``DataLoader(stream,
+batch_size=None, num_workers=W)``) whose workers share the work instead of repeating it.
 
 A dataset folder holds ``dataset.json`` (the collection config, rig and hand hash) and ``shard_#####.npz``
 files (``studio.learn.shards``). Collection is resumable: shard ``k`` is drawn from the seed ``(seed, k)``, finished
@@ -16,6 +17,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
+from torch.utils.data import IterableDataset, get_worker_info
 
 from studio.errors import ShardError
 from studio.learn.shards import SHARD_FORMAT, Shard, list_shards, pack_masks, read_shard, shard_path, write_shard
@@ -139,22 +142,34 @@ def collect(
     return {"written": written, "skipped": skipped, "samples": done, "folder": str(out)}
 
 
-class ShardStream:
+class ShardStream(IterableDataset):
     """Streams ``(theta (B, 21) float32, masks (B, 1, H, W) float32)`` torch batches from a shard folder.
 
     ``split`` takes the 0.7 / 0.2 / 0.1 train / val / test share of every shard (``"all"`` takes everything);
-    shards are read one at a time, so memory stays at one shard. Also a torch ``IterableDataset`` (each
-    DataLoader worker reads a disjoint subset of the shards).
+    shards are read one at a time, so memory stays at one shard (per worker). ``len()`` counts samples, not batches.
+
+    A torch ``IterableDataset`` of whole batches: ``DataLoader(stream, batch_size=None, num_workers=W)``. An epoch
+    yields every sample of the split exactly once however many workers read it: with at least ``W`` shards each
+    worker reads whole shards (every ``W``-th of the epoch's shard order), with fewer every worker reads every shard
+    and keeps every ``W``-th of its rows. Epoch ``k`` is shuffled from the seed ``(seed, k)``; iterating advances
+    ``k``, but DataLoader workers iterate copies, so call ``set_epoch(k)`` before each epoch there (persistent
+    workers advance their copies together).
     """
 
     def __init__(self, folder: Path, split: str = "train", batch_size: int = 64, shuffle: bool = True,
                  seed: int = 0, hand: Hand | None = None):  # fmt: skip
         if split not in SPLITS:
             raise ValueError(f"split must be one of {list(SPLITS)}, got {split!r}")
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be positive, got {batch_size}")
         self.paths = list_shards(folder)
         self.split, self.batch_size, self.shuffle, self.seed = split, batch_size, shuffle, seed
         self.hand_hash = (hand or load_hand()).hash
-        self.epoch = 0
+        self.epoch = 0  # the next epoch's number: its shuffle is drawn from (seed, epoch)
+
+    def set_epoch(self, epoch: int) -> None:
+        """Make the next iteration epoch ``epoch`` (its shard and row order); needed with DataLoader workers."""
+        self.epoch = int(epoch)
 
     def _rows(self, n: int) -> np.ndarray:
         lo, hi = SPLITS[self.split]
@@ -168,24 +183,22 @@ class ShardStream:
                 total += len(self._rows(len(z["theta"])))
         return total
 
-    def __iter__(self) -> Iterator[tuple]:
-        import torch
-
-        paths = self.paths
-        try:
-            info = torch.utils.data.get_worker_info()
-        except AttributeError:
-            info = None
-        if info is not None:
-            paths = paths[info.id :: info.num_workers]
-        rng = np.random.default_rng([self.seed, self.epoch])
+    def __iter__(self) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
+        info = get_worker_info()
+        worker, workers = (0, 1) if info is None else (info.id, info.num_workers)
+        epoch = self.epoch
         self.epoch += 1
-        order = rng.permutation(len(paths)) if self.shuffle else np.arange(len(paths))
-        for i in order:
-            shard = read_shard(paths[i], self.hand_hash)
+        order = np.random.default_rng([self.seed, epoch]).permutation(len(self.paths))
+        if not self.shuffle:
+            order = np.arange(len(self.paths))
+        whole_shards = len(order) >= workers  # else split each shard's rows between the workers
+        for i in order[worker::workers] if whole_shards else order:
+            shard = read_shard(self.paths[i], self.hand_hash)
             rows = self._rows(len(shard))
-            if self.shuffle:
-                rows = rng.permutation(rows)
+            if self.shuffle:  # the same in every worker: the row split below stays disjoint
+                rows = np.random.default_rng([self.seed, epoch, int(i)]).permutation(rows)
+            if not whole_shards:
+                rows = rows[worker::workers]
             for s in range(0, len(rows), self.batch_size):
                 r = np.sort(rows[s : s + self.batch_size])
                 theta = torch.from_numpy(shard.theta[r].astype(np.float32))
@@ -193,8 +206,13 @@ class ShardStream:
                 yield theta, masks
 
 
-class OnTheFlyBatches:
-    """Endless (or ``num_batches``-long) stream of freshly sampled and rendered torch batches."""
+class OnTheFlyBatches(IterableDataset):
+    """Endless (or ``num_batches``-long) stream of freshly sampled and rendered torch batches
+    ``(theta (B, 21) float32, masks (B, 1, R, R) float32)``.
+
+    In one process the poses are drawn from ``seed``; DataLoader worker ``w`` of ``W`` draws from ``(seed, w)``
+    and makes every ``W``-th of the ``num_batches``, so workers never repeat each other's poses.
+    """
 
     def __init__(self, batch_size: int = 64, resolution: int = 128, seed: int = 0, num_batches: int | None = None,
                  hand: Hand | None = None, sampler: SamplerConfig | None = None):  # fmt: skip
@@ -203,12 +221,15 @@ class OnTheFlyBatches:
         self.batch_size, self.seed, self.num_batches = batch_size, seed, num_batches
         self.sampler = sampler or SamplerConfig()
 
-    def __iter__(self) -> Iterator[tuple]:
-        import torch
-
-        rng = np.random.default_rng(self.seed)
+    def __iter__(self) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
+        info = get_worker_info()
+        if info is None:
+            rng, count = np.random.default_rng(self.seed), self.num_batches
+        else:
+            rng = np.random.default_rng([self.seed, info.id])
+            count = None if self.num_batches is None else len(range(info.id, self.num_batches, info.num_workers))
         k = 0
-        while self.num_batches is None or k < self.num_batches:
+        while count is None or k < count:
             theta, _ = sample_poses(self.hand, self.batch_size, rng, self.sampler)
             masks = self.renderer.render(theta, check=False)
             yield torch.from_numpy(theta.astype(np.float32)), torch.from_numpy(masks.astype(np.float32))[:, None]
