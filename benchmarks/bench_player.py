@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hardware.bus import BusConfig, SerialServoBus
 from hardware.calibration import load_calibration
 from hardware.player import Player, _sleep_until
+from hardware.serial_bus import BusConfig, SerialServoBus
 from studio.motion.show import Show, load_show, save_show
 from studio.sim.hand import load_hand
 

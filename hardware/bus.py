@@ -1,23 +1,26 @@
-"""The servo bus: an abstract :class:`ServoBus` and :class:`SerialServoBus`, pyserial on a half-duplex adapter.
+"""The servo bus: the abstract :class:`ServoBus` (the pyserial one is ``hardware.serial_bus.SerialServoBus``).
 
-A concrete bus supplies four primitives (``connect``, ``disconnect``, ``send`` for commands no servo answers,
-``request`` for one question and its answer); everything else (batched position writes, torque, health reads,
-scanning) is built on them here, once. Positions on this layer are raw servo units (0..1000); radians live in
-``hardware.calibration``.
+A concrete bus supplies four primitives (``connect``, ``disconnect``, ``_transmit`` for commands no servo
+answers, ``request`` for one question and its answer); everything else (batched position writes, torque, health
+reads, scanning, the e-stop latch) is built on them here, once. Positions on this layer are raw servo units
+(0..1000); radians live in ``hardware.calibration``.
+
+Failing safe (DESIGN §5.13): :meth:`ServoBus.estop` latches: from then on every command that would make a servo
+move is refused with :class:`EStopLatched` (MOVE_STOP and torque-off still go out) until
+:meth:`ServoBus.reset_estop`. The check runs under the bus lock right before each write, so a motion write either
+reached the wire before the e-stop's MOVE_STOP or never goes out.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
-import time
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from hardware import constants as C
-from hardware.errors import BusError, ChecksumError, HardwareError, ServoTimeout, UnexpectedReply
-from hardware.protocol import StreamDecoder, encode_request
+from hardware.errors import BusError, ChecksumError, EStopLatched, ServoTimeout, UnexpectedReply
 
 log = logging.getLogger(__name__)
 
@@ -30,11 +33,24 @@ def move_requests(targets: Mapping[int, float], duration_s: float) -> list[Reque
     return [(i, C.MOVE_TIME_WRITE, (int(min(max(round(u), 0), C.POS_UNITS)), ms)) for i, u in targets.items()]
 
 
+def is_motion(request: Request) -> bool:
+    """True for a command that may make a servo move or push (torque on); MOVE_STOP and torque-off are not."""
+    _, command, values = request
+    if command.code == C.LOAD_OR_UNLOAD_WRITE.code:
+        return bool(values and values[0])
+    return command.code in C.MOTION_CODES
+
+
 class ServoBus(ABC):
     """A bus of LX-15D servos. Use as a context manager; every method is safe to call from several threads."""
 
     batch_size: int = 7  # servos per batch of move commands (paper)
     batch_gap_s: float = 0.010  # pause between batches in :meth:`write_positions` (paper)
+    label: str = "servo bus"  # how messages name this bus
+
+    def __init__(self) -> None:
+        self._lock = threading.RLock()  # one conversation on the wire at a time
+        self._estop = threading.Event()  # the e-stop latch: set by estop(), cleared only by reset_estop()
 
     @abstractmethod
     def connect(self) -> None:
@@ -45,8 +61,9 @@ class ServoBus(ABC):
         """Close the bus (safe to call twice)."""
 
     @abstractmethod
-    def send(self, requests: Sequence[Request]) -> None:
-        """Send commands that no servo answers, back to back in one write."""
+    def _transmit(self, requests: Sequence[Request]) -> None:
+        """Write commands that no servo answers, back to back in one write (called by :meth:`send` under the lock,
+        after the e-stop check)."""
 
     @abstractmethod
     def request(self, servo_id: int, command: C.Command, *values: int) -> tuple[int, ...]:
@@ -56,8 +73,52 @@ class ServoBus(ABC):
         self.connect()
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.disconnect()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            self.disconnect()
+        except BusError as e:
+            if exc is None:
+                raise
+            log.debug("closing %s failed too: %s", self.label, e)  # the error in flight says more
+
+    def send(self, requests: Sequence[Request]) -> None:
+        """Send commands that no servo answers, back to back in one write. Raises :class:`EStopLatched` (sending
+        nothing) when the e-stop is latched and any of them would make a servo move."""
+        with self._lock:
+            if self._estop.is_set() and any(is_motion(r) for r in requests):
+                raise EStopLatched(
+                    f"the e-stop is latched on {self.label}: no servo moves until it is reset (reset_estop(); "
+                    "in `jog`, type reset)"
+                )
+            self._transmit(requests)
+
+    # --- e-stop --------------------------------------------------------------------------------------------
+    def estop(self, release_torque: bool = False) -> bool:
+        """Latch the e-stop and halt every servo now (MOVE_STOP broadcast, then torque off if ``release_torque``).
+
+        Safe from any thread and never raises; from now on every motion command is refused until
+        :meth:`reset_estop`. Returns whether the halt reached the bus (False: the port failed; cut the power)."""
+        self._estop.set()
+        log.info("e-stop latched on %s", self.label)
+        try:
+            self.stop()
+            if release_torque:
+                self.set_torque(False)
+        except Exception as e:  # the latch holds whatever happens to the port
+            log.error("e-stop latched but the halt did not reach %s (%s): cut the servos' power", self.label, e)
+            return False
+        return True
+
+    def reset_estop(self) -> None:
+        """Clear the e-stop latch: motion commands go out again."""
+        if self._estop.is_set():
+            log.info("e-stop reset on %s", self.label)
+        self._estop.clear()
+
+    @property
+    def estop_latched(self) -> bool:
+        """True from :meth:`estop` until :meth:`reset_estop`."""
+        return self._estop.is_set()
 
     # --- motion --------------------------------------------------------------------------------------------
     def move_batch(self, targets: Mapping[int, float], duration_s: float) -> dict[int, int]:
@@ -68,13 +129,20 @@ class ServoBus(ABC):
 
     def write_positions(self, targets: Mapping[int, float], duration_s: float) -> dict[int, int]:
         """Move servos to ``{id: units}`` over ``duration_s``, ``batch_size`` per batch with ``batch_gap_s`` between
-        batches (DESIGN §4). Returns ``{id: units}`` actually sent (rounded and clamped to 0..1000)."""
+        batches (DESIGN §4). Returns ``{id: units}`` actually sent (rounded and clamped to 0..1000).
+
+        An e-stop during the move wakes the pause and refuses every later batch: :class:`EStopLatched` is raised,
+        its ``sent`` holding the batches that went out before."""
         items = list(targets.items())
         sent: dict[int, int] = {}
         for k in range(0, len(items), self.batch_size):
             if k:
-                time.sleep(self.batch_gap_s)
-            sent.update(self.move_batch(dict(items[k : k + self.batch_size]), duration_s))
+                self._estop.wait(self.batch_gap_s)  # returns early on an e-stop; the next send refuses
+            try:
+                sent.update(self.move_batch(dict(items[k : k + self.batch_size]), duration_s))
+            except EStopLatched as e:
+                e.sent = sent
+                raise
         return sent
 
     def stop(self, ids: Iterable[int] | None = None) -> None:
@@ -117,137 +185,6 @@ class ServoBus(ABC):
             return self.request(servo_id, C.ID_READ)[0] == servo_id
         except ServoTimeout:
             return False
-
-
-@dataclass
-class BusConfig:
-    """How the host talks to the adapter."""
-
-    port: str  # serial device, e.g. /dev/ttyUSB0 or the emulator's /dev/pts/N
-    baud: int = C.BAUD  # bus rate, 8N1
-    timeout_s: float = 0.02  # time to wait for one answer (a servo answers in ~1 ms + 0.7 ms on the wire)
-    retries: int = 2  # extra attempts after a failed read
-    echo: bool = False  # the adapter echoes what the host sends (single-wire adapters); discarded here
-    batch_size: int = 7  # servos per batch of moves (paper)
-    batch_gap_s: float = 0.010  # pause between batches in write_positions (paper)
-
-
-class SerialServoBus(ServoBus):
-    """:class:`ServoBus` over pyserial: 115200 8N1, echo discarded, per-read timeouts, bounded retries."""
-
-    def __init__(self, config: BusConfig | str):
-        self.config = BusConfig(config) if isinstance(config, str) else config
-        self.batch_size = self.config.batch_size
-        self.batch_gap_s = self.config.batch_gap_s
-        self._lock = threading.RLock()
-        self._serial = None
-        self._decoder = StreamDecoder()
-        self.stats = {"requests": 0, "retries": 0, "timeouts": 0, "checksum_errors": 0, "unexpected": 0}
-
-    def connect(self) -> None:
-        import serial  # pyserial; imported here so that the rest of the package needs no serial port
-
-        with self._lock:
-            if self._serial is not None:
-                return
-            try:
-                cfg = self.config
-                self._serial = serial.Serial(
-                    cfg.port, cfg.baud, bytesize=8, parity="N", stopbits=1, timeout=cfg.timeout_s
-                )
-            except (serial.SerialException, OSError) as e:
-                raise BusError(
-                    f"cannot open servo bus {self.config.port!r}: {e}. Check the adapter is plugged in and the path "
-                    "(or start `shadow-studio emulate` and use the path it prints)"
-                ) from e
-
-    def disconnect(self) -> None:
-        with self._lock:
-            if self._serial is not None:
-                self._serial.close()
-                self._serial = None
-
-    @property
-    def is_connected(self) -> bool:
-        return self._serial is not None
-
-    def _port(self):
-        if self._serial is None:
-            raise BusError("the servo bus is not connected: call connect() or use it as a context manager")
-        return self._serial
-
-    def _write(self, data: bytes) -> None:
-        port = self._port()
-        port.write(data)
-        if self.config.echo:  # the adapter hears itself: the same bytes must come back first
-            echo = port.read(len(data))
-            if echo != data:
-                raise UnexpectedReply(
-                    f"adapter echo does not match what was sent ({len(echo)}/{len(data)} bytes): another device may "
-                    "be driving the bus, or echo is set but the adapter does not echo (drop --echo)"
-                )
-
-    def send(self, requests: Sequence[Request]) -> None:
-        data = b"".join(encode_request(i, cmd, *v) for i, cmd, v in requests)
-        with self._lock:
-            self._write(data)
-
-    def request(self, servo_id: int, command: C.Command, *values: int) -> tuple[int, ...]:
-        if not command.is_read:
-            raise ValueError(f"{command.name} has no answer; use send()")
-        packet = encode_request(servo_id, command, *values)
-        error: HardwareError = ServoTimeout(servo_id)
-        with self._lock:
-            port = self._port()
-            for attempt in range(self.config.retries + 1):
-                self.stats["requests"] += 1
-                if attempt:
-                    self.stats["retries"] += 1
-                port.reset_input_buffer()
-                self._decoder.reset()
-                self._write(packet)
-                try:
-                    return self._await(servo_id, command)
-                except ChecksumError as e:
-                    self.stats["checksum_errors"] += 1
-                    error = e
-                except UnexpectedReply as e:
-                    self.stats["unexpected"] += 1
-                    error = e
-                except ServoTimeout as e:
-                    self.stats["timeouts"] += 1
-                    error = e
-        raise error
-
-    def _await(self, servo_id: int, command: C.Command) -> tuple[int, ...]:
-        port = self._port()
-        dec = self._decoder
-        bad_before = dec.checksum_errors
-        want = command.reply_len + 3
-        deadline = time.perf_counter() + self.config.timeout_s
-        stray = None
-        while True:
-            left = deadline - time.perf_counter()
-            if left <= 0:
-                break
-            port.timeout = left
-            data = port.read(max(1, min(want - len(dec.buffer), port.in_waiting or 1)))
-            for pkt in dec.feed(data):
-                if pkt.cmd == command.code and (pkt.servo_id == servo_id or servo_id == C.BROADCAST_ID):
-                    if len(pkt.params) == command.reply_len - C.MIN_LEN:
-                        return pkt.reply_values()
-                stray = pkt
-            if dec.checksum_errors > bad_before and not dec.buffer:
-                raise ChecksumError(
-                    f"servo {servo_id} answered {command.name} with a bad checksum: electrical noise, a loose "
-                    "cable, or two servos sharing this ID (run `shadow-studio scan`)"
-                )
-        if stray is not None:
-            raise UnexpectedReply(
-                f"asked servo {servo_id} for {command.name} but got {C.COMMANDS.get(stray.cmd, stray.cmd)!s:.40} "
-                f"from ID {stray.servo_id}: check for duplicate or misconfigured IDs (run `shadow-studio scan`)"
-            )
-        raise ServoTimeout(servo_id)
 
 
 @dataclass

@@ -107,6 +107,13 @@ COMMANDS: dict[int, Command] = {
 }  # fmt: skip
 
 
+# Commands that make a servo move: refused while the e-stop is latched (torque on, LOAD_OR_UNLOAD_WRITE 1, too).
+# ANGLE_OFFSET_ADJUST shifts a loaded horn at once; motor mode spins it.
+MOTION_CODES = frozenset(
+    c.code for c in (MOVE_TIME_WRITE, MOVE_TIME_WAIT_WRITE, MOVE_START, OR_MOTOR_MODE_WRITE, ANGLE_OFFSET_ADJUST)
+)
+
+
 def describe_faults(bits: int) -> str:
     """``"over-temperature, locked rotor"`` for a fault byte; ``"none"`` for 0."""
     names = [n for b, n in FAULT_NAMES.items() if bits & b]

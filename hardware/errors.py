@@ -41,11 +41,19 @@ class ServoFault(HardwareError):
 
 
 class BusError(HardwareError):
-    """The serial port cannot be opened or used."""
+    """The serial port cannot be opened or used (every pyserial, OS and termios error of the port becomes one)."""
+
+
+class EStopLatched(HardwareError):
+    """A motion command was refused because the bus's e-stop is latched (clear it with ``reset_estop()``)."""
+
+    def __init__(self, message: str, sent: dict[int, int] | None = None):
+        self.sent = dict(sent or {})  # {id: units} that went out before the latch refused the rest
+        super().__init__(message)
 
 
 class CalibrationError(HardwareError):
-    """A calibration file does not match the hand or is inconsistent."""
+    """A calibration file does not match the hand, is inconsistent, or cannot be written where asked."""
 
 
 class OverTemperature(ServoFault):

@@ -12,6 +12,13 @@ its next sample. Tick *k* starts at the absolute deadline ``t0 + k / rate``: a l
 Stops: Ctrl-C, :meth:`Player.estop`, the cancel event, a fault bit, over-temperature, out-of-range voltage,
 ``max_missed_reads`` failed reads of one servo, or a tracking error beyond the threshold. Each halts motion
 (MOVE_STOP to all) and then holds or releases torque as configured; the result says why and which.
+
+Failing safe (DESIGN §5.13): the loop runs under one guard, so whatever ends it (a stop condition, a lost port:
+``BusError`` → LOST_COMMUNICATION, a raising ``on_sample``/``progress`` hook → CALLBACK_ERROR, Ctrl-C →
+INTERRUPTED, or a bug → ERROR) the player sends MOVE_STOP (best effort: a failing stop only makes the torque
+"unknown"), applies the torque policy and records the result in :attr:`Player.last_result` before returning it; a
+bug is then re-raised. The e-stop is the bus's latch (:meth:`hardware.bus.ServoBus.estop`): while it is latched
+:meth:`Player.play` sends a stop and returns ESTOP at once, and only ``bus.reset_estop()`` clears it.
 """
 
 from __future__ import annotations
@@ -20,16 +27,23 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from enum import Enum
+from dataclasses import dataclass
 
 import numpy as np
 
 from hardware.bus import ServoBus
 from hardware.calibration import Calibration
-from hardware.errors import HardwareError, OverTemperature, ProtocolError, ServoFault, ServoTimeout
+from hardware.errors import (
+    BusError,
+    EStopLatched,
+    HardwareError,
+    OverTemperature,
+    ProtocolError,
+    ServoFault,
+    ServoTimeout,
+)
+from hardware.playback_log import PlaybackResult, Recording, StopReason
 from hardware.safety import (
-    Clipped,
     SafetyConfig,
     check_faults,
     check_temperature,
@@ -38,20 +52,11 @@ from hardware.safety import (
     tracking_error,
 )
 
+__all__ = ["PlaybackResult", "Player", "PlayerConfig", "SampleHook", "StopReason"]
+
 log = logging.getLogger(__name__)
 
 SampleHook = Callable[[float, np.ndarray, np.ndarray], None]  # (t s, commanded (J,) rad, measured (J,) rad)
-
-
-class StopReason(str, Enum):
-    COMPLETED = "completed"
-    INTERRUPTED = "interrupted (Ctrl-C)"
-    CANCELLED = "cancelled"
-    ESTOP = "e-stop"
-    FAULT = "servo fault"
-    OVER_TEMPERATURE = "over-temperature"
-    LOST_COMMUNICATION = "lost communication"
-    TRACKING_ERROR = "tracking error"
 
 
 @dataclass
@@ -65,64 +70,6 @@ class PlayerConfig:
     health_reads: bool = True  # one fault/temperature/voltage read per tick, round robin
     ramp_speed_rad_s: float = 0.5  # speed of the ramp from the measured pose to the first frame
     hold_torque_on_stop: bool = True  # after a stop: True keeps torque (hand holds its pose), False releases it
-
-
-@dataclass
-class PlaybackResult:
-    """What happened; arrays cover the ticks actually played (ramp included)."""
-
-    reason: StopReason  # why playback ended
-    message: str  # one sentence for the user
-    torque: str  # "held", "released" or "unknown" (the bus failed while stopping)
-    ramp_ticks: int  # ticks spent ramping before the show's first frame
-    t: np.ndarray  # (T,) s planned times of the ticks played, from the start of the ramp
-    skipped_ticks: int  # ticks dropped because the OS stalled the player for more than a tick
-    requested: np.ndarray  # (T, J) rad asked for (ramp + show), calibration joint order
-    sent: np.ndarray  # (T, J) rad actually commanded after clipping
-    clipped_limit: np.ndarray  # (T, J) bool: request beyond a soft limit
-    clipped_step: np.ndarray  # (T, J) bool: request beyond the max step per tick
-    lateness_s: np.ndarray  # (T,) s actual start of each tick minus its deadline
-    measured_t: np.ndarray  # (M,) s time of each position read-back
-    measured_joint: np.ndarray  # (M,) joint index read
-    measured_rad: np.ndarray  # (M,) rad measured
-    max_tracking_error_rad: float  # worst distance of a read-back from the recent commands
-    commands: int  # move packets sent
-    joint_names: list[str] = field(default_factory=list)  # column order
-
-    @property
-    def ok(self) -> bool:
-        return self.reason == StopReason.COMPLETED
-
-
-@dataclass
-class _Recording:
-    """Rows collected while playing (turned into a :class:`PlaybackResult` at the end)."""
-
-    ramp_ticks: int = 0
-    ticks: list = field(default_factory=list)
-    requested: list = field(default_factory=list)
-    sent: list = field(default_factory=list)
-    at_limit: list = field(default_factory=list)
-    at_step: list = field(default_factory=list)
-    late: list = field(default_factory=list)
-    meas_t: list = field(default_factory=list)
-    meas_j: list = field(default_factory=list)
-    meas_q: list = field(default_factory=list)
-    worst: float = 0.0
-    commands: int = 0
-    misses: np.ndarray | None = None  # (J,) consecutive failed reads per joint
-    measured: np.ndarray | None = None  # (J,) rad latest read-back per joint
-    history: np.ndarray | None = None  # (K, J) rad the last K commands sent
-    t0: float = 0.0  # perf_counter time of tick 0
-
-    def record_command(self, k: int, requested: np.ndarray, c: Clipped) -> None:
-        self.ticks.append(k)
-        self.history = np.roll(self.history, -1, 0)
-        self.history[-1] = c.sent
-        self.sent.append(c.sent)
-        self.requested.append(requested)
-        self.at_limit.append(c.at_limit)
-        self.at_step.append(c.at_step)
 
 
 class _Stop(Exception):
@@ -146,7 +93,7 @@ class Player:
         self.cfg = config or PlayerConfig()
         self.safety = safety or SafetyConfig()
         self.on_sample = on_sample
-        self._estop = threading.Event()
+        self.last_result: PlaybackResult | None = None  # set however the last play() ended, even by raising
         period = 1.0 / self.cfg.rate_hz
         n_batches = -(-len(calibration.joints) // self.cfg.batch_size)
         self.spacing = self.cfg.batch_spacing_s if self.cfg.batch_spacing_s is not None else period / n_batches
@@ -156,14 +103,15 @@ class Player:
                 "lower batch_spacing_s or rate_hz"
             )
 
-    def estop(self) -> None:
-        """Stop as soon as possible (thread-safe; call from a UI or signal handler)."""
-        self._estop.set()
+    def estop(self) -> bool:
+        """Latch the bus's e-stop and halt every servo now (thread-safe; call from a UI or signal handler).
 
-    def trajectory(self, times: np.ndarray, positions: np.ndarray, joint_names: list[str], start: np.ndarray):
-        """Ticks to play: a ramp from ``start (J,) rad`` to the first frame, then the show resampled at the rate.
+        Playback ends with ESTOP; nothing moves again until ``bus.reset_estop()``. Returns whether the halt reached
+        the bus."""
+        return self.bus.estop()
 
-        Returns ``(q (T, J) rad in calibration order, ramp_ticks)``."""
+    def _columns(self, times: np.ndarray, positions: np.ndarray, joint_names: list[str]):
+        """Check a show; returns ``(times (N,) s, q (N, J) rad in calibration order)`` or raises ValueError."""
         times = np.asarray(times, dtype=float)
         positions = np.asarray(positions, dtype=float)
         if positions.ndim != 2 or positions.shape != (len(times), len(joint_names)) or len(times) < 1:
@@ -173,7 +121,13 @@ class Player:
         if sorted(joint_names) != sorted(self.cal.joint_names):
             raise ValueError(f"show joints {joint_names} do not match the calibration's {self.cal.joint_names}")
         cols = [joint_names.index(n) for n in self.cal.joint_names]
-        q = positions[:, cols]
+        return times, positions[:, cols]
+
+    def trajectory(self, times: np.ndarray, positions: np.ndarray, joint_names: list[str], start: np.ndarray):
+        """Ticks to play: a ramp from ``start (J,) rad`` to the first frame, then the show resampled at the rate.
+
+        Returns ``(q (T, J) rad in calibration order, ramp_ticks)``."""
+        times, q = self._columns(times, positions, joint_names)
         dt = 1.0 / self.cfg.rate_hz
         tk = np.arange(0.0, times[-1] - times[0] + 1e-9, dt) + times[0]
         show = np.stack([np.interp(tk, times, q[:, j]) for j in range(q.shape[1])], 1)
@@ -191,15 +145,40 @@ class Player:
         cancel: threading.Event | None = None,
         progress: Callable[[int, int], None] | None = None,
     ) -> PlaybackResult:
-        """Play ``positions (N, J) rad`` at ``times (N,) s`` (columns named by ``joint_names``); never raises for a
-        stop condition: the result says why it stopped and what torque state it left."""
-        self._estop.clear()
+        """Play ``positions (N, J) rad`` at ``times (N,) s`` (columns named by ``joint_names``).
+
+        Never raises for a stop condition, a lost bus, a raising hook or Ctrl-C: the result says why it stopped and
+        what torque state it left. A malformed show raises ValueError before anything is sent; an unexpected
+        exception (a bug) is re-raised after the safe stop, with what was played in :attr:`last_result`."""
+        rec = Recording(len(self.cal.ids))
+        self.last_result = None
+        if self.bus.estop_latched:
+            return self._finish(StopReason.ESTOP, "the e-stop is latched: reset it (bus.reset_estop()) first", rec)
+        self._columns(times, positions, joint_names)  # a bad show fails here, before the bus is touched
+        try:
+            reason, message = self._run(times, positions, joint_names, rec, cancel, progress)
+        except _Stop as s:
+            reason, message = s.reason, s.message
+        except EStopLatched:
+            reason, message = StopReason.ESTOP, "e-stop pressed"
+        except BusError as e:
+            reason, message = StopReason.LOST_COMMUNICATION, f"lost the bus: {e}"
+        except HardwareError as e:
+            reason, message = StopReason.LOST_COMMUNICATION, f"the bus failed: {e}"
+        except KeyboardInterrupt:
+            reason, message = StopReason.INTERRUPTED, "stopped by Ctrl-C"
+        except BaseException as e:  # a bug: stop safely and keep the log, then let it surface
+            self._finish(StopReason.ERROR, f"playback crashed ({type(e).__name__}: {e})", rec)
+            raise
+        return self._finish(reason, message, rec)
+
+    def _run(self, times, positions, joint_names, rec: Recording, cancel, progress) -> tuple[StopReason, str]:
+        """The playback loop; returns ``(COMPLETED, message)`` or raises what stopped it."""
         ids, J, dt = self.cal.ids, len(self.cal.ids), 1.0 / self.cfg.rate_hz
-        rec = _Recording(misses=np.zeros(J, dtype=int))
         try:
             start = self.cal.to_rad(np.array([self.bus.read_position(i) for i in ids], dtype=float))
         except (ServoTimeout, ProtocolError) as e:
-            return self._finish(StopReason.LOST_COMMUNICATION, f"cannot read the starting pose: {e}", rec)
+            raise _Stop(StopReason.LOST_COMMUNICATION, f"cannot read the starting pose: {e}") from e
         q, rec.ramp_ticks = self.trajectory(times, positions, joint_names, start)
         rec.measured = start.copy()
         rec.history = np.repeat(start[None], self.safety.tracking_lag_ticks, 0)
@@ -208,55 +187,54 @@ class Player:
         prev = start
         max_step = self.safety.max_speed_rad_s * dt
         rec.t0 = time.perf_counter() + 0.002
-        try:
-            k = -1
-            while k + 1 < len(q):
-                # next tick; if the OS stalled us past a whole tick, skip to the current one (keeps sync with
-                # the show's clock; the step limit then spreads the catch-up over several ticks)
-                k = max(k + 1, min(int((time.perf_counter() - rec.t0) / dt), len(q) - 1))
-                deadline = rec.t0 + k * dt
-                c = clip_command(q[k], prev, self.cal.lower, self.cal.upper, max_step)
-                units = self.cal.to_units(c.sent)
-                for b, batch in enumerate(batches):
-                    self._check_stop(cancel)
-                    _sleep_until(deadline + b * self.spacing)
-                    if b == 0:
-                        rec.late.append(time.perf_counter() - deadline)
-                    self.bus.move_batch({ids[j]: units[j] for j in batch}, dt)
-                    rec.commands += len(batch)
-                    if b == 0:
-                        prev = c.sent
-                        rec.record_command(k, q[k], c)
-                    for _ in range(self.cfg.reads_per_batch):
-                        self._read_back(reads % J, rec)
-                        reads += 1
-                if self.cfg.health_reads:
-                    self._health(health, rec.misses)
-                    health += 1
-                if self.on_sample is not None:
-                    self.on_sample(k * dt, c.sent.copy(), rec.measured.copy())
-                if progress is not None:
-                    progress(k + 1, len(q))
-            skipped = len(q) - len(rec.ticks)
-            reason, message = StopReason.COMPLETED, f"played {len(q)} ticks ({len(q) * dt:.2f} s, {skipped} skipped)"
-        except _Stop as s:
-            reason, message = s.reason, s.message
-        except KeyboardInterrupt:
-            reason, message = StopReason.INTERRUPTED, "stopped by Ctrl-C"
-        except HardwareError as e:
-            reason, message = StopReason.LOST_COMMUNICATION, f"the bus failed: {e}"
-        return self._finish(reason, message, rec)
+        k = -1
+        while k + 1 < len(q):
+            # next tick; if the OS stalled us past a whole tick, skip to the current one (keeps sync with
+            # the show's clock; the step limit then spreads the catch-up over several ticks)
+            k = max(k + 1, min(int((time.perf_counter() - rec.t0) / dt), len(q) - 1))
+            deadline = rec.t0 + k * dt
+            c = clip_command(q[k], prev, self.cal.lower, self.cal.upper, max_step)
+            units = self.cal.to_units(c.sent)
+            for b, batch in enumerate(batches):
+                self._check_stop(cancel)
+                _sleep_until(deadline + b * self.spacing)
+                if b == 0:
+                    rec.late.append(time.perf_counter() - deadline)
+                self.bus.move_batch({ids[j]: units[j] for j in batch}, dt)  # EStopLatched once latched
+                rec.commands += len(batch)
+                if b == 0:
+                    prev = c.sent
+                    rec.record_command(k, q[k], c)
+                for _ in range(self.cfg.reads_per_batch):
+                    self._read_back(reads % J, rec)
+                    reads += 1
+            if self.cfg.health_reads:
+                self._health(health, rec.misses)
+                health += 1
+            if self.on_sample is not None:
+                self._hook("on_sample", self.on_sample, k * dt, c.sent.copy(), rec.measured.copy())
+            if progress is not None:
+                self._hook("progress", progress, k + 1, len(q))
+        skipped = len(q) - len(rec.ticks)
+        return StopReason.COMPLETED, f"played {len(q)} ticks ({len(q) * dt:.2f} s, {skipped} skipped)"
 
-    def _read_back(self, j: int, rec: _Recording) -> None:
+    @staticmethod
+    def _hook(name: str, fn: Callable, *args) -> None:
+        """Call a user hook; an exception from it stops playback (CALLBACK_ERROR), Ctrl-C stays Ctrl-C."""
+        try:
+            fn(*args)
+        except Exception as e:
+            log.error("the %s callback raised; stopping playback", name, exc_info=True)
+            raise _Stop(StopReason.CALLBACK_ERROR, f"the {name} callback raised {type(e).__name__}: {e}") from e
+
+    def _read_back(self, j: int, rec: Recording) -> None:
         """Read joint ``j``'s position, log it, and stop on a tracking error."""
         val = self._read(j, rec.misses, self.bus.read_position)
         if val is None:
             return
-        rec.measured[j] = self.cal.to_rad(np.full(len(self.cal.ids), float(val)))[j]
-        rec.meas_t.append(time.perf_counter() - rec.t0)
-        rec.meas_j.append(j)
-        rec.meas_q.append(rec.measured[j])
-        err = tracking_error(rec.measured[j], rec.history[:, j])
+        q = self.cal.to_rad(np.full(len(self.cal.ids), float(val)))[j]
+        rec.record_reading(time.perf_counter() - rec.t0, j, q)
+        err = tracking_error(q, rec.history[:, j])
         rec.worst = max(rec.worst, err)
         if err > self.safety.max_tracking_error_rad:
             raise _Stop(
@@ -266,7 +244,7 @@ class Player:
             )
 
     def _check_stop(self, cancel: threading.Event | None) -> None:
-        if self._estop.is_set():
+        if self.bus.estop_latched:
             raise _Stop(StopReason.ESTOP, "e-stop pressed")
         if cancel is not None and cancel.is_set():
             raise _Stop(StopReason.CANCELLED, "cancelled")
@@ -307,7 +285,8 @@ class Player:
         except ServoFault as e:
             raise _Stop(StopReason.FAULT, str(e)) from e
 
-    def _finish(self, reason: StopReason, message: str, rec: _Recording) -> PlaybackResult:
+    def _finish(self, reason: StopReason, message: str, rec: Recording) -> PlaybackResult:
+        """Halt (unless completed), apply the torque policy, and record the result; never raises."""
         torque = "held"
         if reason != StopReason.COMPLETED:
             try:
@@ -315,34 +294,13 @@ class Player:
                 if not self.cfg.hold_torque_on_stop:
                     self.bus.set_torque(False)
                     torque = "released"
-            except (HardwareError, OSError) as e:
+            except Exception as e:  # best effort: the result (and the log) must still come back
                 torque = "unknown"
-                message += f"; stopping the servos failed too ({e}): cut their power"
-            log.warning("playback stopped: %s: %s (torque %s)", reason.value, message, torque)
-        J = len(self.cal.ids)
-
-        def rows(x: list, dtype=float) -> np.ndarray:
-            return np.array(x, dtype=dtype).reshape(len(x), J)
-
-        return PlaybackResult(
-            reason=reason,
-            message=message,
-            torque=torque,
-            ramp_ticks=rec.ramp_ticks,
-            t=np.array(rec.ticks, dtype=float) / self.cfg.rate_hz,
-            skipped_ticks=(rec.ticks[-1] + 1 - len(rec.ticks)) if rec.ticks else 0,
-            requested=rows(rec.requested),
-            sent=rows(rec.sent),
-            clipped_limit=rows(rec.at_limit, bool),
-            clipped_step=rows(rec.at_step, bool),
-            lateness_s=np.array(rec.late, dtype=float),
-            measured_t=np.array(rec.meas_t, dtype=float),
-            measured_joint=np.array(rec.meas_j, dtype=int),
-            measured_rad=np.array(rec.meas_q, dtype=float),
-            max_tracking_error_rad=rec.worst,
-            commands=rec.commands,
-            joint_names=list(self.cal.joint_names),
-        )
+                log.debug("stopping the servos failed: %s", e)
+                message += f"; the stop could not be sent either ({type(e).__name__}): cut the servos' power"
+            log.debug("playback stopped: %s: %s (torque %s)", reason.value, message, torque)
+        self.last_result = rec.result(reason, message, torque, self.cfg.rate_hz, self.cal.joint_names)
+        return self.last_result
 
 
 def _sleep_until(t: float) -> None:

@@ -9,10 +9,11 @@ import pytest
 import serial
 
 from hardware import constants as C
-from hardware.bus import BusConfig, SerialServoBus, scan
+from hardware.bus import scan
 from hardware.emulator import EmulatorConfig, ServoEmulator
 from hardware.errors import BusError, ChecksumError, ServoTimeout, UnexpectedReply
 from hardware.protocol import StreamDecoder, encode_request
+from hardware.serial_bus import BusConfig, SerialServoBus
 
 
 @pytest.fixture(params=[False, True], ids=["plain", "echo"])

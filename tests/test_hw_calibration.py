@@ -9,7 +9,6 @@ import pytest
 import yaml
 
 from hardware import constants as C
-from hardware.bus import BusConfig, SerialServoBus
 from hardware.calibration import (
     Calibration,
     default_calibration,
@@ -19,6 +18,7 @@ from hardware.calibration import (
 )
 from hardware.emulator import ServoEmulator
 from hardware.errors import CalibrationError
+from hardware.serial_bus import BusConfig, SerialServoBus
 from hardware.wizard import CalibrationWizard
 
 

@@ -8,10 +8,10 @@ import time
 import numpy as np
 import pytest
 
-from hardware.bus import BusConfig, SerialServoBus
 from hardware.calibration import default_calibration
 from hardware.emulator import ServoEmulator
 from hardware.jog import Jog, JogConfig
+from hardware.serial_bus import BusConfig, SerialServoBus
 
 
 @pytest.fixture

@@ -9,11 +9,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hardware.bus import BusConfig, SerialServoBus
 from hardware.calibration import Calibration, default_calibration
 from hardware.emulator import EmulatorConfig, ServoEmulator
 from hardware.player import Player, PlayerConfig, StopReason
 from hardware.safety import SafetyConfig, clip_command
+from hardware.serial_bus import BusConfig, SerialServoBus
 
 
 @pytest.fixture

@@ -10,10 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hardware.bus import BusConfig, SerialServoBus, scan
+from hardware.bus import scan
 from hardware.calibration import default_calibration, load_calibration, save_calibration
 from hardware.jog import HELP, Jog
 from hardware.player import Player, PlayerConfig
+from hardware.serial_bus import BusConfig, SerialServoBus
 from hardware.wizard import CalibrationWizard
 from studio.sim.hand import load_hand
 
