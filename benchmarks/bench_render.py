@@ -11,9 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -51,13 +49,12 @@ def main() -> None:
     with PyBulletShadowCamera(hand, rig) as cam:
         twin_rate, ref = pybullet_rate(cam, ref_poses)
     # PyBullet on the plain URDF (coarse primitive capsules): faster but less exact
-    with tempfile.TemporaryDirectory() as tmp, PyBulletShadowCamera(hand, rig) as plain:
+    with PyBulletShadowCamera(hand, rig) as plain:
         import pybullet as p
 
         p.removeBody(plain.body, physicsClientId=plain.client)
         plain.body = p.loadURDF(str(hand.urdf_path), useFixedBase=True, physicsClientId=plain.client)
         plain_rate, _ = pybullet_rate(plain, ref_poses)
-        Path(tmp).exists()
     scores = iou(imgs[: args.n_ref], ref)
     pb = max(twin_rate, plain_rate)
     result = {

@@ -9,3 +9,7 @@ class StudioError(Exception):
 
 class ShardError(StudioError):
     """A dataset shard is missing, truncated, corrupt, or was made for another hand or rig."""
+
+
+class ClosedError(StudioError):
+    """An object was used after ``close()`` (or the end of its ``with`` block) released what it held."""

@@ -92,33 +92,78 @@ def test_cancel_stops_search_early(hand):
     assert res.cancelled and res.iterations == 1 and seen == [1]
 
 
+def colliding_start(hand, seed: int) -> np.ndarray:
+    """Middle finger swung through the index, ring finger spread into the little finger: deep self-collision."""
+    q = hand.rest_pose()
+    q[hand.joint_names.index("middle_mcp_abd")] = np.radians(-15 - 10 * seed)
+    q[hand.joint_names.index("ring_mcp_abd")] = np.random.default_rng(seed).uniform(0.3, 0.9)
+    return q
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_refinement_output_never_collides(hand, seed):
-    """Start from a badly colliding pose: the answer is collision-free, or says clearly that none was found."""
+def test_refinement_climbs_out_of_collision(hand, seed):
+    """From a badly colliding pose the chains climb out of collision: the answer is a free pose within the limits."""
     renderer = ShadowRenderer(hand, Rig(resolution=64))
-    colliding = hand.rest_pose()
-    rng = np.random.default_rng(seed)
-    colliding[hand.joint_names.index("middle_mcp_abd")] = np.radians(-15 - 10 * seed)
-    colliding[hand.joint_names.index("ring_mcp_abd")] = rng.uniform(0.3, 0.9)
+    start = colliding_start(hand, seed)
     target = renderer.render_one(free_poses(hand, 1, seed=seed)[0])
-    refiner = Refiner(renderer)
-    assert refiner.world.in_collision(colliding)[0]
-    res = refiner.refine(ImageLoss(target, LossConfig(use_clip=False, crop_size=64)), colliding,
-                         RefineConfig(steps=150, seed=seed))  # fmt: skip
-    assert res.start_collides
-    if res.collision_free:
+    loss_fn = ImageLoss(target, LossConfig(use_clip=False, crop_size=64))
+    with Refiner(renderer) as refiner:
+        assert refiner.world.in_collision(start)[0]
+        res = refiner.refine(loss_fn, start, RefineConfig(steps=150, seed=seed))
+        assert res.start_collides and res.collision_free, res.message
         assert not refiner.world.in_collision(res.theta)[0]
-        assert np.isfinite(res.loss)
-        assert np.all(res.theta >= hand.lower) and np.all(res.theta <= hand.upper)
-    else:
-        assert "no collision-free pose" in res.message and res.loss == float("inf")
+        assert res.loss == pytest.approx(refiner.score(loss_fn, res.theta[None])[0][0])
+    assert np.isfinite(res.loss) and "collision-free pose found" in res.message
+    assert np.all(res.theta >= hand.lower) and np.all(res.theta <= hand.upper)
+
+
+def test_refinement_says_when_no_collision_free_pose_was_found(hand):
+    """One chain and no proposals: the only pose visited is the colliding start, so no free pose can be found."""
+    renderer = ShadowRenderer(hand, Rig(resolution=64))
+    start = colliding_start(hand, 0)
+    loss_fn = ImageLoss(renderer.render_one(hand.rest_pose()), LossConfig(use_clip=False, crop_size=64))
+    with Refiner(renderer) as refiner:
+        res = refiner.refine(loss_fn, start, RefineConfig(restarts=1, steps=0))
+    assert res.start_collides and not res.collision_free
+    assert res.loss == float("inf") and np.isfinite(res.start_loss)
+    assert "no collision-free pose" in res.message
+    assert np.array_equal(res.theta, start)  # the (colliding) start comes back, as documented
+
+
+def test_refiner_and_imitator_close_their_collision_world(hand):
+    import pybullet as p
+
+    from studio.errors import ClosedError
+
+    renderer = ShadowRenderer(hand, Rig(resolution=32))
+    loss_fn = ImageLoss(renderer.render_one(hand.rest_pose()), LossConfig(use_clip=False, crop_size=32))
+    with Refiner(renderer) as refiner:
+        client = refiner.world.client
+        assert p.isConnected(client)
+    assert not p.isConnected(client)
+    refiner.close()  # closing twice is fine
+    with pytest.raises(ClosedError, match="Refiner was closed"):
+        refiner.refine(loss_fn, hand.rest_pose(), RefineConfig(steps=1))
+    with CollisionWorld(hand) as world:  # a world passed in stays the caller's
+        with Refiner(renderer, world):
+            pass
+        assert p.isConnected(world.client)
+    model = SelfModel(SelfModelConfig(resolution=32, hidden=32, channels=16, min_channels=8, res_blocks=1), hand)
+    with Imitator(model, loss_cfg=LossConfig(use_clip=False, crop_size=32)) as imitator:
+        client = imitator.refiner.world.client
+        assert p.isConnected(client)
+    assert not p.isConnected(client)
+    imitator.close()
+    with pytest.raises(ClosedError, match="Imitator was closed"):
+        imitator.imitate(np.zeros((32, 32), np.uint8))
 
 
 def test_refinement_never_worsens_a_free_start(hand):
     renderer = ShadowRenderer(hand, Rig(resolution=64))
     q_target, q_start = free_poses(hand, 2, seed=8)
     loss_fn = ImageLoss(renderer.render_one(q_target), LossConfig(use_clip=False, crop_size=64))
-    res = Refiner(renderer).refine(loss_fn, q_start, RefineConfig(steps=100))
+    with Refiner(renderer) as refiner:
+        res = refiner.refine(loss_fn, q_start, RefineConfig(steps=100))
     assert res.collision_free and res.loss <= res.start_loss
     assert [b for _, b in res.curve] == sorted((b for _, b in res.curve), reverse=True)
 

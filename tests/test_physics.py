@@ -85,3 +85,19 @@ def test_batched_equals_single(world, hand):
 def test_bad_pose_raises(world):
     with pytest.raises(ValueError, match="shape"):
         world.collision_score(np.zeros(3))
+
+
+def test_world_closes_its_pybullet_client(hand):
+    import pybullet as p
+
+    from studio.errors import ClosedError
+
+    with CollisionWorld(hand) as w:
+        client = w.client
+        assert p.isConnected(client)
+        assert not w.in_collision(hand.rest_pose())[0]
+    assert not p.isConnected(client)
+    w.close()  # closing twice is fine
+    for query in (w.in_collision, w.collision_score, w.contacts, w.closest_pairs_reference):
+        with pytest.raises(ClosedError, match="CollisionWorld was closed"):
+            query(hand.rest_pose())

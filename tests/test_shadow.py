@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -92,3 +94,18 @@ def test_pixels_sample_the_continuous_shadow_at_their_centres(hand, seed, res):
     hi = ShadowRenderer(hand, Rig(resolution=3 * res)).render(theta)[0]
     mismatch = (lo != hi[1::3, 1::3]).sum()
     assert mismatch <= 1, f"{mismatch} pixels differ"  # allow one centre lying exactly on an edge (rounding)
+
+
+def test_reference_camera_releases_client_and_folder(hand):
+    import pybullet as p
+
+    from studio.errors import ClosedError
+
+    with PyBulletShadowCamera(hand, Rig(resolution=32)) as cam:
+        client, folder = cam.client, Path(cam._tmp.name)
+        assert p.isConnected(client) and any(folder.glob("*.obj"))
+        assert cam.render(hand.rest_pose()).any()
+    assert not p.isConnected(client) and not folder.exists()
+    cam.close()  # closing twice is fine
+    with pytest.raises(ClosedError, match="PyBulletShadowCamera was closed"):
+        cam.render(hand.rest_pose())

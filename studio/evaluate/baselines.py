@@ -18,11 +18,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from studio.sim.crop import align
+from studio.errors import ClosedError
 from studio.imitate.losses import ImageLoss, LossConfig, mae, soft_iou
 from studio.learn.dataset import SPLITS
 from studio.learn.inverse import InverseCNN
 from studio.learn.shards import list_shards, read_shard
+from studio.sim.crop import align
 from studio.sim.hand import Hand, load_hand
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import ShadowRenderer
@@ -101,13 +102,34 @@ class RandomImage:
 
 
 class InverseBaseline:
-    """Inverse-CNN baseline: predict θ from the target, clip to the limits, render its shadow."""
+    """Inverse-CNN baseline: predict θ from the target, clip to the limits, render its shadow.
+
+    A world passed in stays the caller's; one made here is disconnected by ``close()`` (or the end of a ``with``
+    block), after which ``query`` raises :class:`~studio.errors.ClosedError`.
+    """
 
     def __init__(self, model: InverseCNN, renderer: ShadowRenderer, world: CollisionWorld | None = None):
         self.model, self.renderer = model, renderer
+        self._owns_world = world is None
         self.world = world or CollisionWorld(renderer.hand)
+        self.closed = False
+
+    def close(self) -> None:
+        """Disconnect the collision world if this baseline made it (idempotent)."""
+        if self._owns_world:
+            self.world.close()
+        self.closed = True
+
+    def __enter__(self) -> InverseBaseline:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def query(self, target: np.ndarray) -> BaselineOutput:
+        """``target (H, W)`` mask → the CNN's pose, its rendered shadow and whether it collides."""
+        if self.closed:
+            raise ClosedError("this InverseBaseline was closed; make a new one (or query inside its `with` block)")
         t0 = time.perf_counter()
         theta = self.model.predict(target[None].astype(np.float32))[0]
         shadow = self.renderer.render_one(theta)

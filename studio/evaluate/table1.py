@@ -111,7 +111,11 @@ def summarise(records: list[dict]) -> list[dict]:
 
 
 class Evaluator:
-    """Runs every method of Table 1 on targets; holds the imitator and the baselines between targets."""
+    """Runs every method of Table 1 on targets; holds the imitator and the baselines between targets.
+
+    The imitator stays the caller's (close it yourself); ``close()`` (or the end of a ``with`` block) closes the
+    baselines made here.
+    """
 
     def __init__(
         self,
@@ -132,6 +136,16 @@ class Evaluator:
         self.nn = NearestNeighbour(data, imitator.loss_cfg, self.cfg.nn)
         self.nn_setup_seconds = time.perf_counter() - t0  # aligning the training images, once per run
         self.training_size = len(data)
+
+    def close(self) -> None:
+        """Close the inverse baseline (its collision world is the imitator's, which stays open; idempotent)."""
+        self.inverse.close()
+
+    def __enter__(self) -> Evaluator:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def evaluate_target(self, name: str, target: np.ndarray, cancel: threading.Event | None = None) -> list[dict]:
         """One record per method for one ``(R, R)`` target mask."""

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from studio.errors import ClosedError
 from studio.imitate.losses import ImageLoss
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import ShadowRenderer
@@ -57,16 +58,39 @@ class RefineResult:
 
 
 class Refiner:
-    """Holds the renderer and the collision world so repeated refinements reuse them."""
+    """Holds the renderer and the collision world so repeated refinements reuse them.
+
+    A world passed in stays the caller's; one made here is disconnected by ``close()`` (or the end of a ``with``
+    block), after which the refiner raises :class:`~studio.errors.ClosedError`.
+    """
 
     def __init__(self, renderer: ShadowRenderer, world: CollisionWorld | None = None):
         self.renderer = renderer
         self.hand = renderer.hand
+        self._owns_world = world is None
         self.world = world or CollisionWorld(self.hand)
+        self.closed = False
+
+    def close(self) -> None:
+        """Disconnect the collision world if this refiner made it (idempotent)."""
+        if self._owns_world:
+            self.world.close()
+        self.closed = True
+
+    def __enter__(self) -> Refiner:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _check_open(self) -> None:
+        if self.closed:
+            raise ClosedError("this Refiner was closed; make a new one (or refine inside its `with` block)")
 
     @torch.no_grad()
     def score(self, loss_fn: ImageLoss, theta: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Rendered-shadow losses of poses ``(B, 21)`` → totals ``(B,)`` and components."""
+        self._check_open()
         shadows = torch.from_numpy(self.renderer.render(theta, check=False)).float()
         total, comps = loss_fn(shadows)
         return total.double().numpy(), {k: v.double().numpy() for k, v in comps.items()}
@@ -79,6 +103,7 @@ class Refiner:
         progress: Callable[[int, int, float], None] | None = None,
         cancel: threading.Event | None = None,
     ) -> RefineResult:
+        self._check_open()
         cfg = cfg or RefineConfig()
         lo, hi = self.hand.lower, self.hand.upper
         start = self.hand.check_theta(theta_start)[0]

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from studio.assets import asset
+from studio.errors import ClosedError
 from studio.imitate.losses import ImageLoss, LossConfig
 from studio.imitate.refine import RefineConfig, Refiner, RefineResult
 from studio.imitate.search import CPU_SEARCH, SearchConfig, SearchResult, gradient_search
@@ -60,7 +61,11 @@ def distinct_best(batch_theta: np.ndarray, batch_loss: np.ndarray, k: int, min_d
 
 
 class Imitator:
-    """Reusable machinery for imitating still targets."""
+    """Reusable machinery for imitating still targets.
+
+    Owns its refiner's collision world: ``close()`` (or the end of a ``with`` block) disconnects it, after which
+    ``imitate`` raises :class:`~studio.errors.ClosedError`.
+    """
 
     def __init__(
         self,
@@ -86,6 +91,16 @@ class Imitator:
         self.refiner = Refiner(self.renderer)
         self.candidates = candidates  # distinct best search results refined (each with the full schedule)
 
+    def close(self) -> None:
+        """Disconnect the refiner's collision world (idempotent)."""
+        self.refiner.close()
+
+    def __enter__(self) -> Imitator:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
     def load(self, path: Path) -> np.ndarray:
         """A target file → ``(R, R)`` uint8 mask framed like the model's images (TargetError when unusable)."""
         return load_target(path, size=self.resolution)
@@ -102,6 +117,8 @@ class Imitator:
         cancel: threading.Event | None = None,
     ) -> ImitationResult:
         """Search then (optionally) refine. ``progress(stage, step, total, best_loss)``."""
+        if self.refiner.closed:
+            raise ClosedError("this Imitator was closed; make a new one (or imitate inside its `with` block)")
         t0 = time.perf_counter()
         loss_fn = self.loss_fn(target, expressive)
         stage = (lambda name: lambda s, n, b: progress(name, s, n, b)) if progress else (lambda name: None)

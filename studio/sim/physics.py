@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from studio.errors import ClosedError
 from studio.sim.hand import Hand, load_hand
 
 
@@ -43,7 +44,8 @@ class Contact:
 class CollisionWorld:
     """A PyBullet DIRECT world holding the hand's collision skeleton with self-collision on.
 
-    One world per instance, reused for every query (not thread-safe: one per thread or process).
+    One world per instance, reused for every query (not thread-safe: one per thread or process). ``close()`` (or
+    the end of a ``with`` block) disconnects it; a closed world raises :class:`~studio.errors.ClosedError`.
     """
 
     def __init__(self, hand: Hand | None = None, cfg: CollisionConfig | None = None):
@@ -53,6 +55,14 @@ class CollisionWorld:
         self.hand = hand or load_hand()
         self.cfg = cfg or CollisionConfig()
         self.client = p.connect(p.DIRECT)
+        try:
+            self._load()
+        except BaseException:
+            self.close()
+            raise
+
+    def _load(self) -> None:
+        p = self.p
         p.setPhysicsEngineParameter(contactBreakingThreshold=self.cfg.p_soft, physicsClientId=self.client)
         self.body = p.loadURDF(
             str(self.hand.urdf_path), useFixedBase=True, flags=p.URDF_USE_SELF_COLLISION,
@@ -96,6 +106,8 @@ class CollisionWorld:
 
     # -- queries ---------------------------------------------------------------------------------------
     def _set(self, q: np.ndarray) -> None:
+        if self.client is None:  # every query sets the pose first
+            raise ClosedError("this CollisionWorld was closed; make a new one (or use it inside its `with` block)")
         self.p.resetJointStatesMultiDof(
             self.body, self._joint_ids, [[float(v)] for v in q], physicsClientId=self.client
         )
@@ -176,7 +188,8 @@ class CollisionWorld:
         return [Contact(self._link_name[a], self._link_name[b], d) for a, b, d in self._pairs(q)]
 
     def close(self) -> None:
-        if self.client is not None:
+        """Disconnect the PyBullet client (idempotent)."""
+        if getattr(self, "client", None) is not None:
             self.p.disconnect(self.client)
             self.client = None
 

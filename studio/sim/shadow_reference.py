@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from studio.errors import ClosedError
 from studio.sim.hand import Hand
 from studio.sim.shadow import Rig
 
@@ -68,15 +69,27 @@ def mesh_twin_urdf(hand: Hand, folder: Path) -> Path:
 
 
 class PyBulletShadowCamera:
-    """``render(theta (21,)) -> (H, W) uint8``: the shadow as PyBullet's TinyRenderer sees it from the light."""
+    """``render(theta (21,)) -> (H, W) uint8``: the shadow as PyBullet's TinyRenderer sees it from the light.
+
+    Holds a PyBullet DIRECT client and a temporary folder with the mesh twin; ``close()`` (or the end of a ``with``
+    block) releases both, after which ``render`` raises :class:`~studio.errors.ClosedError`.
+    """
 
     def __init__(self, hand: Hand, rig: Rig, half_pixel_shift: bool = True):
         import pybullet as p
 
         self.p, self.hand, self.rig = p, hand, rig
         self._tmp = tempfile.TemporaryDirectory(prefix="shadow_ref_")
-        urdf = mesh_twin_urdf(hand, Path(self._tmp.name))
         self.client = p.connect(p.DIRECT)
+        try:
+            self._load(half_pixel_shift)
+        except BaseException:
+            self.close()
+            raise
+
+    def _load(self, half_pixel_shift: bool) -> None:
+        p, hand, rig = self.p, self.hand, self.rig
+        urdf = mesh_twin_urdf(hand, Path(self._tmp.name))
         self.body = p.loadURDF(str(urdf), useFixedBase=True, physicsClientId=self.client)
         names = [p.getJointInfo(self.body, i, physicsClientId=self.client)[1].decode() for i in range(hand.dof)]
         if names != hand.joint_names:
@@ -92,6 +105,8 @@ class PyBulletShadowCamera:
         self.proj = p.computeProjectionMatrix(-h + sh, h + sh, -h + sh, h + sh, self.near, self.far)
 
     def render(self, theta: np.ndarray) -> np.ndarray:
+        if self.client is None:
+            raise ClosedError("this PyBulletShadowCamera was closed; make a new one (or render in its `with` block)")
         p, n = self.p, self.rig.resolution
         theta = self.hand.check_theta(theta)[0]
         for i, q in enumerate(theta):
@@ -103,13 +118,21 @@ class PyBulletShadowCamera:
         return (seg >= 0).astype(np.uint8)
 
     def close(self) -> None:
-        if self.client is not None:
+        """Disconnect the PyBullet client and delete the mesh twin's folder (idempotent)."""
+        if getattr(self, "client", None) is not None:
             self.p.disconnect(self.client)
             self.client = None
-            self._tmp.cleanup()
+        if hasattr(self, "_tmp"):
+            self._tmp.cleanup()  # idempotent itself
 
     def __enter__(self) -> PyBulletShadowCamera:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # interpreter shutdown: pybullet may already be gone
+            pass
