@@ -67,7 +67,8 @@ class Clusters:
 
 
 def embed(expressive: np.ndarray, cfg: KeyframeConfig = KeyframeConfig()) -> np.ndarray:
-    """Expressive masks ``(N, S, S)`` → PCA embeddings ``(N, C)`` float64, C = min(components, N, size²)."""
+    """Expressive masks ``(N, S, S)`` → PCA embeddings ``(N, C)`` float64, C = min(components, N, size²) (1 when
+    every frame is alike)."""
     from sklearn.decomposition import PCA
 
     masks = np.asarray(expressive)
@@ -76,8 +77,12 @@ def embed(expressive: np.ndarray, cfg: KeyframeConfig = KeyframeConfig()) -> np.
     small = np.stack([
         cv2.resize((m != 0).astype(np.float32), (cfg.size, cfg.size), interpolation=cv2.INTER_AREA) for m in masks
     ]).reshape(len(masks), -1)  # fmt: skip
-    n_components = min(cfg.components, *small.shape)
-    return PCA(n_components=n_components, svd_solver="full").fit_transform(small.astype(np.float64))
+    small = small.astype(np.float64)
+    unique, inverse = np.unique(small, axis=0, return_inverse=True)
+    if len(unique) == 1:  # every frame alike: no variance to project, every distance is 0
+        return np.zeros((len(small), 1))
+    pca = PCA(n_components=min(cfg.components, *small.shape), svd_solver="full").fit(small)
+    return pca.transform(unique)[inverse.ravel()]  # identical frames get bit-identical embeddings (d = 0 exactly)
 
 
 def merge_clusters(embeddings: np.ndarray, tau: float) -> list[list[int]]:
