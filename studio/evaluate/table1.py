@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from studio.errors import ClosedError
 from studio.evaluate.baselines import (
     BaselineOutput,
     InverseBaseline,
@@ -149,6 +150,8 @@ class Evaluator:
 
     def evaluate_target(self, name: str, target: np.ndarray, cancel: threading.Event | None = None) -> list[dict]:
         """One record per method for one ``(R, R)`` target mask."""
+        if self.inverse.closed:
+            raise ClosedError("this Evaluator was closed; make a new one (or evaluate inside its `with` block)")
         holes = find_holes(target)
         expressive = holes if holes.any() else None
         loss_fn = self.imitator.loss_fn(target, expressive)
