@@ -7,18 +7,13 @@ import json
 import numpy as np
 import pytest
 import torch
+from studio.assets import asset
 
 from studio.cli.main import main
+from studio.learn.checkpoint import CheckpointError, save_model
+from studio.learn.config import InverseConfig, InverseTrainConfig
 from studio.learn.dataset import CollectConfig, collect
-from studio.learn.inverse import (
-    InverseCheckpointError,
-    InverseCNN,
-    InverseConfig,
-    InverseTrainConfig,
-    load_inverse,
-    save_inverse,
-    train_inverse,
-)
+from studio.learn.inverse import InverseCNN, load_inverse, train_inverse
 from studio.sim.shadow import Rig, ShadowRenderer
 
 TINY = InverseConfig(input_size=32, channels=(8, 16), hidden=32)
@@ -39,7 +34,7 @@ def test_trains_from_shards(tmp_path, hand):
     metrics = train_inverse(cfg, TINY, hand)
     assert metrics["train_mse"] < metrics["first_train_mse"]  # 67 training pairs: it memorises
     model, info = load_inverse(tmp_path / "inv.pt", hand)
-    assert info["rig"]["resolution"] == 32 and info["metrics"]["steps"] == 30
+    assert info.rig["resolution"] == 32 and info.metrics["steps"] == 30 and info.train["data"] == cfg.data
 
 
 @pytest.mark.parametrize("scale", [1.0, 1000.0])
@@ -67,34 +62,48 @@ def test_input_is_aligned_so_position_and_scale_do_not_matter(hand):
     assert (a - b).abs().mean() < 0.05
 
 
-def test_checkpoint_round_trip_and_hand_guard(tmp_path, hand, rng):
+def test_checkpoint_round_trip_and_guards(tmp_path, hand, rng):
     model = InverseCNN(TINY, hand)
     path = tmp_path / "inv.pt"
-    save_inverse(path, model, {"resolution": 32}, {"test_mse": 0.5})
+    save_model(path, model, {"resolution": 32}, {"test_mse": 0.5})
     loaded, info = load_inverse(path, hand)
     shadows = (rng.random((3, 32, 32)) > 0.5).astype(np.float32)
-    np.testing.assert_allclose(loaded.predict(shadows), model.predict(shadows), atol=1e-6)
-    assert info["metrics"]["test_mse"] == 0.5 and loaded.cfg == TINY
+    np.testing.assert_array_equal(loaded.predict(shadows), model.predict(shadows))
+    assert info.metrics["test_mse"] == 0.5 and loaded.cfg == TINY and info.kind == "inverse"
 
     blob = torch.load(path, weights_only=True)
     blob["hand_hash"] = "another-hand"
     torch.save(blob, path)
-    with pytest.raises(InverseCheckpointError, match="current hand"):
+    with pytest.raises(CheckpointError, match="current hand"):
         load_inverse(path, hand)
-    with pytest.raises(InverseCheckpointError, match="train-inverse"):
+    with pytest.raises(CheckpointError, match="train-inverse"):
         load_inverse(tmp_path / "missing.pt", hand)
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
-    with pytest.raises(InverseCheckpointError, match="unreadable"):
+    with pytest.raises(CheckpointError, match="unreadable"):
         load_inverse(tmp_path / "junk.pt", hand)
+    with pytest.raises(CheckpointError, match="of the self-model, not of the inverse-CNN"):
+        load_inverse(asset("models/selfmodel_cpu128.pt"), hand)
+
+
+def test_shipped_inverse_loads_in_the_current_format(hand):
+    model, info = load_inverse(asset("models/inverse_cpu128.pt"), hand)
+    assert info.kind == "inverse" and model.cfg == InverseConfig() and info.metrics["test_mse"] < 0.4
+    assert info.rig["resolution"] == 128 and info.train["steps"] == info.metrics["steps"] == 15000
 
 
 def test_train_inverse_cli(tmp_path, capsys):
     out = tmp_path / "inv.pt"
     args = ["train-inverse", "--out", str(out), "--resolution", "32", "--input-size", "16", "--steps", "3",
-            "--eval-every", "3", "--threads", "1", "--quiet"]  # fmt: skip
+            "--eval-every", "3", "--eval-size", "16", "--threads", "1", "--quiet"]  # fmt: skip
     assert main(args) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["checkpoint"] == str(out) and summary["steps"] == 3
-    assert main(args) == 2  # refuses to replace it without --force
+    assert main(args) == 2  # refuses to replace it without --force (or continue it without --resume)
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "--force" in err
+    assert len(err.splitlines()) == 1 and "--force" in err and "--resume" in err
+    assert main(args + ["--steps", "5", "--resume"]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["steps"] == 5
+    assert main(args + ["--force"]) == 0
+    with pytest.raises(SystemExit) as exit_:
+        main(["train-inverse", "--eval-every", "0"])
+    assert exit_.value.code == 2 and "--eval-every" in capsys.readouterr().err

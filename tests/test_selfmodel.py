@@ -1,20 +1,23 @@
-"""Self-model: shapes, gradients to θ, a tiny model trains, checkpoints round-trip and guard the hand."""
+"""Self-model: shapes, gradients to θ, a tiny model trains (resumes, cancels), checkpoints round-trip and guard
+the kind and the hand; the shipped checkpoint loads."""
 
 from __future__ import annotations
+
+import json
+import threading
 
 import numpy as np
 import pytest
 import torch
+from studio.assets import asset
 
+from studio.cli.main import main
 from studio.errors import StudioError
-from studio.learn.selfmodel import (
-    CheckpointError,
-    SelfModel,
-    SelfModelConfig,
-    load_selfmodel,
-    read_checkpoint,
-)
-from studio.learn.train import TrainConfig, lr_at, train
+from studio.learn.checkpoint import CheckpointError, read_checkpoint, save_model
+from studio.learn.config import TrainConfig
+from studio.learn.selfmodel import SelfModel, SelfModelConfig, load_selfmodel
+from studio.learn.train import train
+from studio.learn.trainer import lr_at
 
 TINY = dict(resolution=32, hidden=64, channels=16, min_channels=8, res_blocks=1)
 
@@ -60,16 +63,68 @@ def test_tiny_model_trains_resumes_and_reloads(tmp_path, hand):
     out = tmp_path / "tiny.pt"
     cfg = TrainConfig(out=str(out), resolution=32, steps=60, batch_size=32, warmup=5, eval_every=30,
                       eval_size=128, lr=3e-3, threads=1)  # fmt: skip
-    first = train(cfg, hand)
-    assert first["test_mae"] < 0.45  # an untrained decoder outputs ~0.5 everywhere
+    seen = []
+    first = train(cfg, hand, progress=lambda *a: seen.append(a))
+    assert first["test_mae"] < 0.45 < first["initial_val_mae"]  # an untrained decoder outputs ~0.5 everywhere
+    assert [a[0] for a in seen].count("train") == 60 and ("val", 30, 60) == seen[29 + 1][:3]
+    assert seen[-1][:3] == ("test", 60, 60) and seen[-1][3] == first["test_mae"]
     model, info = load_selfmodel(out, hand, device="cpu")
     assert info.metrics["test_mae"] == pytest.approx(first["test_mae"])
-    assert info.config.resolution == 32 and info.hand_hash == hand.hash
+    assert info.kind == "selfmodel" and info.config["resolution"] == 32 and info.hand_hash == hand.hash
+    assert info.train["steps"] == 60 and "optimizer" not in info.extra  # a finished run keeps no optimiser
     with pytest.raises(StudioError, match="--resume"):
         train(cfg, hand)
     longer = train(TrainConfig(**{**cfg.__dict__, "steps": 120}), hand, resume=True)
     assert longer["steps"] == 120
     assert longer["test_mae"] < 0.9 * first["val_mae"] or longer["test_mae"] < first["test_mae"]
+    with pytest.raises(CheckpointError, match="architecture"):
+        train(TrainConfig(**{**cfg.__dict__, "input": "theta"}), hand, resume=True)
+    again = train(TrainConfig(**{**cfg.__dict__, "steps": 2, "eval_every": 1}), hand, overwrite=True)
+    assert again["steps"] == 2 and read_checkpoint(out, "selfmodel").extra["step"] == 2
+
+
+def test_resume_after_cancel_continues_exactly(tmp_path, hand):
+    """A run cancelled at step 7 and resumed ends with the same weights as one that ran straight through."""
+    common = dict(resolution=16, steps=12, batch_size=8, warmup=2, eval_every=4, eval_size=16, lr=3e-3, threads=1)
+    whole = tmp_path / "whole.pt"
+    train(TrainConfig(out=str(whole), **common), hand)
+
+    parts = tmp_path / "parts.pt"
+    cancel = threading.Event()
+    stop_at_7 = lambda stage, step, total, loss: step == 7 and cancel.set()  # noqa: E731
+    cut = train(TrainConfig(out=str(parts), **common), hand, progress=stop_at_7, cancel=cancel)
+    assert cut["cancelled"] and cut["steps"] == 7 and "test_mae" not in cut
+    ckpt = read_checkpoint(parts, "selfmodel", hand.hash)
+    assert ckpt.extra["step"] == 7 and "optimizer" in ckpt.extra
+    train(TrainConfig(out=str(parts), **common), hand, resume=True)
+    a, b = read_checkpoint(whole, "selfmodel").state_dict, read_checkpoint(parts, "selfmodel").state_dict
+    assert set(a) == set(b)
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=1e-5, atol=1e-6)
+
+
+def test_bad_training_options_are_refused(hand):
+    for bad, match in (({"eval_every": 0}, "eval_every"), ({"steps": 0}, "steps"), ({"lr": 0.0}, "lr"),
+                       ({"batch_size": 0}, "batch_size"), ({"model": "huge"}, "model"),
+                       ({"resolution": 100}, "resolution"), ({"input": "pixels"}, "input")):  # fmt: skip
+        with pytest.raises(ValueError, match=match):
+            TrainConfig(**bad)
+
+
+def test_train_cli_ranges_and_run(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:  # was a ZeroDivisionError
+        main(["train", "--eval-every", "0"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--eval-every" in err and "≥ 1" in err
+    out = tmp_path / "m.pt"
+    args = ["train", "--out", str(out), "--resolution", "16", "--steps", "2", "--eval-every", "1", "--eval-size", "8",
+            "--batch-size", "4", "--threads", "1", "--quiet"]  # fmt: skip
+    assert main(args) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["checkpoint"] == str(out) and summary["steps"] == 2
+    assert main(args) == 2 and "--resume" in capsys.readouterr().err
+    assert main(args + ["--force"]) == 0
 
 
 def test_loss_falls_in_seconds(hand):
@@ -89,21 +144,42 @@ def test_loss_falls_in_seconds(hand):
 
 
 def test_checkpoint_errors(tmp_path, hand):
-    with pytest.raises(CheckpointError, match="not found"):
-        read_checkpoint(tmp_path / "absent.pt")
+    with pytest.raises(CheckpointError, match="not found.*shadow-studio train"):
+        read_checkpoint(tmp_path / "absent.pt", "selfmodel")
     junk = tmp_path / "junk.pt"
     junk.write_bytes(b"not a checkpoint")
     with pytest.raises(CheckpointError, match="unreadable"):
-        read_checkpoint(junk)
+        read_checkpoint(junk, "selfmodel")
     torch.save({"hello": 1}, tmp_path / "other.pt")
     with pytest.raises(CheckpointError, match="not a shadow-studio"):
-        read_checkpoint(tmp_path / "other.pt")
+        read_checkpoint(tmp_path / "other.pt", "selfmodel")
 
 
-def test_checkpoint_for_another_hand_refused(tmp_path, hand):
-    from studio.learn.selfmodel import Checkpoint, save_checkpoint
-
+def test_checkpoint_for_another_hand_or_kind_refused(tmp_path, hand):
     model = SelfModel(SelfModelConfig(**TINY), hand)
-    save_checkpoint(tmp_path / "m.pt", model, Checkpoint(model.cfg, "ffffffffffffffff", {}))
+    save_model(tmp_path / "m.pt", model, {})
+    blob = torch.load(tmp_path / "m.pt", weights_only=True)
+    blob["hand_hash"] = "ffffffffffffffff"
+    torch.save(blob, tmp_path / "m.pt")
     with pytest.raises(CheckpointError, match="retrain"):
         load_selfmodel(tmp_path / "m.pt", hand)
+    with pytest.raises(CheckpointError, match="of the inverse-CNN, not of the self-model"):
+        load_selfmodel(asset("models/inverse_cpu128.pt"), hand)
+
+
+def test_checkpoint_round_trip_is_exact(tmp_path, hand):
+    torch.manual_seed(3)
+    model = SelfModel(SelfModelConfig(**TINY), hand).eval()
+    save_model(tmp_path / "m.pt", model, {"resolution": 32}, {"test_mae": 0.1})
+    loaded, info = load_selfmodel(tmp_path / "m.pt", hand, device="cpu")
+    theta = torch.tensor(np.stack([hand.rest_pose(), hand.lower * 0.5]), dtype=torch.float32)
+    with torch.no_grad():
+        assert torch.equal(model(theta), loaded(theta))
+    assert info.rig == {"resolution": 32} and info.metrics == {"test_mae": 0.1} and info.state_dict == {}
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_shipped_model_loads_in_the_current_format(hand):
+    model, info = load_selfmodel(asset("models/selfmodel_cpu128.pt"), hand, device="cpu")
+    assert info.kind == "selfmodel" and model.cfg.resolution == 128 and info.metrics["test_mae"] < 0.01
+    assert info.rig["resolution"] == 128 and info.train["model"] == "cpu"

@@ -12,26 +12,14 @@ DEFAULT_INVERSE = asset("models/inverse_cpu128.pt", must_exist=False)
 
 
 def _train_inverse(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
+    from studio.cli.flags import config_from_args
+    from studio.cli.train import run_training
+    from studio.learn.config import InverseConfig, InverseTrainConfig
+    from studio.learn.inverse import train_inverse
 
-    from studio.errors import StudioError
-    from studio.learn.inverse import InverseConfig, InverseTrainConfig, train_inverse
-
-    if Path(args.out).exists() and not args.force:
-        raise StudioError(f"{args.out} exists: pass --force to replace it, or choose another --out")
-    cfg = InverseTrainConfig(
-        out=args.out, data=args.data, resolution=args.resolution, steps=args.steps, batch_size=args.batch_size,
-        lr=args.lr, eval_every=args.eval_every, seed=args.seed, threads=args.threads,
-    )  # fmt: skip
-    with tqdm(total=cfg.steps, unit="step", desc="train-inverse", disable=args.quiet) as bar:
-
-        def progress(step: int, total: int, stats: dict) -> None:
-            bar.update(step - bar.n)
-            bar.set_postfix({k: f"{v:.4f}" for k, v in stats.items() if v is not None}, refresh=False)
-
-        metrics = train_inverse(cfg, InverseConfig(input_size=args.input_size), progress=progress)
-    print(json.dumps({"checkpoint": cfg.out, **metrics}))
-    return 0
+    cfg = config_from_args(args, InverseTrainConfig)
+    model_cfg = config_from_args(args, InverseConfig)
+    return run_training(args, "train-inverse", cfg.steps, cfg.out, lambda **kw: train_inverse(cfg, model_cfg, **kw))
 
 
 def _evaluate(args: argparse.Namespace) -> int:
@@ -100,17 +88,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_clip_arguments(p)
     p.set_defaults(func=_evaluate)
 
+    from studio.cli.flags import add_config_flags
+    from studio.cli.train import add_trainer_flags
+    from studio.learn.config import InverseConfig, InverseTrainConfig
+
     t = sub.add_parser("train-inverse", help="train the inverse-CNN baseline (shadow → joint angles, MSE)")
-    t.add_argument("--out", default="runs/inverse.pt", help="checkpoint file (default runs/inverse.pt)")
-    t.add_argument("--data", default=None, help="shard folder made by `collect` (default: render pairs on the fly)")
-    t.add_argument("--resolution", type=int, default=128, help="rendered shadow side for on-the-fly pairs")
-    t.add_argument("--input-size", type=int, default=64, help="side of the aligned crop the CNN sees (default 64)")
-    t.add_argument("--steps", type=int, default=3000, help="optimiser steps (default 3000)")
-    t.add_argument("--batch-size", type=int, default=64, help="pairs per step (default 64)")
-    t.add_argument("--lr", type=float, default=2e-3, help="peak learning rate (default 2e-3)")
-    t.add_argument("--eval-every", type=int, default=500, help="steps between validation passes")
-    t.add_argument("--seed", type=int, default=0)
-    t.add_argument("--threads", type=int, default=None, help="torch CPU threads")
-    t.add_argument("--force", action="store_true", help="replace an existing checkpoint at --out")
-    t.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_config_flags(t, InverseTrainConfig, ("resolution",))
+    add_config_flags(t, InverseConfig, ("input_size",))
+    add_trainer_flags(t, InverseTrainConfig())
     t.set_defaults(func=_train_inverse)

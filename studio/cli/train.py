@@ -1,48 +1,70 @@
-"""``shadow-studio train``: train the shadow self-model (or its θ→image ablation) with a progress bar."""
+"""``shadow-studio train``: train the shadow self-model (or its θ→image ablation) with a progress bar.
+
+The flags are the fields of ``studio.learn.train.TrainConfig`` (the shared trainer's plus the architecture's): each
+flag's default, help and range come from the config (``studio.cli.flags``). ``train-inverse``
+(``studio.cli.evaluate``) shares :func:`add_trainer_flags` and :func:`run_training`.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable
+
+from studio.cli.flags import add_config_flags
+
+# the shared trainer's fields that are flags (``out`` and ``data`` are added with their verb's help)
+TRAINER_FLAGS = ("steps", "batch_size", "lr", "weight_decay", "warmup", "eval_every", "eval_size", "seed",
+                 "device", "threads")  # fmt: skip
 
 
-def _train(args: argparse.Namespace) -> int:
+def add_trainer_flags(p: argparse.ArgumentParser, base) -> None:
+    """Add ``--out``, ``--data``/``--on-the-fly``, the trainer's flags (defaults from ``base``, a training config),
+    ``--resume``, ``--force`` and ``--quiet``."""
+    from studio.learn.config import TrainerConfig
+
+    add_config_flags(p, TrainerConfig, ("out",), base=base)
+    src = p.add_mutually_exclusive_group()
+    add_config_flags(src, TrainerConfig, ("data",), base=base)
+    src.add_argument("--on-the-fly", dest="data", action="store_const", const=None,
+                     help="render fresh pairs every step (the default)")  # fmt: skip
+    add_config_flags(p, TrainerConfig, TRAINER_FLAGS, base=base)
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true", help="continue training the checkpoint at --out")
+    again.add_argument("--force", action="store_true", help="replace an existing checkpoint at --out")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run_training(args: argparse.Namespace, desc: str, steps: int, out: str, train: Callable[..., dict]) -> int:
+    """Run ``train(resume=, overwrite=, progress=)`` under a progress bar; print the JSON summary last."""
     from tqdm import tqdm
 
-    from studio.learn.train import TrainConfig, train
+    with tqdm(total=steps, unit="step", desc=desc, disable=args.quiet) as bar:
+        shown: dict[str, float] = {}
 
-    cfg = TrainConfig(
-        out=args.out, data=args.data, model=args.model, input=args.input, resolution=args.resolution,
-        steps=args.steps, batch_size=args.batch_size, lr=args.lr, eval_every=args.eval_every, seed=args.seed,
-        device=args.device, threads=args.threads,
-    )  # fmt: skip
-    with tqdm(total=cfg.steps, unit="step", desc="train", disable=args.quiet) as bar:
-
-        def progress(step: int, total: int, stats: dict) -> None:
+        def progress(stage: str, step: int, total: int, loss: float) -> None:
             bar.update(step - bar.n)
-            bar.set_postfix({k: f"{v:.4f}" for k, v in stats.items() if v is not None}, refresh=False)
+            shown["loss" if stage == "train" else stage] = loss
+            bar.set_postfix({k: f"{v:.4f}" for k, v in shown.items()}, refresh=False)
 
-        metrics = train(cfg, resume=args.resume, progress=progress)
-    print(json.dumps({"checkpoint": cfg.out, **metrics}))
+        metrics = train(resume=args.resume, overwrite=args.force, progress=progress)
+    print(json.dumps({"checkpoint": out, **metrics}))
     return 0
 
 
+def _train(args: argparse.Namespace) -> int:
+    from studio.cli.flags import config_from_args
+    from studio.learn.config import TrainConfig
+    from studio.learn.train import train
+
+    cfg = config_from_args(args, TrainConfig)
+    return run_training(args, "train", cfg.steps, cfg.out, lambda **kw: train(cfg, **kw))
+
+
 def register(sub: argparse._SubParsersAction) -> None:
+    from studio.learn.config import TrainConfig
+
     p = sub.add_parser("train", help="train the shadow self-model from shards or on-the-fly renders")
-    src = p.add_mutually_exclusive_group()
-    src.add_argument("--data", default=None, help="shard folder made by `collect` (0.7/0.2/0.1 split)")
-    src.add_argument("--on-the-fly", action="store_true", help="render fresh pairs every step (default)")
-    p.add_argument("--out", default="runs/selfmodel.pt", help="checkpoint file (default runs/selfmodel.pt)")
-    p.add_argument("--model", choices=("cpu", "paper"), default="cpu", help="cpu: 128², small; paper: 256²")
-    p.add_argument("--input", choices=("fk", "theta"), default="fk", help="fk (paper) or theta (ablation)")
-    p.add_argument("--resolution", type=int, default=None, help="override the output resolution")
-    p.add_argument("--steps", type=int, default=6000, help="optimiser steps (default 6000)")
-    p.add_argument("--batch-size", type=int, default=64, help="pairs per step (default 64)")
-    p.add_argument("--lr", type=float, default=2e-3, help="peak learning rate (default 2e-3)")
-    p.add_argument("--eval-every", type=int, default=500, help="steps between validation + checkpoint")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
-    p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
-    p.add_argument("--resume", action="store_true", help="continue training the checkpoint at --out")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_config_flags(p, TrainConfig, ("model", "input", "resolution"))
+    add_trainer_flags(p, TrainConfig())
     p.set_defaults(func=_train)

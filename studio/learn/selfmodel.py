@@ -3,53 +3,20 @@
 ``theta (B, 21) rad → T_world_child (B, 21, 4, 4) → flatten 336 → MLP → (C, 8, 8) → residual blocks →
 log2(res / 8) transposed-conv upsamplings → sigmoid (B, 1, res, res)`` (probability of shadow).
 ``input="theta"`` is the paper's ablation: the same decoder fed the raw angles (as sin/cos) instead of FK.
-Checkpoints carry the config, the hand hash, the rig and metrics; loading checks the hand.
+Checkpoints are ``studio.learn.checkpoint``'s (kind ``"selfmodel"``); loading checks the kind and the hand.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import torch
 from torch import nn
 
-from studio.errors import StudioError
+from studio.learn.checkpoint import Checkpoint, load_model
+from studio.learn.config import SelfModelConfig
 from studio.sim.hand import Hand, load_hand
 from studio.sim.kinematics import TorchFK
-
-
-class CheckpointError(StudioError):
-    """A self-model checkpoint is missing, unreadable, or made for another hand."""
-
-
-@dataclass(frozen=True)
-class SelfModelConfig:
-    """Architecture of the self-model."""
-
-    resolution: int = 256  # output image side (a power of two ≥ 16); paper 256, CPU configuration 128
-    input: str = "fk"  # "fk": FK joint frames (336 numbers); "theta": the ablation, sin/cos of the raw angles
-    hidden: int = 1024  # width of the MLP's hidden layer
-    channels: int = 128  # feature channels at 8×8 (paper 128); halved at each upsampling, at least min_channels
-    min_channels: int = 16  # narrowest decoder stage
-    res_blocks: int = 2  # residual blocks at 8×8
-    translation_scale: float = 10.0  # FK positions (metres) are multiplied by this before the MLP
-
-    def __post_init__(self) -> None:
-        n = math.log2(self.resolution / 8)
-        if self.resolution < 16 or n != int(n):
-            raise ValueError(f"resolution must be 8·2^k ≥ 16 (16, 32, 64, 128, 256...), got {self.resolution}")
-        if self.input not in ("fk", "theta"):
-            raise ValueError(f"input must be 'fk' or 'theta', got {self.input!r}")
-
-    @property
-    def upsamplings(self) -> int:
-        return int(math.log2(self.resolution / 8))
-
-
-CPU_CONFIG = SelfModelConfig(resolution=128, hidden=512, channels=64, min_channels=16)  # shipped small model
-PAPER_CONFIG = SelfModelConfig()  # 256², 128 channels
 
 
 class _ResBlock(nn.Module):
@@ -66,6 +33,12 @@ class _ResBlock(nn.Module):
 
 class SelfModel(nn.Module):
     """``forward(theta (B, 21)) -> (B, 1, res, res)`` shadow probabilities; differentiable in θ."""
+
+    kind = "selfmodel"  # checkpoint kind
+
+    @classmethod
+    def config_from_dict(cls, d: dict) -> SelfModelConfig:
+        return SelfModelConfig(**d)
 
     def __init__(self, cfg: SelfModelConfig, hand: Hand | None = None):
         super().__init__()
@@ -115,62 +88,7 @@ class SelfModel(nn.Module):
         return torch.sigmoid(self.logits(theta))
 
 
-@dataclass
-class Checkpoint:
-    """What a checkpoint file holds besides the weights."""
-
-    config: SelfModelConfig  # architecture
-    hand_hash: str  # hand the model was trained for
-    rig: dict  # rig geometry (window, light, backdrop) of the training shadows
-    metrics: dict = field(default_factory=dict)  # e.g. {"test_mae": ..., "val_mae": ..., "steps": ...}
-    train: dict = field(default_factory=dict)  # training config and resume state summary
-
-
-def save_checkpoint(path: Path, model: SelfModel, info: Checkpoint, extra: dict | None = None) -> None:
-    """Atomic save of weights + info (+ optimiser state etc. in ``extra`` for resuming)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    blob = {
-        "format": 1,
-        "config": asdict(info.config),
-        "hand_hash": info.hand_hash,
-        "rig": info.rig,
-        "metrics": info.metrics,
-        "train": info.train,
-        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-    }
-    if extra:
-        blob["extra"] = extra
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(blob, tmp)
-    tmp.replace(path)
-
-
-def read_checkpoint(path: Path) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"{path}: self-model checkpoint not found (train one with `shadow-studio train`)")
-    try:
-        blob = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # torch raises many types for corrupt files
-        raise CheckpointError(f"{path}: unreadable checkpoint ({e.__class__.__name__}: {e})") from None
-    if not isinstance(blob, dict) or blob.get("format") != 1 or "state_dict" not in blob:
-        raise CheckpointError(f"{path}: not a shadow-studio self-model checkpoint")
-    return blob
-
-
 def load_selfmodel(path: Path, hand: Hand | None = None, device: str | None = None) -> tuple[SelfModel, Checkpoint]:
-    """Load a checkpoint for ``hand`` (refuses one trained for another hand); returns the model in eval mode."""
-    hand = hand or load_hand()
-    blob = read_checkpoint(path)
-    if blob["hand_hash"] != hand.hash:
-        raise CheckpointError(
-            f"{path}: trained for hand {blob['hand_hash']}, but the current hand is {hand.hash}; retrain it"
-        )
-    cfg = SelfModelConfig(**blob["config"])
-    model = SelfModel(cfg, hand)
-    model.load_state_dict(blob["state_dict"])
-    dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
-    model.to(dev).eval()
-    info = Checkpoint(cfg, blob["hand_hash"], blob["rig"], blob.get("metrics", {}), blob.get("train", {}))
-    return model, info
+    """Load a self-model checkpoint for ``hand`` (refuses another kind or hand); the model in eval mode on ``device``
+    (None: CUDA when present) and its checkpoint (config, hand hash, rig, metrics, training config)."""
+    return load_model(path, SelfModel, hand, device)

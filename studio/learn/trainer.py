@@ -1,0 +1,202 @@
+"""The one trainer of every network (the self-model and the inverse CNN), DESIGN §5.12.
+
+AdamW with a linear warm-up and a cosine decay to lr/50 (:func:`lr_at`), batches of ``(theta (B, 21) rad,
+shadows (B, 1, R, R))`` pairs from shards (0.7/0.2/0.1 split) or rendered on the fly (batch ``k`` drawn from the seed
+``(seed, k)``, fixed held-out validation and test sets), validation and an atomic, resumable checkpoint
+(``studio.learn.checkpoint``) every ``eval_every`` steps, CUDA when present. Long runs report
+``progress(stage, step, total, loss)`` and stop within a step when ``cancel`` is set (DESIGN §5.11), leaving a
+checkpoint that ``resume`` continues exactly.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from studio.errors import StudioError
+from studio.learn.checkpoint import CheckpointError, read_checkpoint, same_config, save_model
+from studio.learn.config import TrainerConfig
+from studio.sim.hand import Hand
+from studio.sim.sampling import sample_poses
+from studio.sim.shadow import Rig, ShadowRenderer
+
+log = logging.getLogger(__name__)
+Batch = tuple[torch.Tensor, torch.Tensor]  # theta (B, 21) float32 rad, shadows (B, 1, R, R) float32 (1 = shadow)
+Progress = Callable[[str, int, int, float], None]  # (stage "train" | "val" | "test", step, total steps, loss)
+
+
+def lr_at(step: int, cfg: TrainerConfig) -> float:
+    """Learning rate of optimiser step ``step`` (0-based): linear warm-up, then cosine from lr to lr/50."""
+    if step < cfg.warmup:
+        return cfg.lr * (step + 1) / cfg.warmup
+    t = (step - cfg.warmup) / max(1, cfg.steps - cfg.warmup)
+    return cfg.lr * (0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(1.0, t))))
+
+
+def _fit(masks: torch.Tensor, res: int) -> torch.Tensor:
+    """Area-downsample ``(B, 1, R, R)`` masks to ``res`` when R is a multiple of it."""
+    R = masks.shape[-1]
+    if R == res:
+        return masks
+    if R % res:
+        raise StudioError(f"shards are {R}² but the model is {res}²: collect at {res} or a multiple of it")
+    return F.avg_pool2d(masks, R // res)
+
+
+class Pairs:
+    """Training batches and held-out sets of ``(theta, shadows)`` pairs, from shards or the renderer.
+
+    ``resolution``: the side of rendered shadows; with ``fit`` shard shadows are area-downsampled to it too (the
+    self-model's output side), else shards keep their own side (the inverse CNN crops whatever it gets).
+    """
+
+    def __init__(self, cfg: TrainerConfig, hand: Hand, resolution: int, fit: bool = True):
+        self.cfg, self.hand, self.res, self.fit = cfg, hand, resolution, fit
+        if cfg.data:
+            from studio.learn.shards import list_shards, read_shard
+
+            meta = read_shard(list_shards(Path(cfg.data))[0], hand.hash).meta
+            if fit:
+                _fit(torch.zeros(1, 1, meta["resolution"], meta["resolution"]), resolution)  # fails early
+            self.rig = meta["rig"] | ({"resolution": resolution} if fit else {})
+        else:
+            self.renderer = ShadowRenderer(hand, Rig(resolution=resolution))
+            self.rig = self.renderer.rig.to_dict()
+
+    def _stream(self, split: str, shuffle: bool) -> Iterator[Batch]:
+        from studio.learn.dataset import ShardStream
+
+        stream = ShardStream(Path(self.cfg.data), split, self.cfg.batch_size, shuffle, self.cfg.seed, self.hand)
+        for theta, masks in stream:
+            yield theta, _fit(masks, self.res) if self.fit else masks
+
+    def _rendered(self, n: int, seed: list[int]) -> Batch:
+        theta, _ = sample_poses(self.hand, n, np.random.default_rng(seed))
+        masks = self.renderer.render(theta, check=False)
+        return torch.from_numpy(theta.astype(np.float32)), torch.from_numpy(masks.astype(np.float32))[:, None]
+
+    def train_batches(self, start_step: int = 0) -> Iterator[Batch]:
+        """Endless training batches; on the fly, batch ``k`` is drawn from ``(seed, k)`` so a resumed run continues
+        the same stream (shards restart their shuffled epochs)."""
+        if self.cfg.data:
+            while True:
+                yield from self._stream("train", True)
+        step = start_step
+        while True:
+            yield self._rendered(self.cfg.batch_size, [self.cfg.seed, step])
+            step += 1
+
+    def held_out(self, split: str) -> list[Batch]:
+        """The ``"val"`` or ``"test"`` set as a list of batches (the same on every call)."""
+        if self.cfg.data:
+            return list(self._stream(split, False))
+        theta, masks = self._rendered(self.cfg.eval_size, [self.cfg.seed, 10**9 + {"val": 1, "test": 2}[split]])
+        return list(zip(theta.split(256), masks.split(256)))
+
+
+@dataclass
+class Task:
+    """What the trainer trains: how to build the network, its loss, its held-out metric and its data."""
+
+    build: Callable[[], nn.Module]  # makes the network (called after seeding): has .kind, .cfg, .hand
+    loss: Callable[[nn.Module, torch.Tensor, torch.Tensor], torch.Tensor]  # (model, theta, shadows) on its device
+    evaluate: Callable[[nn.Module, list[Batch]], float]  # held-out metric over batches (lower is better)
+    metric: str  # the metric's name in the results: "mae" → val_mae, test_mae, train_mae...
+    pairs: Callable[[], Pairs]  # makes the data source
+
+
+def fit(
+    cfg: TrainerConfig,
+    task: Task,
+    resume: bool = False,
+    overwrite: bool = False,
+    progress: Progress | None = None,
+    cancel: threading.Event | None = None,
+) -> dict:
+    """Train ``task``'s network as ``cfg`` says and checkpoint it to ``cfg.out``; returns its metrics.
+
+    An existing ``cfg.out`` is continued with ``resume`` (same architecture and hand, else ``CheckpointError``),
+    replaced with ``overwrite``, and otherwise refused. Metrics (with ``m = task.metric``): ``initial_val_m``
+    (before training), ``first_train_m`` (first batch), ``train_m`` (running mean), ``val_m``, ``test_m``,
+    ``steps``, ``seconds``, ``samples_seen``; plus ``cancelled: True`` when ``cancel`` stopped the run.
+    """
+    out, m = Path(cfg.out), task.metric
+    if out.exists() and not (resume or overwrite):
+        raise StudioError(f"{out} exists: pass --resume to continue training it, --force to replace it, "
+                          "or choose another --out")  # fmt: skip
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    device = torch.device(cfg.device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    torch.manual_seed(cfg.seed)
+    model = task.build().to(device)
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    step, metrics, elapsed = 0, {}, 0.0
+    if resume and out.exists():
+        ckpt = read_checkpoint(out, model.kind, model.hand.hash)
+        if not same_config(ckpt.config, asdict(model.cfg)):
+            raise CheckpointError(f"{out}: trained with another architecture than these options; "
+                                  "use its options or another --out")  # fmt: skip
+        model.load_state_dict(ckpt.state_dict)
+        if "optimizer" in ckpt.extra:
+            opt.load_state_dict(ckpt.extra["optimizer"])
+        step, metrics = int(ckpt.extra.get("step", 0)), dict(ckpt.metrics)
+        elapsed = float(ckpt.extra.get("elapsed_s", 0.0))
+        log.info("resuming %s at step %d", out, step)
+    data = task.pairs()
+    val = data.held_out("val")
+    if step == 0:
+        metrics[f"initial_val_{m}"] = task.evaluate(model, val)
+
+    def checkpoint(resumable: bool) -> None:
+        extra = {"step": step, "elapsed_s": elapsed} | ({"optimizer": opt.state_dict()} if resumable else {})
+        save_model(out, model, data.rig, metrics, asdict(cfg), extra)
+
+    model.train()
+    batches = data.train_batches(step)
+    t0 = time.perf_counter() - elapsed
+    running = metrics.get(f"train_{m}")
+    while step < cfg.steps and not (cancel is not None and cancel.is_set()):
+        theta, masks = next(batches)
+        for g in opt.param_groups:
+            g["lr"] = lr_at(step, cfg)
+        loss = task.loss(model, theta.to(device), masks.to(device))
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        step += 1
+        value = loss.item()
+        if running is None:
+            running = metrics[f"first_train_{m}"] = value
+        running = 0.98 * running + 0.02 * value
+        if progress:
+            progress("train", step, cfg.steps, running)
+        if step % cfg.eval_every == 0 or step == cfg.steps:
+            metrics |= {f"val_{m}": task.evaluate(model, val), f"train_{m}": running, "steps": step}
+            model.train()
+            elapsed = time.perf_counter() - t0
+            if progress:
+                progress("val", step, cfg.steps, metrics[f"val_{m}"])
+            if step < cfg.steps:
+                checkpoint(resumable=True)
+    elapsed = time.perf_counter() - t0
+    if step < cfg.steps:  # cancelled: a resumable checkpoint of where it stopped
+        metrics |= {f"train_{m}": running, "steps": step} if running is not None else {"steps": step}
+        checkpoint(resumable=True)
+        return metrics | {"cancelled": True}
+    metrics |= {f"test_{m}": task.evaluate(model, data.held_out("test")), "steps": step,
+                "seconds": round(elapsed, 1), "samples_seen": step * cfg.batch_size}  # fmt: skip
+    if progress:
+        progress("test", step, cfg.steps, metrics[f"test_{m}"])
+    checkpoint(resumable=False)
+    log.info("%s saved to %s (test %s %.5f)", model.kind, out, m, metrics[f"test_{m}"])
+    return metrics
