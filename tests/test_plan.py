@@ -7,14 +7,15 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
+from scipy.interpolate import CubicSpline
 
 from studio.cli.main import main
 from studio.motion.errors import KeyframeCollisionError, PlanError, SegmentTooFastError
 from studio.motion.limits import JointLimits
-from studio.motion.path import PathConfig, build_path, spline_path
-from studio.motion.plan import Keyframes, PlanConfig, parse_keyframes, plan_show
+from studio.motion.path import PathConfig, build_path, keyframe_spline, spline_path
+from studio.motion.plan import Keyframes, PlanConfig, keyframe_velocities, parse_keyframes, plan_show
 from studio.motion.show import load_show
 from studio.motion.timing import TimingConfig
 from studio.sim.hand import load_hand
@@ -149,6 +150,47 @@ def test_passes_repair_a_path_through_a_colliding_region(world):
     assert_collision_free(world, result.trajectory)
     assert_keyframes_exact(result, kf)
     assert_within_limits(result.trajectory)
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**20), n=st.integers(1, 6), spread=st.floats(0.1, 1.0))
+@example(seed=44, n=4, spread=0.95)  # this cubic leaves a limit by 1 mrad only between the path's 40 Hz samples
+def test_path_and_keyframe_velocities_share_one_spline(seed, n, spread):
+    """The path's spline and the keyframe velocities are one spline: a joint interpolated linearly has zero keyframe
+    velocity, every other joint the not-a-knot cubic's; the path is exact at keyframes and within the limits
+    everywhere, between its 40 Hz samples too (checked at 2 kHz)."""
+    rng = np.random.default_rng(seed)
+    times = np.concatenate([[0.0], np.cumsum(rng.uniform(0.05, 1.5, n - 1))])
+    mid, half = (HAND.lower + HAND.upper) / 2, (HAND.upper - HAND.lower) / 2
+    poses = mid + spread * half * rng.uniform(-1, 1, (n, HAND.dof))
+    spline = keyframe_spline(times, poses, HAND.lower, HAND.upper)
+    t, q, key = spline_path(HAND, times, poses, 40.0)
+    assert np.array_equal(q[key], poses) and np.array_equal(t[key], times)
+    dense_t = np.linspace(times[0], times[-1], int(2000 * times[-1]) + 2)
+    dense = spline(dense_t)
+    assert (dense >= HAND.lower - 1e-9).all() and (dense <= HAND.upper + 1e-9).all()
+    v = keyframe_velocities(times, poses, np.zeros(n, bool), HAND)
+    assert not v[:, spline.linear].any()
+    if n < 3:
+        assert spline.linear.all()
+        return
+    cubic = CubicSpline(times, poses, bc_type="not-a-knot", axis=0)
+    np.testing.assert_allclose(v[:, ~spline.linear], cubic(times, 1)[:, ~spline.linear])
+    c = cubic(dense_t)
+    outside = (c < HAND.lower - 1e-9) | (c > HAND.upper + 1e-9)
+    assert (outside.any(axis=0) <= spline.linear).all()  # every cubic that leaves its limits falls back
+    worst = np.maximum(HAND.lower - c, c - HAND.upper).max(axis=0)
+    assert (worst[spline.linear] > -1e-3).all()  # and only those (or ones that touch a limit between samples)
+
+
+def test_keyframe_spline_fallbacks():
+    q0, q1 = pose(index_pip=0.5), pose(index_pip=1.0)
+    one = keyframe_spline([2.0], [q0], HAND.lower, HAND.upper)
+    assert np.array_equal(one([0.0, 2.0, 5.0]), np.stack([q0] * 3)) and not one.key_velocities().any()
+    two = keyframe_spline([0.0, 1.0], [q0, q1], HAND.lower, HAND.upper)
+    assert two.linear.all() and np.allclose(two([0.5])[0], (q0 + q1) / 2)
+    with pytest.raises(ValueError, match="strictly increasing"):
+        keyframe_spline([0.0, 1.0, 1.0], [q0, q1, q0], HAND.lower, HAND.upper)
 
 
 def test_too_fast_segment_is_reported_with_its_feasible_time(world):

@@ -27,11 +27,10 @@ from pathlib import Path as FilePath
 from typing import Any
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from studio.motion.errors import KeyframeCollisionError, PlanError
 from studio.motion.limits import JointLimits, LimitsConfig
-from studio.motion.path import Path, PathConfig, build_path
+from studio.motion.path import Path, PathConfig, build_path, keyframe_spline
 from studio.motion.show import KeyframeMarker, Show
 from studio.motion.timing import TimedTrajectory, TimingConfig, time_path
 from studio.sim.hand import Hand
@@ -133,14 +132,9 @@ def with_home(hand: Hand, kf: Keyframes) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def keyframe_velocities(times: np.ndarray, poses: np.ndarray, at_rest: np.ndarray, hand: Hand) -> np.ndarray:
-    """(K, 21) rad/s: the not-a-knot spline's velocity at each keyframe; 0 where at rest or where that joint falls
-    back to linear interpolation (its spline leaves the limits)."""
-    v = np.zeros_like(poses)
-    if len(times) >= 3:
-        spline = CubicSpline(times, poses, bc_type="not-a-knot", axis=0)
-        dense = spline(np.linspace(times[0], times[-1], 40 * len(times)))
-        inside = ~((dense < hand.lower - 1e-9) | (dense > hand.upper + 1e-9)).any(axis=0)
-        v[:, inside] = spline(times, 1)[:, inside]
+    """(K, 21) rad/s: the keyframe spline's velocity at each keyframe (``studio.motion.path.keyframe_spline``, the
+    spline the path follows); 0 where at rest or where that joint falls back to linear interpolation."""
+    v = keyframe_spline(times, poses, hand.lower, hand.upper).key_velocities()
     v[at_rest] = 0.0
     return v
 

@@ -135,6 +135,18 @@ def _allocate(minimum: np.ndarray, weight: np.ndarray, total: float) -> np.ndarr
     return d
 
 
+def via_spline_velocities(tau: np.ndarray, q: np.ndarray, v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
+    """Velocities ``(n, 21)`` rad/s at a segment's states ``q (n, 21)`` at times ``tau (n,)``: a cubic spline through
+    them clamped to the end velocities ``v0``/``v1`` (21,). This via-point spline is not the keyframe spline
+    (``studio.motion.path.keyframe_spline``): it threads via-points between two keyframes whose velocities that
+    spline has already fixed."""
+    v = np.zeros_like(q)
+    v[0], v[-1] = v0, v1
+    if len(q) > 2:
+        v[1:-1] = CubicSpline(tau, q, bc_type=((1, v0), (1, v1)), axis=0)(tau[1:-1], 1)
+    return v
+
+
 class SegmentTimer:
     """Times one keyframe segment through a chosen set of via-points of the path."""
 
@@ -142,11 +154,8 @@ class SegmentTimer:
         self.solver, self.limits, self.cfg = solver, limits, cfg
 
     def via_velocities(self, tau: np.ndarray, q: np.ndarray, v0: np.ndarray, v1: np.ndarray, stop: np.ndarray):
-        """Velocities (n, 21) at the states ``q (n, 21)``: clamped spline, zero where ``stop``."""
-        v = np.zeros_like(q)
-        v[0], v[-1] = v0, v1
-        if len(q) > 2:
-            v[1:-1] = CubicSpline(tau, q, bc_type=((1, v0), (1, v1)), axis=0)(tau[1:-1], 1)
+        """Velocities (n, 21) at the states ``q (n, 21)``: the via spline's, within the limits, zero where ``stop``."""
+        v = via_spline_velocities(tau, q, v0, v1)
         vmax = self.cfg.velocity_margin * self.limits.velocity
         v = self.inward(q, np.clip(v, -vmax, vmax))
         v[stop] = 0.0
