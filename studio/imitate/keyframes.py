@@ -25,14 +25,14 @@ log = logging.getLogger(__name__)
 class KeyframeConfig:
     """How frames are grouped into keyframes (paper: PCA 50 of 64 × 64 expressive masks; τ chosen here)."""
 
-    # tau: measured on the six shared DAVIS mask sequences (shared/targets/davis, 24 fps) sampled at 4 Hz, framed
-    # in one square frame (union of boxes + 10 % margin, 256 px), paper frames → keyframes in brackets:
+    # tau: measured on the six shared DAVIS mask sequences (shared/targets/davis, 24 fps) loaded by load_video at
+    # its defaults (4 Hz, one square frame of 128 px); frames → keyframes (reduction) [paper's frames → keyframes]:
     #   bear 14 → 2 (86 %) [60 → 5], blackswan 9 → 3 (67 %) [16 → 5], camel 15 → 2 (87 %) [39 → 6],
-    #   cows 18 → 1 (94 %) [12 → 3], dog 10 → 2 (80 %) [21 → 6], flamingo 14 → 4 (71 %) [27 → 10];
-    #   all 80 → 14 (82 %; paper 175 → 35, 80 %). At 4 Hz every tau in [0.345, 0.41] keeps all six in 64–94 %;
-    #   at 5 Hz tau 0.40 gives 73–91 % (all six in the paper's 63–92 %). At 0.30 bear, camel and cows collapse
-    #   to one keyframe; at 0.48 blackswan keeps 5 of 9 frames (44 %), flamingo 7 of 14 (50 %).
-    tau: float = 0.40  # similarity 1 − d at which the two closest clusters still merge; higher = more keyframes [0, 1]
+    #   cows 18 → 2 (89 %) [12 → 3], dog 10 → 2 (80 %) [21 → 6], flamingo 14 → 4 (71 %) [27 → 10];
+    #   all 80 → 15 (81 %; paper 175 → 35, 80 %). Every tau in [0.385, 0.40] keeps all six in the paper's 63–92 %
+    #   (0.39 is its middle); at 0.34 bear and cows collapse to one keyframe, at 0.405 flamingo keeps 6 of 14
+    #   (57 %), at 0.48 blackswan 6 of 9 (33 %). At 5 Hz tau 0.39 gives 73–95 %, at 3 Hz 30–85 %.
+    tau: float = 0.39  # similarity 1 − d at which the two closest clusters still merge; higher = more keyframes [0, 1]
     size: int = 64  # side of the square the expressive masks are area-resized to before PCA, px [1, ∞)
     components: int = 50  # PCA components kept (at most the frame count and size²) [1, ∞)
 
