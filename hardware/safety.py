@@ -6,7 +6,7 @@ sent and whether a reading means "stop".
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -14,11 +14,19 @@ from hardware import constants as C
 from hardware.errors import OverTemperature, ServoFault
 
 
+def urdf_max_speed() -> float:
+    """The fastest joint velocity limit in the shipped hand's URDF, rad/s: the one place the servo speed is stated
+    (LX-15D: 0.2 s per 60°); the player's step per tick is this speed times the tick."""
+    from studio.sim.hand import load_hand
+
+    return float(max(j.velocity for j in load_hand().joints))
+
+
 @dataclass
 class SafetyConfig:
     """Limits that stop or shape motion (defaults: LX-15D datasheet and the hand's URDF)."""
 
-    max_speed_rad_s: float = 5.2  # fastest commanded joint speed (URDF velocity limit; 0.2 s/60° servo)
+    max_speed_rad_s: float = field(default_factory=urdf_max_speed)  # fastest commanded joint speed (URDF velocity)
     max_temp_c: int = 70  # stop above this servo temperature, °C (the servo itself cuts out at 85 °C)
     min_voltage_v: float = 6.0  # stop below this supply voltage (LX-15D: 6.0-8.4 V)
     max_voltage_v: float = 8.6  # stop above this supply voltage

@@ -13,12 +13,12 @@ from scipy.interpolate import CubicSpline
 
 from studio.cli.main import main
 from studio.motion.errors import KeyframeCollisionError, PlanError, SegmentTooFastError
-from studio.motion.limits import JointLimits
+from studio.motion.limits import JointLimits, LimitsConfig
 from studio.motion.path import PathConfig, build_path, keyframe_spline, spline_path
 from studio.motion.plan import Keyframes, PlanConfig, keyframe_velocities, parse_keyframes, plan_show
 from studio.motion.show import load_show
 from studio.motion.timing import TimingConfig
-from studio.sim.hand import load_hand
+from studio.sim.hand import DEFAULT_URDF, load_hand, parse_urdf
 from studio.sim.physics import CollisionWorld
 
 HAND = load_hand()
@@ -191,6 +191,24 @@ def test_keyframe_spline_fallbacks():
     assert two.linear.all() and np.allclose(two([0.5])[0], (q0 + q1) / 2)
     with pytest.raises(ValueError, match="strictly increasing"):
         keyframe_spline([0.0, 1.0, 1.0], [q0, q1, q0], HAND.lower, HAND.upper)
+
+
+def test_speed_limits_come_from_the_urdf_alone():
+    """The servo speed is stated once, in the URDF: the planner's limits and the player's step limit read it."""
+    from hardware.safety import SafetyConfig
+
+    urdf = np.array([j.velocity for j in HAND.joints])
+    cfg = LimitsConfig()
+    scale = np.where(np.array(HAND.joint_names) == "wrist", cfg.wrist_scale, 1.0)
+    np.testing.assert_allclose(LIMITS.velocity, urdf * cfg.velocity_scale * scale)
+    np.testing.assert_allclose(LIMITS.jerk, cfg.jerk * scale)
+    assert SafetyConfig().max_speed_rad_s == urdf.max()
+    text = DEFAULT_URDF.read_text()
+    assert 'velocity="' in text
+    slow = parse_urdf(text.replace('velocity="', 'velocity="0.5" x="', 1))
+    assert JointLimits.from_hand(slow).velocity[0] == pytest.approx(0.5 * cfg.velocity_scale * cfg.wrist_scale)
+    with pytest.raises(ValueError, match="no velocity limit"):
+        JointLimits.from_hand(parse_urdf(text.replace('velocity="', 'velocity="0" x="', 1)))
 
 
 def test_too_fast_segment_is_reported_with_its_feasible_time(world):

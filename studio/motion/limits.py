@@ -1,9 +1,10 @@
 """Per-joint motion limits (position, velocity, acceleration, jerk) shared by the planner and the show file.
 
 Defaults come from the LX-15D bus servo: its datasheet gives 0.16 s/60° (7.4 V) to 0.20 s/60° (6 V) with no load,
-i.e. 5.2–6.5 rad/s; the URDF stores 5.2 rad/s. Under the load of a finger (and the whole hand for the wrist) a servo
-is slower, so the planner uses a fraction of the URDF speed, and acceleration and jerk values that reach that speed
-in about a quarter of a second without a visible kick. Every number is a config field.
+i.e. 5.2–6.5 rad/s; the URDF stores 5.2 rad/s and is the one source of that number (``hardware.safety`` reads it
+too). Under the load of a finger (and the whole hand for the wrist) a servo is slower, so the planner uses a fraction
+of the URDF speed, and acceleration and jerk values that reach that speed in about a quarter of a second without a
+visible kick. Every other number is a field of :class:`LimitsConfig`, stated nowhere else.
 """
 
 from __future__ import annotations
@@ -43,10 +44,13 @@ class JointLimits:
         unknown = sorted(set(cfg.overrides) - set(hand.joint_names))
         if unknown:
             raise ValueError(f"limit overrides name unknown joints {unknown}; use the hand's joint names")
+        missing = [j.name for j in hand.joints if not j.velocity > 0]
+        if missing:
+            raise ValueError(f"the hand's URDF gives no velocity limit for {missing}: set <limit velocity=...> (rad/s)")
         vel, acc, jerk = [], [], []
         for j in hand.joints:
             scale = cfg.wrist_scale if j.name == "wrist" else 1.0
-            v = (j.velocity if j.velocity > 0 else 5.2) * cfg.velocity_scale * scale
+            v = j.velocity * cfg.velocity_scale * scale
             a, k = cfg.acceleration * scale, cfg.jerk * scale
             v, a, k = cfg.overrides.get(j.name, (v, a, k))
             vel.append(v)
