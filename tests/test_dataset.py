@@ -179,3 +179,17 @@ def test_on_the_fly_batches(hand):
     assert theta.shape == (8, 21) and masks.shape == (8, 1, 32, 32)
     again = ShadowRenderer(hand, Rig(resolution=32)).render(theta.double().numpy())
     assert np.array_equal(masks[:, 0].numpy().astype(np.uint8), again)
+
+
+def test_a_failed_shard_write_keeps_the_old_shard(small_dataset, tmp_path):
+    out, _, _ = small_dataset
+    path = tmp_path / "shard_00000.npz"
+    path.write_bytes(shard_path(out, 0).read_bytes())
+    before = read_shard(path)
+    broken = read_shard(path)
+    broken.meta = {**broken.meta, "seed": object()}  # not JSON: the write fails after the temporary file exists
+    with pytest.raises(TypeError):
+        write_shard(path, broken)
+    after = read_shard(path)
+    assert np.array_equal(after.theta, before.theta) and after.meta == before.meta
+    assert [p.name for p in tmp_path.iterdir()] == ["shard_00000.npz"]  # no temporary file left behind
