@@ -12,6 +12,7 @@ of the host's own bytes comes back first. Faults (:class:`Faults`) can be inject
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import pty
@@ -89,25 +90,35 @@ class ServoEmulator:
 
     # --- lifecycle -------------------------------------------------------------------------------------------
     def start(self) -> ServoEmulator:
+        """Open the pty and start the bus thread (``stop`` or the ``with`` block's end undoes both)."""
+        if self._thread is not None:
+            raise RuntimeError(f"the servo emulator is already running on {self.port}")
         self._master, self._slave = pty.openpty()
-        tty.setraw(self._master)
-        tty.setraw(self._slave)
-        self.port = os.ttyname(self._slave)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="servo-emulator", daemon=True)
-        self._thread.start()
+        try:
+            tty.setraw(self._master)
+            tty.setraw(self._slave)
+            self.port = os.ttyname(self._slave)
+            self._stop.clear()
+            self._thread = threading.Thread(target=self._run, name="servo-emulator", daemon=True)
+            self._thread.start()
+        except BaseException:
+            self.stop()
+            raise
         log.info("servo emulator on %s (%d servos)", self.port, len(self.servos))
         return self
 
     def stop(self) -> None:
+        """Stop the bus thread and close the pty (safe to call twice): a host on ``port`` then sees the adapter
+        vanish, as when a USB adapter is pulled."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2)
             self._thread = None
-        for fd in (self._master, self._slave):
+        fds, (self._master, self._slave) = (self._master, self._slave), (-1, -1)
+        for fd in fds:
             if fd >= 0:
-                os.close(fd)
-        self._master = self._slave = -1
+                with contextlib.suppress(OSError):
+                    os.close(fd)
 
     def __enter__(self) -> ServoEmulator:
         return self.start()
