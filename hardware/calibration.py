@@ -16,6 +16,7 @@ limits in rad, inside the URDF limits and inside the servo's 0..1000 travel.
 from __future__ import annotations
 
 import logging
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -218,3 +219,20 @@ def save_calibration(cal: Calibration, path: str | Path) -> None:
     }
     head = "# Joint ↔ servo map (shadow-studio calibrate). units = zero + direction·θ·238.73; limits in rad.\n"
     write_text(path, head + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None))
+
+
+def check_writable(path: str | Path) -> Path:
+    """Raise ``CalibrationError`` unless a calibration can be written to ``path``: not a folder, in a folder that
+    exists and takes new files (probed with a real temporary file). Call it before a long session, not after."""
+    p = Path(path)
+    folder = p.parent
+    if p.is_dir():
+        raise CalibrationError(f"{p} is a folder: give a file to write, e.g. {p / 'calibration.yaml'}")
+    if not folder.is_dir():
+        raise CalibrationError(f"cannot write {p}: the folder {folder} does not exist (create it or pick another)")
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as e:
+        raise CalibrationError(f"cannot write {p}: the folder {folder} does not take new files ({e})") from e
+    return p

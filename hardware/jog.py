@@ -3,6 +3,10 @@
 :class:`Jog` holds the logic (select a joint, step ±, go to an angle, home, torque, read, e-stop) and is driven
 by method calls or by text commands through :meth:`Jog.execute`; the terminal verb and the notebook's jog panel
 are thin faces of it. Every move is clipped to the soft limits and paced at ``speed_rad_s``.
+
+Failing safe (DESIGN §5.13): ``stop`` latches the bus's e-stop (every later move raises ``EStopLatched`` until
+``reset``); a servo that misses a read leaves its angle unknown (NaN) instead of ending the session, and a move of
+a joint whose angle is unknown reads it first (``ServoTimeout`` if it still does not answer).
 """
 
 from __future__ import annotations
@@ -14,14 +18,16 @@ import numpy as np
 
 from hardware.bus import ServoBus
 from hardware.calibration import Calibration
+from hardware.errors import ProtocolError, ServoTimeout
 from hardware.safety import SafetyConfig, clip_command, move_time
 
 HELP = """commands:
   j NAME|INDEX     select a joint              + / -          step the joint by the step size
   step DEG         set the step size           go DEG         move the joint to an angle (degrees)
   home             all joints to their rest    read           measured angles of every joint
-  on / off         torque on / off (all)       stop           e-stop: halt every servo now
-  joints           list joints                 help / quit"""
+  on / off         torque on / off (all)       stop           e-stop: halt every servo now (latches)
+  reset            clear the e-stop            joints         list joints
+  help / quit"""
 
 
 @dataclass
@@ -46,7 +52,8 @@ class JogMove:
 
 
 class Jog:
-    """Jog a hand on a connected bus. ``target`` is the pose last commanded (rad, calibration order)."""
+    """Jog a hand on a connected bus. ``target (J,) rad`` is the pose last commanded, calibration order (NaN: a
+    servo whose angle is not known yet because it did not answer)."""
 
     def __init__(
         self,
@@ -61,7 +68,7 @@ class Jog:
         self.cfg = config or JogConfig()
         self.home_pose = np.zeros(len(calibration.ids)) if home_pose is None else np.asarray(home_pose, float)
         self.index = 0
-        self.target = self.read_array()
+        self.target = self.read_array(strict=False)
 
     @property
     def joint(self) -> str:
@@ -82,17 +89,33 @@ class Jog:
             raise ValueError(f"unknown joint {joint!r}; joints: {', '.join(names)}")
         return self.joint
 
-    def read_array(self) -> np.ndarray:
-        """(J,) measured angles, rad."""
-        return self.cal.to_rad(np.array([self.bus.read_position(i) for i in self.cal.ids], dtype=float))
+    def read_array(self, strict: bool = True) -> np.ndarray:
+        """(J,) measured angles, rad. A servo that does not answer raises ``ServoTimeout`` (or ``ProtocolError``
+        for a garbled answer); with ``strict=False`` its angle reads NaN instead."""
+        units = np.full(len(self.cal.ids), np.nan)
+        for k, i in enumerate(self.cal.ids):
+            try:
+                units[k] = self.bus.read_position(i)
+            except (ServoTimeout, ProtocolError):
+                if strict:
+                    raise
+        return self.cal.to_rad(units)
 
     def read(self) -> dict[str, float]:
         """``{joint: rad}`` measured."""
         return dict(zip(self.cal.joint_names, self.read_array().tolist()))
 
+    def _known(self, j: int) -> float:
+        """Joint ``j``'s last commanded angle, read from the servo if not known yet (raises ServoTimeout)."""
+        if np.isnan(self.target[j]):
+            one = np.full(len(self.cal.ids), float(self.bus.read_position(self.cal.ids[j])))
+            self.target[j] = float(np.clip(self.cal.to_rad(one)[j], self.cal.lower[j], self.cal.upper[j]))
+        return float(self.target[j])
+
     def go(self, angle_rad: float) -> JogMove:
         """Move the selected joint to ``angle_rad`` (clipped to its soft limits)."""
         j = self.index
+        self._known(j)
         want = self.target.copy()
         want[j] = angle_rad
         c = clip_command(want, None, self.cal.lower, self.cal.upper, np.inf)
@@ -103,12 +126,13 @@ class Jog:
 
     def step(self, sign: int) -> JogMove:
         """Step the selected joint by ``sign`` × the step size."""
-        return self.go(self.target[self.index] + math.copysign(self.cfg.step_rad, sign))
+        return self.go(self._known(self.index) + math.copysign(self.cfg.step_rad, sign))
 
     def home(self) -> JogMove:
         """Move every joint to the home pose (clipped), batched, at jog speed."""
         c = clip_command(self.home_pose, None, self.cal.lower, self.cal.upper, np.inf)
-        dur = move_time(c.sent - self.target, self.cfg.speed_rad_s, self.cfg.min_move_s)
+        delta = np.where(np.isnan(self.target), self.cal.upper - self.cal.lower, c.sent - self.target)  # unknown:
+        dur = move_time(delta, self.cfg.speed_rad_s, self.cfg.min_move_s)  # pace as if from the far limit
         units = self.cal.to_units(c.sent)
         self.bus.write_positions(dict(zip(self.cal.ids, units)), dur)
         self.target = c.sent.copy()
@@ -121,11 +145,16 @@ class Jog:
             self.bus.write_positions(dict(zip(self.cal.ids, self.cal.to_units(self.target))), self.cfg.min_move_s)
         self.bus.set_torque(on, self.cal.ids)
 
-    def estop(self) -> None:
-        """Halt every servo (broadcast) and release torque if configured."""
-        self.bus.stop()
-        if self.cfg.release_on_estop:
-            self.bus.set_torque(False)
+    def estop(self) -> bool:
+        """Latch the bus's e-stop: halt every servo (broadcast), release torque if configured; every later move is
+        refused until :meth:`reset`. Never raises; returns whether the halt reached the bus."""
+        return self.bus.estop(release_torque=self.cfg.release_on_estop)
+
+    def reset(self) -> None:
+        """Clear the e-stop; the target becomes the measured pose (where the e-stop left each servo)."""
+        self.bus.reset_estop()
+        here = self.read_array(strict=False)
+        self.target = np.where(np.isnan(here), self.target, np.clip(here, self.cal.lower, self.cal.upper))
 
     def execute(self, line: str) -> str:
         """Run one text command; returns the line to show (``ValueError`` for bad input)."""
@@ -149,10 +178,19 @@ class Jog:
             self.torque(cmd == "on")
             return f"torque {cmd}"
         if cmd == "read":
-            return "  ".join(f"{n}={math.degrees(v):.1f}" for n, v in self.read().items())
+            q = self.read_array(strict=False)
+            text = "  ".join(f"{n}=" + ("?" if np.isnan(v) else f"{math.degrees(v):.1f}") for n, v in
+                             zip(self.cal.joint_names, q))  # fmt: skip
+            silent = [i for i, v in zip(self.cal.ids, q) if np.isnan(v)]
+            return text + (f"  (servos {silent} did not answer: check their cables)" if silent else "")
         if cmd in ("stop", "estop", "e"):
-            self.estop()
-            return "E-STOP: servos halted" + (", torque released" if self.cfg.release_on_estop else ", holding")
+            if not self.estop():
+                return "E-STOP latched, but the halt did not reach the bus: cut the servos' power"
+            torque = ", torque released" if self.cfg.release_on_estop else ", holding"
+            return f"E-STOP: servos halted{torque}; type reset to move again"
+        if cmd == "reset":
+            self.reset()
+            return "e-stop reset: " + self.status()
         if cmd == "joints":
             return "  ".join(f"{k}:{n}" for k, n in enumerate(self.cal.joint_names))
         if cmd in ("help", "?", "h"):
@@ -162,8 +200,8 @@ class Jog:
     def status(self) -> str:
         j = self.index
         lo, hi = math.degrees(self.cal.lower[j]), math.degrees(self.cal.upper[j])
-        now = math.degrees(self.target[j])
-        return f"[{j}] {self.joint} (servo {self.cal.ids[j]}): {now:.1f} deg in [{lo:.1f}, {hi:.1f}]"
+        now = "?" if np.isnan(self.target[j]) else f"{math.degrees(self.target[j]):.1f}"
+        return f"[{j}] {self.joint} (servo {self.cal.ids[j]}): {now} deg in [{lo:.1f}, {hi:.1f}]"
 
     def _say(self, m: JogMove) -> str:
         note = "  (clipped to soft limit)" if m.clipped else ""

@@ -1,5 +1,5 @@
 """What a playback did: why it stopped (:class:`StopReason`), the rows recorded tick by tick (:class:`Recording`),
-the :class:`PlaybackResult` made from them, and its log file (``.npz``, written atomically).
+the :class:`PlaybackResult` made from them, and its log file (``.npz``, written through ``studio.atomic``).
 
 The player records into a :class:`Recording` as it goes and turns it into a result however playback ends, so a
 show that crashed half-way still leaves a log of the ticks it played.
@@ -7,9 +7,6 @@ show that crashed half-way still leaves a log of the ticks it played.
 
 from __future__ import annotations
 
-import contextlib
-import os
-import tempfile
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -17,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from hardware.safety import Clipped
+from studio.atomic import write_with
 
 
 class StopReason(str, Enum):
@@ -139,19 +137,13 @@ def save_playback_log(result: PlaybackResult, path: str | Path) -> Path:
 
     Keys: ``t (T,)``, ``requested``/``sent (T, J)`` rad, ``measured_t``/``measured_joint``/``measured_rad (M,)``,
     ``joint_names (J,)``, ``reason`` (the :class:`StopReason` name), ``message``, ``torque``. Returns the path."""
-    p = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=p.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(
-                f, t=result.t, requested=result.requested, sent=result.sent, measured_t=result.measured_t,
-                measured_joint=result.measured_joint, measured_rad=result.measured_rad,
-                joint_names=np.array(result.joint_names, dtype=str), reason=result.reason.name,
-                message=result.message, torque=result.torque,
-            )  # fmt: skip
-        os.replace(tmp, p)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-    return p
+
+    def write(f) -> None:
+        np.savez(
+            f, t=result.t, requested=result.requested, sent=result.sent, measured_t=result.measured_t,
+            measured_joint=result.measured_joint, measured_rad=result.measured_rad,
+            joint_names=np.array(result.joint_names, dtype=str), reason=result.reason.name, message=result.message,
+            torque=result.torque,
+        )  # fmt: skip
+
+    return write_with(path, write)

@@ -10,15 +10,11 @@ health at ≈ 0.6 Hz per servo. Every move carries a move time of one tick, so e
 its next sample. Tick *k* starts at the absolute deadline ``t0 + k / rate``: a late tick never delays the next.
 
 Stops: Ctrl-C, :meth:`Player.estop`, the cancel event, a fault bit, over-temperature, out-of-range voltage,
-``max_missed_reads`` failed reads of one servo, or a tracking error beyond the threshold. Each halts motion
-(MOVE_STOP to all) and then holds or releases torque as configured; the result says why and which.
-
-Failing safe (DESIGN §5.13): the loop runs under one guard, so whatever ends it (a stop condition, a lost port:
-``BusError`` → LOST_COMMUNICATION, a raising ``on_sample``/``progress`` hook → CALLBACK_ERROR, Ctrl-C →
-INTERRUPTED, or a bug → ERROR) the player sends MOVE_STOP (best effort: a failing stop only makes the torque
-"unknown"), applies the torque policy and records the result in :attr:`Player.last_result` before returning it; a
-bug is then re-raised. The e-stop is the bus's latch (:meth:`hardware.bus.ServoBus.estop`): while it is latched
-:meth:`Player.play` sends a stop and returns ESTOP at once, and only ``bus.reset_estop()`` clears it.
+``max_missed_reads`` failed reads of one servo, a tracking error, a lost port (``BusError``), a raising hook, or
+a bug. Whatever ends the loop (DESIGN §5.13), the player sends MOVE_STOP (best effort: a failing stop makes the
+torque "unknown"), holds or releases torque as configured and records the result in :attr:`Player.last_result`,
+which says why; only a bug is then re-raised. The e-stop is the bus's latch (:meth:`ServoBus.estop`): while it
+is latched :meth:`Player.play` sends a stop and returns ESTOP at once; only ``bus.reset_estop()`` clears it.
 """
 
 from __future__ import annotations
@@ -43,14 +39,7 @@ from hardware.errors import (
     ServoTimeout,
 )
 from hardware.playback_log import PlaybackResult, Recording, StopReason
-from hardware.safety import (
-    SafetyConfig,
-    check_faults,
-    check_temperature,
-    check_voltage,
-    clip_command,
-    tracking_error,
-)
+from hardware.safety import SafetyConfig, check_faults, check_temperature, check_voltage, clip_command, tracking_error
 
 __all__ = ["PlaybackResult", "Player", "PlayerConfig", "SampleHook", "StopReason"]
 
@@ -162,7 +151,7 @@ class Player:
         except EStopLatched:
             reason, message = StopReason.ESTOP, "e-stop pressed"
         except BusError as e:
-            reason, message = StopReason.LOST_COMMUNICATION, f"lost the bus: {e}"
+            reason, message = StopReason.LOST_COMMUNICATION, str(e)
         except HardwareError as e:
             reason, message = StopReason.LOST_COMMUNICATION, f"the bus failed: {e}"
         except KeyboardInterrupt:
@@ -256,7 +245,7 @@ class Player:
             val = fn(sid)
         except (ServoTimeout, ProtocolError) as e:
             misses[j] += 1
-            log.warning("read of servo %d failed (%d in a row): %s", sid, misses[j], e)
+            log.debug("read of servo %d failed (%d in a row): %s", sid, misses[j], e)  # tolerated; a stop says more
             if misses[j] >= self.safety.max_missed_reads:
                 raise _Stop(
                     StopReason.LOST_COMMUNICATION,
@@ -297,7 +286,7 @@ class Player:
             except Exception as e:  # best effort: the result (and the log) must still come back
                 torque = "unknown"
                 log.debug("stopping the servos failed: %s", e)
-                message += f"; the stop could not be sent either ({type(e).__name__}): cut the servos' power"
+                message += "; the stop could not be sent either: cut the servos' power"
             log.debug("playback stopped: %s: %s (torque %s)", reason.value, message, torque)
         self.last_result = rec.result(reason, message, torque, self.cfg.rate_hz, self.cal.joint_names)
         return self.last_result

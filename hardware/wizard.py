@@ -4,6 +4,9 @@ soft limit, and record each; the direction follows from which way the limits lie
 :class:`CalibrationWizard` is driven by text commands (``+``, ``-``, ``step N``, ``free``, ``hold``, ``set``,
 ``skip``) so the terminal verb and tests use the same logic. Servo positions here are raw units: the calibration
 is what is being made.
+
+A read that fails raises (``ServoTimeout``) before anything changes, so the same command can simply be typed
+again; :meth:`CalibrationWizard.progress` is what is worth keeping when the session ends early.
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ class CalibrationWizard:
         self.stage = 0
         self.record: dict[str, float] = {}
         self.notes: list[str] = []  # warnings (limits pulled inside the URDF)
+        self.calibrated: list[str] = []  # joints finished with three 'set's (not skipped), in order
         self._goal: int | None = None
 
     @property
@@ -113,7 +117,16 @@ class CalibrationWizard:
         if (lo2, hi2) != (lo, hi):
             self.notes.append(f"{j.name}: limits [{lo:.3f}, {hi:.3f}] rad moved inside URDF: [{lo2:.3f}, {hi2:.3f}]")
         self.done.append(replace(j, direction=direction, zero=r["zero"], lower=lo2, upper=hi2))
+        self.calibrated.append(j.name)
         self.stage, self.record, self._goal = 0, {}, None
+
+    def progress(self) -> Calibration | None:
+        """The start calibration with every joint calibrated so far put in (a file to resume from with
+        ``--start``, skipping those joints); None when no joint has been set yet."""
+        if not self.calibrated:
+            return None
+        done = {j.name: j for j in self.done}
+        return Calibration(tuple(done.get(j.name, j) for j in self.start.joints), self.hand.hash)
 
     def result(self) -> Calibration:
         """The new calibration (validated against the hand)."""

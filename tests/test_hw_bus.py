@@ -9,9 +9,9 @@ import pytest
 import serial
 
 from hardware import constants as C
-from hardware.bus import scan
+from hardware.bus import is_motion, scan
 from hardware.emulator import EmulatorConfig, ServoEmulator
-from hardware.errors import BusError, ChecksumError, ServoTimeout, UnexpectedReply
+from hardware.errors import BusError, ChecksumError, EStopLatched, HardwareError, ServoTimeout, UnexpectedReply
 from hardware.protocol import StreamDecoder, encode_request
 from hardware.serial_bus import BusConfig, SerialServoBus
 
@@ -164,3 +164,85 @@ def test_stuck_and_hot_servos_report_faults(rig):
     assert bus.read_position(2) == 500 and bus.read_faults(2) & C.FAULT_LOCKED_ROTOR
     assert bus.read_temperature(4) == 92 and bus.read_faults(4) == C.FAULT_OVER_TEMPERATURE
     assert StreamDecoder().feed(b"") == []
+
+
+def test_a_lost_port_is_a_bus_error_naming_it(rig):
+    """The adapter vanishes (the emulator closes its pty): every call fails as a BusError naming the port, whether
+    pyserial raised SerialException, OSError or termios.error underneath."""
+    emu, bus = rig
+    assert bus.read_position(1) == 500
+    port = emu.port
+    emu.stop()
+    calls = {
+        "read": lambda: bus.read_position(1),  # reset_input_buffer raises termios.error first
+        "reads": lambda: bus.read_positions([1, 2]),
+        "stop": lambda: bus.stop(),
+        "move": lambda: bus.move_batch({1: 600}, 0.1),
+        "write_positions": lambda: bus.write_positions({i: 600 for i in range(1, 22)}, 0.1),
+        "torque": lambda: bus.set_torque(False),
+    }
+    for name, call in calls.items():
+        with pytest.raises(BusError) as info:
+            call()
+        assert port in str(info.value) and "failed" in str(info.value), name
+        assert isinstance(info.value, HardwareError) and info.value.__cause__ is not None, name
+    assert bus.estop() is False and bus.estop_latched  # the latch holds even though the halt could not go out
+    bus.disconnect()  # closing a vanished port is not an error
+    assert not bus.is_connected
+
+
+def test_estop_from_another_thread_stops_a_multi_batch_move():
+    """An e-stop while write_positions pauses after its first batch: servos 8-21 never get their targets, 1-7 halt,
+    and nothing moves again until reset_estop()."""
+    cfg = dict(timeout_s=0.01, batch_gap_s=0.5)
+    with ServoEmulator(range(1, 22)) as emu, SerialServoBus(BusConfig(emu.port, **cfg)) as bus:
+        halted = []
+
+        def press():  # a UI thread, as soon as the first batch has reached the servos
+            deadline = time.perf_counter() + 5
+            while emu.servo(7).last_move[0] != 900 and time.perf_counter() < deadline:
+                time.sleep(0.001)
+            halted.append(bus.estop())
+
+        presser = threading.Thread(target=press)
+        presser.start()
+        t = time.perf_counter()
+        with pytest.raises(EStopLatched, match="latched") as info:
+            bus.write_positions({i: 900 for i in range(1, 22)}, 1.0)  # 1 s moves: batch 1 still moving when stopped
+        presser.join()
+        assert halted == [True] and time.perf_counter() - t < 0.45  # the pause woke at the e-stop
+        assert info.value.sent == {i: 900 for i in range(1, 8)}
+        bus.read_position(21)  # answered after everything written before it was handled
+        assert all(emu.servo(i).last_move == (500, 0) for i in range(8, 22))  # never commanded
+        a = emu.positions()
+        time.sleep(0.1)
+        assert emu.positions() == a and all(a[i] < 900 for i in range(1, 8))  # 1-7 halted part-way
+
+        refused = {
+            "move": lambda: bus.move_batch({1: 100}, 0.1),
+            "write_positions": lambda: bus.write_positions({1: 100}, 0.1),
+            "torque on": lambda: bus.set_torque(True),
+            "wait + start": lambda: bus.send([(1, C.MOVE_TIME_WAIT_WRITE, (100, 0)), (254, C.MOVE_START, ())]),
+        }
+        for name, call in refused.items():
+            with pytest.raises(EStopLatched, match="reset"):
+                call()
+            assert bus.estop_latched, name
+        bus.read_position(1)
+        assert emu.servo(1).last_move == (900, 1000) and emu.servo(1).waiting_move is None  # nothing went out
+        bus.stop()  # MOVE_STOP and torque-off still go out
+        bus.set_torque(False, [21])
+        assert not bus.read_torque(21) and bus.read_position(1) == round(a[1])  # reads are fine
+        assert bus.estop_latched
+
+        bus.reset_estop()
+        bus.batch_gap_s = 0.01
+        assert not bus.estop_latched and bus.write_positions({i: 300 for i in range(1, 22)}, 0.0)[21] == 300
+        assert bus.request(21, C.MOVE_TIME_READ) == (300, 0)  # answered after the move was handled
+
+
+def test_what_the_latch_refuses():
+    assert is_motion((1, C.MOVE_TIME_WRITE, (500, 0))) and is_motion((254, C.MOVE_START, ()))
+    assert is_motion((1, C.LOAD_OR_UNLOAD_WRITE, (1,))) and is_motion((1, C.OR_MOTOR_MODE_WRITE, (1, 0, 500)))
+    assert not is_motion((254, C.MOVE_STOP, ())) and not is_motion((254, C.LOAD_OR_UNLOAD_WRITE, (0,)))
+    assert not is_motion((1, C.ID_WRITE, (3,))) and not is_motion((1, C.LED_CTRL_WRITE, (1,)))

@@ -7,12 +7,17 @@ import os
 import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
 
-from hardware.calibration import load_calibration
+from hardware import constants as C
+from hardware.calibration import default_calibration, load_calibration, save_calibration
+from hardware.emulator import ServoEmulator
 from studio.cli.main import main
+
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
 
 
 @pytest.fixture
@@ -26,18 +31,20 @@ def emulate():
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            env=ENV,
         )
         procs.append(proc)
         port = proc.stdout.readline().strip()
         assert port.startswith("/dev/"), proc.stderr.read()
         return port
 
+    start.procs = procs
     yield start
     for proc in procs:
-        proc.send_signal(signal.SIGINT)
-        proc.wait(timeout=10)
-        assert proc.returncode == 0
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(timeout=10)
+            assert proc.returncode == 0
 
 
 def test_emulate_then_scan(emulate, capsys):
@@ -82,3 +89,138 @@ def test_play_dry_run(hand, tmp_path, capsys):
     assert main(["play", str(tmp_path / "tiny.json"), "--dry-run", "--calibration", str(bad)]) == 2
     assert "not a calibration file" in capsys.readouterr().err
     assert load_calibration(None, hand).ids == list(range(1, 22))
+
+
+def _tiny_show(hand, path, seconds):
+    from studio.motion.show import Show, save_show
+
+    t = np.arange(0, seconds, 1 / 40)
+    q = np.tile(hand.rest_pose(), (len(t), 1))
+    q[:, 0] = 0.3 * np.sin(t)
+    save_show(Show.from_samples(hand, t, q, title="tiny"), path)
+    return path
+
+
+def test_play_survives_the_emulator_dying(emulate, hand, tmp_path):
+    """`emulate` is killed mid-show: play ends with one clear line on stderr, no traceback, and its log."""
+    port = emulate()
+    show = _tiny_show(hand, tmp_path / "long.json", 6.0)
+    cal = tmp_path / "cal.yaml"
+    save_calibration(default_calibration(hand), cal)  # made for this hand: no warning about another one
+    log = tmp_path / "run.npz"
+    args = ["play", str(show), "--port", port, "--calibration", str(cal), "--log", str(log)]
+    play = subprocess.Popen(
+        [sys.executable, "-m", "studio.cli", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=ENV,
+    )
+    try:
+        assert play.stdout.readline().startswith("playing 'tiny'"), play.stderr.read()
+        time.sleep(1.0)
+        emulate.procs[0].kill()  # the adapter vanishes
+        out, err = play.communicate(timeout=60)
+    finally:
+        if play.poll() is None:
+            play.kill()
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert play.returncode in (1, 2) and len(lines) == 1 and "Traceback" not in err, err
+    assert "lost communication" in lines[0] and port in lines[0], lines[0]
+    saved = np.load(log)
+    assert str(saved["reason"]) == "LOST_COMMUNICATION" and port in str(saved["message"])
+    assert 10 < len(saved["sent"]) < 6 * 40 and saved["sent"].shape[1] == 21 and len(saved["measured_rad"]) > 0
+    assert f"saved to {log}" in out
+
+
+def test_calibrate_checks_out_before_the_bus(tmp_path, capsys):
+    no_port = ["calibrate", "--port", "/dev/does-not-exist", "--out"]
+    assert main([*no_port, str(tmp_path / "missing" / "cal.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert "does not exist" in err and "missing" in err and "servo bus" not in err and len(err.splitlines()) == 1
+    assert main([*no_port, str(tmp_path)]) == 2
+    assert "is a folder" in capsys.readouterr().err
+    assert main([*no_port, str(tmp_path / "cal.yaml")]) == 2  # a good path: now the bus is the problem
+    assert "cannot open servo bus" in capsys.readouterr().err
+
+
+def test_calibrate_survives_missed_reads_and_keeps_progress_when_the_port_is_lost(tmp_path, capsys, monkeypatch, hand):
+    out = tmp_path / "cal.yaml"
+    with ServoEmulator(range(1, 22)) as emu:
+        port = emu.port
+
+        def session():  # what an operator types, while the hardware misbehaves between the lines
+            yield "free\n"
+            emu.set_position(1, 500)
+            yield "set\n"  # wrist zero
+            emu.inject(drop_ids={1})
+            yield "set\n"  # a missed read: reported, nothing recorded
+            emu.inject(drop_ids=set())
+            emu.set_position(1, 400)
+            yield "set\n"  # lower
+            emu.set_position(1, 640)
+            yield "set\n"  # upper: the wrist is calibrated
+            emu.stop()  # the adapter is pulled
+            yield "set\n"
+
+        monkeypatch.setattr(sys, "stdin", session())
+        assert main(["calibrate", "--port", port, "--out", str(out)]) == 2
+    captured = capsys.readouterr()
+    assert "? servo 1 did not answer" in captured.out and "thumb_mcp_abd" in captured.out
+    err = captured.err.splitlines()
+    partial = tmp_path / "cal.partial.yaml"
+    assert len(err) == 1 and port in err[0] and str(partial) in err[0] and "--start" in err[0], err
+    assert not out.exists()
+    cal = load_calibration(partial, hand)  # a valid calibration to resume from
+    w = cal.joint("wrist")
+    assert (w.zero, w.direction) == (500, 1) and w.lower == pytest.approx(-100 / C.UNITS_PER_RAD, abs=1e-6)
+    assert (
+        w.upper == pytest.approx(140 / C.UNITS_PER_RAD, abs=1e-6)
+        and cal.joints[1:] == load_calibration(None, hand).joints[1:]
+    )
+
+
+def test_jog_survives_missed_reads_and_ends_cleanly_on_a_lost_port(capsys, monkeypatch):
+    with ServoEmulator(range(1, 22)) as emu:
+        port = emu.port
+        emu.inject(missing_ids={5})
+
+        def session():
+            yield "j 4\n"  # servo 5: its angle is unknown
+            yield "+\n"  # it still does not answer: reported, the session goes on
+            emu.inject(missing_ids=set())
+            yield "+\n"  # now it does
+            yield "stop\n"
+            yield "go 10\n"  # refused: the e-stop is latched
+            yield "reset\n"
+            yield "go 10\n"
+            emu.stop()
+            yield "read\n"  # the port is gone
+
+        monkeypatch.setattr(sys, "stdin", session())
+        assert main(["jog", "--port", port, "--timeout", "0.01", "--retries", "0"]) == 2
+    captured = capsys.readouterr()
+    out = captured.out
+    assert "? servos [5] did not answer" in out and "? servo 5 did not answer" in out
+    assert "thumb_dip -> " in out and "E-STOP" in out and "? the e-stop is latched" in out
+    assert "e-stop reset" in out and "thumb_dip -> 10.0 deg" in out
+    err = captured.err.splitlines()
+    assert len(err) == 1 and port in err[0] and "failed" in err[0], err
+
+
+def test_non_serial_verbs_need_no_pty_or_termios(hand, tmp_path):
+    """On a system without pty/termios (Windows) the CLI builds, non-serial verbs run, and `emulate` says why it
+    cannot run in one line."""
+    show = _tiny_show(hand, tmp_path / "s.json", 0.5)
+    code = f"""
+import sys
+sys.modules["pty"] = sys.modules["termios"] = sys.modules["tty"] = None  # importing them now fails
+from studio.cli.main import build_parser, main
+build_parser()
+assert main(["show-info", {str(show)!r}]) == 0
+assert "hardware.emulator" not in sys.modules and "serial" not in sys.modules
+assert main(["emulate"]) == 2
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=ENV, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "tiny" in r.stdout and "POSIX" in r.stderr and "Traceback" not in r.stderr

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import threading
 import time
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 
 from hardware.calibration import default_calibration
 from hardware.emulator import ServoEmulator
+from hardware.errors import EStopLatched
 from hardware.jog import Jog, JogConfig
 from hardware.serial_bus import BusConfig, SerialServoBus
 
@@ -76,3 +78,37 @@ def test_home_torque_read_estop(jog, hand):
     assert "0:wrist" in j.execute("joints")
     with pytest.raises(ValueError, match="unknown command"):
         j.execute("fly")
+
+
+def test_estop_latches_through_home(hand):
+    """Home is a multi-batch move: an e-stop from another thread after its first batch keeps servos 8-21 where
+    they are, and every move is refused until reset."""
+    cal = default_calibration(hand)
+    home = np.clip(np.full(21, 0.3), cal.lower, cal.upper)
+    with ServoEmulator(cal.ids) as emu, SerialServoBus(BusConfig(emu.port, timeout_s=0.01, batch_gap_s=0.5)) as bus:
+        j = Jog(bus, cal, config=JogConfig(speed_rad_s=0.5), home_pose=home)
+
+        def press():
+            deadline = time.perf_counter() + 5
+            while emu.servo(7).last_move == (500, 0) and time.perf_counter() < deadline:
+                time.sleep(0.001)
+            assert "E-STOP" in j.execute("stop")
+
+        presser = threading.Thread(target=press)
+        presser.start()
+        with pytest.raises(EStopLatched) as info:
+            j.home()
+        presser.join()
+        assert sorted(info.value.sent) == list(range(1, 8))
+        j.bus.read_position(21)  # answered after everything before it was handled
+        assert all(emu.servo(i).last_move == (500, 0) for i in range(8, 22))
+        for line in ("home", "go 20", "+", "on"):
+            with pytest.raises(EStopLatched):
+                j.execute(line)
+        assert "e-stop reset" in j.execute("reset")
+        bus.batch_gap_s = 0.01
+        j.cfg.speed_rad_s = 20.0
+        j.home()
+        j.bus.read_position(21)
+        want = np.round(cal.to_units(home)).astype(int)
+        assert [emu.servo(i).last_move[0] for i in cal.ids] == want.tolist()

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from hardware import constants as C
 from hardware.calibration import Calibration, default_calibration
 from hardware.emulator import EmulatorConfig, ServoEmulator
 from hardware.player import Player, PlayerConfig, StopReason
@@ -189,3 +190,100 @@ def test_echo_adapter_and_bad_inputs(hand, cal):
 def test_safety_config_defaults_are_sane():
     s = SafetyConfig()
     assert s.max_temp_c < 85 and s.min_voltage_v < 7.4 < s.max_voltage_v and s.max_missed_reads >= 2
+
+
+def test_emulator_stopped_mid_show_is_lost_communication(hand, cal, rig):
+    """The adapter vanishes mid-show: a result (not an exception) saying so, with the ticks played so far."""
+    emu, bus = rig
+    t, q, names = show(hand, 3.0)
+    port = emu.port
+
+    def pull(tt, c, m):
+        if tt >= 0.25 and emu.port:
+            emu.stop()
+            emu.port = ""
+
+    player = Player(bus, cal, PlayerConfig(ramp_speed_rad_s=50), on_sample=pull)
+    r = player.play(t, q, names)
+    assert r.reason == StopReason.LOST_COMMUNICATION and port in r.message, r.message
+    assert r.torque == "unknown" and "cut the servos' power" in r.message  # the stop could not go out either
+    assert 5 <= len(r.sent) < 20 and len(r.t) == len(r.sent) and player.last_result is r
+
+
+def test_estop_from_a_second_thread_mid_show(hand, cal, rig):
+    """No move goes out after the e-stop; the latch outlives play() and the next play() refuses at once."""
+    emu, bus = rig
+    t, q, names = show(hand, 3.0)
+    player = Player(bus, cal, PlayerConfig(ramp_speed_rad_s=50))
+    after_estop = {}
+
+    def press():
+        time.sleep(0.4)
+        assert player.estop()
+        after_estop.update({i: emu.servo(i).last_move for i in cal.ids})
+
+    presser = threading.Thread(target=press)
+    presser.start()
+    r = player.play(t, q, names)
+    presser.join()
+    assert r.reason == StopReason.ESTOP and 5 <= len(r.sent) < 40, r.message
+    a = bus.read_positions(cal.ids)  # answered after everything the player sent was handled
+    assert {i: emu.servo(i).last_move for i in cal.ids} == after_estop  # nothing was commanded after the e-stop
+    time.sleep(0.1)
+    assert bus.read_positions(cal.ids) == a and bus.estop_latched
+
+
+@pytest.mark.parametrize("hold", [True, False], ids=["hold", "release"])
+def test_a_latched_estop_is_not_cleared_by_play(hand, cal, rig, hold):
+    emu, bus = rig
+    t, q, names = show(hand, 0.3)
+    bus.set_torque(True)  # loaded, so that releasing them shows
+    assert bus.estop()
+    bus.read_position(1)  # answered after the e-stop's MOVE_STOP was handled
+    seen = emu.packets_seen
+    player = Player(bus, cal, PlayerConfig(ramp_speed_rad_s=50, hold_torque_on_stop=hold))
+    r = player.play(t, q, names)
+    assert r.reason == StopReason.ESTOP and "latched" in r.message and r.commands == 0 and len(r.sent) == 0
+    assert r.torque == ("held" if hold else "released") and bus.estop_latched
+    assert bus.read_torque(1) is hold  # the torque policy was applied
+    assert emu.packets_seen - seen == (2 if hold else 3)  # MOVE_STOP (+ torque off), then our read: nothing else
+    assert all(emu.servo(i).last_move == (500, 0) for i in cal.ids)
+    bus.reset_estop()
+    assert player.play(t, q, names).ok and not bus.estop_latched
+
+
+@pytest.mark.parametrize("hook", ["on_sample", "progress"])
+def test_a_raising_callback_stops_safely(hand, cal, rig, hook):
+    emu, bus = rig
+    t, q, names = show(hand, 3.0)
+
+    def boom(*args):
+        if (args[0] >= 0.25) if hook == "on_sample" else (args[0] >= 10):
+            raise RuntimeError("boom")
+
+    player = Player(bus, cal, PlayerConfig(ramp_speed_rad_s=50, hold_torque_on_stop=False))
+    if hook == "on_sample":
+        player.on_sample = boom
+        r = player.play(t, q, names)
+    else:
+        r = player.play(t, q, names, progress=boom)
+    assert r.reason == StopReason.CALLBACK_ERROR and f"{hook} callback raised RuntimeError: boom" in r.message
+    assert r.torque == "released" and not any(bus.read_torque(i) for i in cal.ids)  # torque policy applied
+    assert 5 <= len(r.sent) < 20 and player.last_result is r
+    a = bus.read_positions(cal.ids)
+    time.sleep(0.1)
+    assert bus.read_positions(cal.ids) == a  # halted
+
+
+def test_a_bug_stops_safely_then_surfaces(hand, cal, rig):
+    """An unexpected exception inside the loop (here a broken config) still sends the stop and applies the torque
+    policy, and leaves what was played in last_result, before it propagates."""
+    emu, bus = rig
+    t, q, names = show(hand, 1.0)
+    player = Player(bus, cal, PlayerConfig(ramp_speed_rad_s=50, hold_torque_on_stop=False, reads_per_batch=None))
+    with pytest.raises(TypeError):
+        player.play(t, q, names)
+    r = player.last_result
+    assert r.reason == StopReason.ERROR and "TypeError" in r.message and r.torque == "released"
+    assert len(r.sent) == 1 and r.commands == 7  # the first batch went out, then the bug
+    assert bus.request(1, C.MOVE_TIME_READ)[1] == 25 and not bus.read_torque(1)

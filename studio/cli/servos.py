@@ -1,4 +1,10 @@
-"""Verbs ``emulate``, ``scan``, ``calibrate``, ``play`` and ``jog``: the terminal face of the hardware layer."""
+"""Verbs ``emulate``, ``scan``, ``calibrate``, ``play`` and ``jog``: the terminal face of the hardware layer.
+
+They fail safe (DESIGN §5.13): a lost port (``BusError``) ends the verb with one line and exit code 2 (through
+``main``); ``jog`` and ``calibrate`` carry on after a servo misses a read; ``calibrate`` checks ``--out`` before it
+touches the bus and keeps what was calibrated in ``<out>.partial.yaml`` when it ends early; ``play --log`` writes
+its log however playback ends. The emulator (POSIX only: pty, termios) is imported only by the verbs that use it.
+"""
 
 from __future__ import annotations
 
@@ -11,8 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from hardware.bus import scan
-from hardware.calibration import default_calibration, load_calibration, save_calibration
+from hardware.calibration import check_writable, default_calibration, load_calibration, save_calibration
+from hardware.errors import BusError, EStopLatched, HardwareError, ProtocolError, ServoTimeout
 from hardware.jog import HELP, Jog
+from hardware.playback_log import PlaybackResult, save_playback_log
 from hardware.player import Player, PlayerConfig
 from hardware.serial_bus import BusConfig, SerialServoBus
 from hardware.wizard import CalibrationWizard
@@ -39,10 +47,21 @@ def _bus(args) -> SerialServoBus:
     return SerialServoBus(BusConfig(args.port, timeout_s=args.timeout, retries=args.retries, echo=args.echo))
 
 
-def cmd_emulate(args) -> int:
-    from hardware.emulator import EmulatorConfig, Faults, ServoEmulator  # POSIX only (pty): imported when used
+def _emulator():
+    """The ``hardware.emulator`` module, imported on first use (it needs pty and termios: POSIX only)."""
+    try:
+        from hardware import emulator
+    except ImportError as e:
+        raise HardwareError(
+            f"the servo emulator needs a POSIX system with pty and termios ({e}): use Linux or macOS, or a real "
+            "adapter with --port"
+        ) from e
+    return emulator
 
-    faults = Faults(
+
+def cmd_emulate(args) -> int:
+    em = _emulator()
+    faults = em.Faults(
         drop_rate=args.drop_rate,
         corrupt_rate=args.corrupt_rate,
         missing_ids=frozenset(_ids(args.missing)),
@@ -50,7 +69,7 @@ def cmd_emulate(args) -> int:
         hot_ids=frozenset(_ids(args.hot)),
     )
     dups = tuple(_ids(args.duplicate))
-    with ServoEmulator(_ids(args.ids), EmulatorConfig(echo=args.echo), faults, duplicate_ids=dups) as emu:
+    with em.ServoEmulator(_ids(args.ids), em.EmulatorConfig(echo=args.echo), faults, duplicate_ids=dups) as emu:
         print(emu.port, flush=True)
         print(f"{len(emu.servos)} virtual servos; Ctrl-C to stop", file=sys.stderr, flush=True)
         try:
@@ -73,22 +92,39 @@ def cmd_scan(args) -> int:
     return 1 if report.duplicates or report.missing else 0
 
 
+def _save_progress(wiz: CalibrationWizard, out: Path) -> str:
+    """Save what was calibrated so far to ``<out>.partial.yaml``; returns the sentence that says so."""
+    cal = wiz.progress()
+    if cal is None:
+        return "nothing saved"
+    path = out.with_suffix(".partial.yaml")
+    save_calibration(cal, path)
+    return f"progress ({', '.join(wiz.calibrated)}) saved to {path}: resume with --start {path} and skip those joints"
+
+
 def cmd_calibrate(args) -> int:
+    check_writable(args.out)  # before the bus: a session is not lost to a typo in --out
     hand = load_hand()
     start = load_calibration(args.start, hand) if args.start else default_calibration(hand)
     with _bus(args) as bus:
         wiz = CalibrationWizard(bus, hand, start)
         print("commands: + - 'step N' free hold set skip   (empty line = set)")
         print(wiz.prompt())
-        for line in sys.stdin:
-            try:
-                print(wiz.execute(line))
-            except ValueError as e:
-                print(f"? {e}")
-            if wiz.finished:
-                break
+        try:
+            for line in sys.stdin:
+                try:
+                    print(wiz.execute(line))
+                except (ValueError, ServoTimeout, ProtocolError) as e:  # a missed read: type it again
+                    print(f"? {e}")
+                if wiz.finished:
+                    break
+        except BusError as e:  # the port is gone: keep what was done, say so in the one error line
+            raise BusError(f"{e}; {_save_progress(wiz, args.out)}") from e
+        except KeyboardInterrupt:
+            print(f"interrupted; {_save_progress(wiz, args.out)}", file=sys.stderr)
+            raise
         if not wiz.finished:
-            print("input ended before every joint was calibrated; nothing saved", file=sys.stderr)
+            print(f"input ended before every joint was calibrated; {_save_progress(wiz, args.out)}", file=sys.stderr)
             return 1
         for note in wiz.notes:
             print(f"note: {note}")
@@ -106,32 +142,36 @@ def cmd_play(args) -> int:
     cfg = PlayerConfig(hold_torque_on_stop=not args.release_on_stop)
     with contextlib.ExitStack() as stack:
         if args.dry_run:
-            from hardware.emulator import ServoEmulator  # POSIX only (pty): imported when used
-
-            emu = stack.enter_context(ServoEmulator(cal.ids))
+            emu = stack.enter_context(_emulator().ServoEmulator(cal.ids))
             args.port = emu.port
             print(f"dry run: playing to the emulator on {emu.port}")
         elif not args.port:
             raise ValueError("give --port PATH (or --dry-run to play to the emulator)")
         bus = stack.enter_context(_bus(args))
         print(f"playing {show.title!r}: {show.duration:.2f} s, {len(show.times)} samples; Ctrl-C stops safely")
-        result = Player(bus, cal, cfg).play(show.times, show.positions, show.joint_names)
+        player = Player(bus, cal, cfg)
+        try:
+            result = player.play(show.times, show.positions, show.joint_names)
+        finally:  # the log is written however playback ended (even by a bug, which then surfaces)
+            if args.log and player.last_result is not None:
+                save_playback_log(player.last_result, args.log)
+                print(f"command vs measured saved to {args.log}")
+    _report(result)
+    return 0 if result.ok else 1
+
+
+def _report(result: PlaybackResult) -> None:
+    """The outcome: one line (stdout when completed, stderr when stopped), then the timing on stdout."""
+    line = f"{result.reason.value}: {result.message}; torque {result.torque}"
+    print(line if result.ok else f"shadow-studio play: stopped: {line}", file=sys.stdout if result.ok else sys.stderr)
     late = np.abs(result.lateness_s) * 1000
     clipped = int(result.clipped_limit.any(1).sum() + result.clipped_step.any(1).sum())
-    print(f"{result.reason.value}: {result.message}; torque {result.torque}")
     if len(late):
         print(
             f"{len(result.sent)} ticks (ramp {result.ramp_ticks}), {result.commands} commands, tick jitter p50 "
             f"{np.percentile(late, 50):.2f} ms p99 {np.percentile(late, 99):.2f} ms, {clipped} ticks clipped, "
             f"max tracking error {result.max_tracking_error_rad:.3f} rad"
         )
-    if args.log:
-        np.savez(
-            args.log, t=result.t, requested=result.requested, sent=result.sent, measured_t=result.measured_t,
-            measured_joint=result.measured_joint, measured_rad=result.measured_rad, joint_names=result.joint_names,
-        )  # fmt: skip
-        print(f"command vs measured saved to {args.log}")
-    return 0 if result.ok else 1
 
 
 def cmd_jog(args) -> int:
@@ -140,6 +180,9 @@ def cmd_jog(args) -> int:
     with _bus(args) as bus:
         jog = Jog(bus, cal, home_pose=hand.rest_pose())
         print(HELP)
+        silent = [i for i, q in zip(cal.ids, jog.target) if np.isnan(q)]
+        if silent:
+            print(f"? servos {silent} did not answer: check their cables; their angles show as ?")
         print(jog.status())
         try:
             for line in sys.stdin:
@@ -147,11 +190,11 @@ def cmd_jog(args) -> int:
                     break
                 try:
                     print(jog.execute(line))
-                except ValueError as e:
+                except (ValueError, ServoTimeout, ProtocolError, EStopLatched) as e:  # BusError ends the verb
                     print(f"? {e}")
         except KeyboardInterrupt:
-            jog.estop()
-            print("E-STOP (Ctrl-C): servos halted")
+            halted = jog.estop()
+            print("E-STOP (Ctrl-C): servos halted" if halted else "E-STOP (Ctrl-C): the bus failed: cut the power")
     return 0
 
 
