@@ -29,7 +29,8 @@ if not DEFAULT_MODEL.is_file():
 def imitator(hand):
     torch.set_num_threads(1)
     model, _ = load_selfmodel(DEFAULT_MODEL, hand, device="cpu")
-    return Imitator(model, loss_cfg=LossConfig(use_clip=False, crop_size=model.cfg.resolution))
+    with Imitator(model, loss_cfg=LossConfig(use_clip=False, crop_size=model.cfg.resolution)) as imitator:
+        yield imitator
 
 
 def free_poses(hand, n: int, seed: int) -> np.ndarray:
@@ -199,7 +200,7 @@ def test_imitate_cli_writes_everything(tmp_path):
     out = tmp_path / "out"
     proc = subprocess.run(
         [sys.executable, "-m", "studio.cli", "imitate", str(target), "--out", str(out), "--no-clip", "--quiet",
-         "--search-iters", "40", "--refine-steps", "100"],
+         "--search-iters", "5", "--refine-steps", "20"],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
@@ -236,3 +237,155 @@ def test_imitate_cli_errors(tmp_path):
         proc = subprocess.run([sys.executable, "-m", "studio.cli", "imitate", *args, "--out", str(tmp_path / "o"),
                                "--no-clip"], capture_output=True, text=True, timeout=300)  # fmt: skip
         assert proc.returncode == 2 and message in proc.stderr.lower() and "Traceback" not in proc.stderr, proc.stderr
+
+
+def _tiny_imitator(hand, **kw) -> tuple[Imitator, np.ndarray]:
+    model = SelfModel(SelfModelConfig(resolution=32, hidden=32, channels=16, min_channels=8, res_blocks=1), hand)
+    imitator = Imitator(model, loss_cfg=LossConfig(use_clip=False, crop_size=32), **kw)
+    return imitator, imitator.renderer.render_one(free_poses(hand, 1, seed=2)[0])
+
+
+def test_cancel_before_refinement_returns_a_flagged_result(hand):
+    """Cancelled before refinement started: the searched pose comes back flagged, not an AttributeError on None."""
+    import threading
+
+    small = dict(
+        search=SearchConfig(batch=4, iterations=50, log_every=1), refine=RefineConfig(steps=10, restarts=2, log_every=1)
+    )
+    imitator, target = _tiny_imitator(hand, **small)
+    with imitator:
+        cancel = threading.Event()
+        cancel.set()
+        result = imitator.imitate(target, cancel=cancel)
+        assert result.cancelled and result.search.cancelled and result.search.iterations == 0
+        assert result.refine is None and np.array_equal(result.theta, result.search.theta)
+        assert np.isfinite(result.loss["total"])
+        # cancelled during the search: still no refinement, still flagged
+        cancel.clear()
+        result = imitator.imitate(target, progress=lambda stage, s, n, b: s >= 3 and cancel.set(), cancel=cancel)
+        assert result.cancelled and result.search.iterations == 3 and result.refine is None
+        # cancelled during refinement: the best free pose so far, flagged
+        cancel.clear()
+        result = imitator.imitate(target, progress=lambda stage, s, n, b: stage == "refine" and cancel.set(),
+                                  cancel=cancel)  # fmt: skip
+        assert result.cancelled and result.refine is not None and result.refine.cancelled
+        assert not imitator.imitate(target).cancelled
+
+
+def test_zero_candidates_is_refused(hand):
+    from studio.imitate.still import distinct_best
+
+    with pytest.raises(ValueError, match="candidates must be ≥ 1"):
+        _tiny_imitator(hand, candidates=0)
+    theta = np.random.default_rng(0).uniform(-1, 1, (6, 21))
+    assert distinct_best(theta, np.arange(6.0), 0) == []
+    assert len(distinct_best(theta, np.arange(6.0), 2)) == 2
+
+
+def _imitate_cli(*args: str, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "studio.cli", "imitate", *args], capture_output=True, text=True,
+                          timeout=600, **kw)  # fmt: skip
+
+
+def test_imitate_at_zero_uses_the_opening_and_plans_to_a_held_pose(tmp_path):
+    """The default target (ASL "o") has an opening: it is the expressive region, so Exp. IoU is computed; the
+    single keyframe at t = 0 plans to a show that holds the pose (this used to raise IndexError in timing)."""
+    from studio.imitate.targets import DEFAULT_TARGET
+    from studio.motion.show import load_show
+
+    out = tmp_path / "o"
+    proc = _imitate_cli(str(DEFAULT_TARGET), "--out", str(out), "--no-clip", "--quiet", "--at", "0",
+                        "--search-iters", "5", "--refine-steps", "20")  # fmt: skip
+    assert proc.returncode in (0, 1), proc.stderr  # 1: no collision-free pose in 20 steps (said in the summary)
+    pose = json.loads((out / "pose.json").read_text())
+    assert pose["provenance"]["expressive_pixels"] > 0 and pose["cancelled"] is False
+    assert pose["loss"]["exp_iou"] is not None and 0 <= pose["loss"]["exp_iou"] <= 1
+    assert pose["loss"]["total"] == pytest.approx(pose["loss"]["base"] + pose["loss"]["expr"])
+    assert pose["provenance"]["target_config"]["threshold"] == 25.0
+    assert pose["keyframes"][0]["t"] == 0.0
+    if not pose["collision_free"]:
+        pytest.skip("no collision-free pose in 20 refinement steps: plan would refuse the keyframe")
+    show = out / "show.json"
+    planned = subprocess.run([sys.executable, "-m", "studio.cli", "plan", str(out / "pose.json"), "--out", str(show)],
+                             capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert planned.returncode == 0 and "Traceback" not in planned.stderr, planned.stderr
+    loaded = load_show(show)
+    assert loaded.times.tolist() == [0.0]
+    assert np.array_equal(loaded.positions[0], [pose["pose"][n] for n in loaded.joint_names])
+
+
+def test_imitate_threshold_flags_reach_the_target(tmp_path):
+    import cv2
+
+    from studio.cli.imitate import target_config_from_args
+    from studio.cli.main import build_parser
+    from studio.imitate.targets import TargetConfig
+
+    def cfg(*flags: str) -> TargetConfig:
+        return target_config_from_args(build_parser().parse_args(["imitate", "t.png", "--out", "o", *flags]))
+
+    assert cfg() == TargetConfig()  # 25, or Otsu by itself where the border is not dark
+    assert cfg("--otsu").threshold is None
+    assert cfg("--threshold", "25") == TargetConfig(threshold=25.0, auto_otsu=False)  # asked for: always used
+    grey = np.full((96, 96), 170, np.uint8)  # a light-grey wall (shadowness 85) with a dark disc
+    cv2.circle(grey, (48, 48), 30, 30, -1)
+    path = tmp_path / "grey_wall.png"
+    cv2.imwrite(str(path), grey)
+    fixed = _imitate_cli(str(path), "--out", str(tmp_path / "o"), "--no-clip", "--threshold", "25")
+    assert fixed.returncode == 2 and "Traceback" not in fixed.stderr, fixed.stderr
+    assert fixed.stderr.strip().splitlines() == [
+        f"shadow-studio imitate: error: every pixel is shadow (no backdrop, check the polarity/threshold): {path}"
+    ]
+
+
+def test_ctrl_c_stops_imitate_and_keeps_the_best_pose(tmp_path):
+    """The first Ctrl-C cancels the search: the best pose so far is written, one line says so, exit code 130."""
+    import os
+    import signal
+    import time
+
+    out = tmp_path / "o"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "studio.cli", "imitate", str(SAMPLE_DIR / "asl_v.jpeg"), "--out", str(out),
+         "--no-clip", "--search-iters", "100000", "--refine-steps", "20"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    )  # fmt: skip
+    seen, deadline = b"", time.monotonic() + 300
+    while b"search" not in seen and time.monotonic() < deadline:  # the search's progress bar: it is running
+        chunk = os.read(proc.stderr.fileno(), 4096)
+        if not chunk:
+            break
+        seen += chunk
+    assert b"search" in seen, seen.decode(errors="replace")
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=300)
+    stderr = (seen + stderr).decode(errors="replace")
+    assert proc.returncode == 130 and "Traceback" not in stderr, stderr
+    assert (
+        stderr.strip().splitlines()[-1]
+        == f"shadow-studio imitate: cancelled: wrote the best pose found so far to {out}"
+    )
+    summary = json.loads(stdout.decode().strip().splitlines()[-1])
+    pose = json.loads((out / "pose.json").read_text())
+    assert summary["cancelled"] is True and pose["cancelled"] is True and len(pose["pose"]) == 21
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_self_model_and_clip_score_cpu_renders(hand):
+    """CLIP on the self-model's device (CUDA): search on CUDA, refinement feeds its CPU renders to the encoder."""
+    from studio.imitate.clip_loss import tiny_clip
+
+    model = SelfModel(SelfModelConfig(resolution=32, hidden=32, channels=16, min_channels=8, res_blocks=1), hand)
+    model = model.to("cuda")
+    clip = tiny_clip().to("cuda")
+    with Imitator(model, clip=clip, search=SearchConfig(batch=4, iterations=5), refine=RefineConfig(steps=5)) as im:
+        target = im.renderer.render_one(free_poses(hand, 1, seed=2)[0])
+        loss_fn = im.loss_fn(target)
+        poses = free_poses(hand, 3, seed=4)
+        total, comps = im.refiner.score(loss_fn, poses)
+        assert total.shape == (3,) and np.isfinite(comps["clip"]).all()
+        cpu_loss = ImageLoss(target, im.loss_cfg, tiny_clip())
+        cpu_total, _ = Refiner(im.renderer).score(cpu_loss, poses)
+        assert total == pytest.approx(cpu_total, abs=1e-4)
+        result = im.imitate(target)
+        assert np.isfinite(result.loss["clip"])

@@ -11,6 +11,7 @@ JSON-able dicts (NaN → None); :func:`write_table` writes them as Markdown and 
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import threading
@@ -22,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from studio.atomic import write_text
 from studio.errors import ClosedError
 from studio.evaluate.baselines import (
     BaselineOutput,
@@ -242,6 +244,14 @@ def to_markdown(rows: list[dict], notes: Sequence[str] = ()) -> str:
     return "\n".join(lines + [""] + [f"- {n}" for n in notes]) + "\n"
 
 
+def _csv(keys: list[str], rows) -> str:
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, fieldnames=keys, extrasaction="ignore")
+    w.writeheader()
+    w.writerows(rows)
+    return buf.getvalue()
+
+
 def write_table(result: EvalResult, out: Path) -> dict[str, str]:
     """Write ``table1.md``, ``table1.csv`` (one row per method), ``per_target.csv`` and ``settings.json`` (model,
     losses with ``use_clip``, search, refinement, Nearest Neighbour); returns their paths."""
@@ -249,16 +259,11 @@ def write_table(result: EvalResult, out: Path) -> dict[str, str]:
     out.mkdir(parents=True, exist_ok=True)
     paths = {"markdown": out / "table1.md", "csv": out / "table1.csv", "per_target": out / "per_target.csv",
              "settings": out / "settings.json"}  # fmt: skip
-    paths["markdown"].write_text(to_markdown(result.rows, result.notes))
-    paths["settings"].write_text(json.dumps(result.settings, indent=2, default=str))
+    write_text(paths["markdown"], to_markdown(result.rows, result.notes))
+    write_text(paths["settings"], json.dumps(result.settings, indent=2, default=str))
     keys = ["method", *LOSS_COLUMNS.values(), "collide_pct", "seconds", "targets", "expressive_targets"]
-    with open(paths["csv"], "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
-        w.writeheader()
-        w.writerows({k: "" if r.get(k) is None else r[k] for k in keys} for r in result.rows)
+    write_text(paths["csv"], _csv(keys, ({k: "" if r.get(k) is None else r[k] for k in keys} for r in result.rows)))
     rec_keys = ["target", "method", *LOSS_COLUMNS.values(), "collides", "seconds"]
-    with open(paths["per_target"], "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=rec_keys, extrasaction="ignore")
-        w.writeheader()
-        w.writerows({k: "" if _nan_to_none(r[k]) is None else r[k] for k in rec_keys} for r in result.records)
+    rows = ({k: "" if _nan_to_none(r[k]) is None else r[k] for k in rec_keys} for r in result.records)
+    write_text(paths["per_target"], _csv(rec_keys, rows))
     return {k: str(v) for k, v in paths.items()}

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
+from studio.atomic import write_json
 from studio.errors import ShardError
 from studio.learn.shards import SHARD_FORMAT, Shard, list_shards, pack_masks, read_shard, shard_path, write_shard
 from studio.sim.hand import Hand, load_hand
@@ -115,7 +116,7 @@ def collect(
                 "use another --out folder or the same options as before"
             )
     else:
-        mpath.write_text(json.dumps(manifest, indent=2, sort_keys=True))
+        write_json(mpath, manifest, sort_keys=True)
     renderer = ShadowRenderer(hand, cfg.rig())
     written = skipped = done = 0
     with CollisionWorld(hand) as world:
