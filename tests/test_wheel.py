@@ -57,7 +57,8 @@ def run_installed(site: Path, cwd: Path, *args: str) -> subprocess.CompletedProc
 
 def test_wheel_holds_the_assets(installed):
     for rel in ("hand.urdf", "calibration.yaml", "models/selfmodel_cpu128.pt", "models/inverse_cpu128.pt",
-                "targets/asl_o.jpeg", "targets/SOURCE.txt"):  # fmt: skip
+                "targets/asl_o.jpeg", "targets/SOURCE.txt",
+                "videos/muybridge_horse.gif", "videos/SOURCE.txt"):  # fmt: skip
         assert (installed / "studio" / "assets" / rel).is_file(), rel
     assert (installed / "studio" / "motion" / "show.schema.json").is_file()
     assert not (installed / "assets").exists() and not (installed / "tests").exists()
