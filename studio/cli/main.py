@@ -1,8 +1,9 @@
 """``shadow-studio <verb>``: the command-line face of the engine.
 
 Each verb lives in a module that exposes ``register(subparsers)``: it adds its parser and sets ``func`` to a
-function ``(args) -> int``. Errors users can meet (``StudioError``, ``ValueError``, missing files) are printed as
-one line on stderr with exit code 2, never as a traceback.
+function ``(args) -> int``. Errors users can meet (``StudioError``, ``ValueError``, missing files, bad flags) are
+printed as one line on stderr with exit code 2, never as a traceback. Any other exception is a bug: one line
+``internal error: …`` and exit code 1; ``-v`` shows its traceback (and the traceback of a user error too).
 """
 
 from __future__ import annotations
@@ -11,7 +12,10 @@ import argparse
 import importlib
 import logging
 import sys
+import traceback
+from collections.abc import Iterable
 
+from studio.cli.flags import CliParser
 from studio.errors import StudioError
 
 # Modules that contribute verbs, in --help order.
@@ -26,20 +30,22 @@ VERB_MODULES = (
 )
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+def build_parser(verb_modules: Iterable[str] = VERB_MODULES) -> argparse.ArgumentParser:
+    """The ``shadow-studio`` parser with the verbs of ``verb_modules`` (module names, each with ``register``)."""
+    parser = CliParser(
         prog="shadow-studio",
         description="Shadow Studio: make a 21-DoF robot hand perform shadow shows.",
     )
-    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages and show tracebacks")
     sub = parser.add_subparsers(title="verbs", dest="verb", metavar="<verb>")
-    for name in VERB_MODULES:
+    for name in verb_modules:
         importlib.import_module(name).register(sub)
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+def main(argv: list[str] | None = None, verb_modules: Iterable[str] = VERB_MODULES) -> int:
+    """Run ``shadow-studio`` with ``argv`` (default ``sys.argv[1:]``); returns the exit code."""
+    parser = build_parser(verb_modules)
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s"
@@ -50,11 +56,20 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except (StudioError, ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as e:
+        if args.verbose:
+            traceback.print_exc()
         print(f"shadow-studio {args.verb}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"shadow-studio {args.verb}: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:  # a bug: one line, or the traceback with -v
+        if args.verbose:
+            traceback.print_exc()
+            return 1
+        message = f"{type(e).__name__}: {e}".replace("\n", " ")
+        print(f"shadow-studio {args.verb}: internal error: {message} (run with -v for the traceback)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":
