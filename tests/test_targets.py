@@ -272,3 +272,37 @@ def test_config_rejects_nonsense() -> None:
         TargetConfig(threshold=300)
     with pytest.raises(TargetError):
         find_target_files("/no/such/folder")
+
+
+def test_grey_backdrop_chooses_otsu_by_itself() -> None:
+    """On a grey wall the fixed level 25 would make everything shadow: the loader splits by Otsu instead."""
+    grey = np.full((120, 160), 175, np.uint8)  # light-grey wall: shadowness 80 > 25
+    cv2.ellipse(grey, (80, 60), (50, 30), 0, 0, 360, 40, -1)  # a dark shape
+    expected = np.zeros_like(grey)
+    cv2.ellipse(expected, (80, 60), (50, 30), 0, 0, 360, 1, -1)
+    np.testing.assert_array_equal(mask_from_grey(grey), expected)
+    with pytest.raises(TargetError, match="every pixel is shadow"):
+        mask_from_grey(grey, TargetConfig(auto_otsu=False))  # the fixed level, as asked: the wall is shadow
+
+
+def test_muybridge_horse_first_frame_loads_with_defaults(shared_targets: Path, tmp_path: Path) -> None:
+    folder = shared_targets / "video" / "muybridge-horse"
+    gifs = sorted(folder.glob("*.gif")) if folder.is_dir() else []
+    if not gifs:
+        pytest.skip(f"no Muybridge horse GIF in {folder}")
+    with Image.open(gifs[0]) as im:  # the first frame, as a plain grey PNG (no palette, no transparency)
+        im.seek(0)
+        frame = np.asarray(im.convert("L"))
+    path = _save(tmp_path, "horse_000.png", frame)
+    border = np.concatenate([frame[0], frame[-1], frame[:, 0], frame[:, -1]])
+    assert np.median(border) > 128  # a light wall, the dark horse on it: the fixed level alone fails here
+    mask = load_target(path)
+    _check_mask(mask, path.name)
+    assert 0.08 < mask.mean() < 0.4, f"shadow fraction {mask.mean():.3f}"
+    touched = [bool(mask[0].any()), bool(mask[-1].any()), bool(mask[:, 0].any()), bool(mask[:, -1].any())]
+    assert not all(touched), "the shadow touches all four borders: the wall became shadow"
+    _, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    r0, r1, c0, c1 = shadow_box(mask)
+    assert stats[1:, cv2.CC_STAT_AREA].max() > 0.8 * mask.sum()  # one horse-and-rider piece, not speckle
+    assert (c1 - c0) > 0.6 * mask.shape[1] and (r1 - r0) > 0.5 * mask.shape[0]  # the horse spans the frame
+    np.testing.assert_array_equal(load_target(gifs[0]), mask)  # the GIF itself loads to the same mask

@@ -26,14 +26,14 @@ from studio.sim.shadow import ShadowRenderer
 class RefineConfig:
     """Hill-climbing schedule (paper defaults)."""
 
-    restarts: int = 8  # chains (the paper's restarts), run in parallel
-    steps: int = 1000  # proposals per chain
-    restart_noise: float = 0.25  # std, rad, of the chains' start around the best pose (chain 0 starts on it)
-    sigma0: float = 0.08  # initial proposal std, rad
-    decay: float = 0.995  # σ multiplier per step
-    sigma_min: float = 0.01  # σ floor, rad
-    seed: int = 0  # proposal noise seed
-    log_every: int = 10  # record the best loss every this many steps
+    restarts: int = 8  # chains (the paper's restarts), run in parallel [1, ∞)
+    steps: int = 1000  # proposals per chain [0, ∞)
+    restart_noise: float = 0.25  # std, rad, of the chains' start around the best pose (chain 0 on it) [0, ∞)
+    sigma0: float = 0.08  # initial proposal std, rad (0, ∞)
+    decay: float = 0.995  # σ multiplier per step (0, 1]
+    sigma_min: float = 0.01  # σ floor, rad [0, ∞)
+    seed: int = 0  # proposal noise seed [0, ∞)
+    log_every: int = 10  # record the best loss every this many steps [1, ∞)
 
 
 @dataclass
@@ -89,11 +89,14 @@ class Refiner:
 
     @torch.no_grad()
     def score(self, loss_fn: ImageLoss, theta: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """Rendered-shadow losses of poses ``(B, 21)`` → totals ``(B,)`` and components."""
+        """Rendered-shadow losses of poses ``(B, 21)`` → totals ``(B,)`` and components.
+
+        The renders go to the CLIP encoder's device (a CUDA encoder scores CUDA crops)."""
         self._check_open()
-        shadows = torch.from_numpy(self.renderer.render(theta, check=False)).float()
+        device = next(loss_fn.clip.parameters()).device if loss_fn.clip is not None else torch.device("cpu")
+        shadows = torch.from_numpy(self.renderer.render(theta, check=False)).float().to(device)
         total, comps = loss_fn(shadows)
-        return total.double().numpy(), {k: v.double().numpy() for k, v in comps.items()}
+        return total.double().cpu().numpy(), {k: v.double().cpu().numpy() for k, v in comps.items()}
 
     def refine(
         self,

@@ -20,7 +20,7 @@ from studio.errors import ClosedError
 from studio.imitate.losses import ImageLoss, LossConfig
 from studio.imitate.refine import RefineConfig, Refiner, RefineResult
 from studio.imitate.search import CPU_SEARCH, SearchConfig, SearchResult, gradient_search
-from studio.imitate.targets import load_target
+from studio.imitate.targets import TargetConfig, load_target
 from studio.learn.selfmodel import SelfModel, load_selfmodel
 from studio.sim.shadow import Rig, ShadowRenderer
 
@@ -44,12 +44,22 @@ class ImitationResult:
     collision_free: bool  # the final pose does not penetrate itself
     seconds: float  # wall time of search + refinement
     timings: dict[str, float] = field(default_factory=dict)  # seconds per stage
+    cancelled: bool = False  # the cancel event stopped the search or refinement: the best pose found so far
+
+
+@dataclass(frozen=True)
+class ImitateConfig:
+    """What ``Imitator.imitate`` does between the search and the refinement."""
+
+    candidates: int = 4  # distinct best search results refined, each with the full refinement schedule [1, ∞)
 
 
 def distinct_best(batch_theta: np.ndarray, batch_loss: np.ndarray, k: int, min_dist: float = 0.3) -> list:
     """Up to ``k`` of the best poses ``(B, 21)`` by loss, each at least ``min_dist`` rad (max over joints) from
     those already taken, best first (the batch often converges to a few basins: refine different ones)."""
     taken: list[np.ndarray] = []
+    if k < 1:
+        return taken
     for i in np.argsort(batch_loss):
         if not np.isfinite(batch_loss[i]):
             continue
@@ -76,8 +86,10 @@ class Imitator:
         search: SearchConfig | None = None,
         refine: RefineConfig | None = None,
         device: str | None = None,
-        candidates: int = 4,
+        candidates: int = ImitateConfig.candidates,
     ):
+        if candidates < 1:
+            raise ValueError(f"candidates must be ≥ 1 (distinct search results to refine), got {candidates}")
         if model is None:
             model, _ = load_selfmodel(Path(model_path or DEFAULT_MODEL), device=device)
         self.model = model
@@ -101,9 +113,9 @@ class Imitator:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def load(self, path: Path) -> np.ndarray:
+    def load(self, path: Path, cfg: TargetConfig | None = None) -> np.ndarray:
         """A target file → ``(R, R)`` uint8 mask framed like the model's images (TargetError when unusable)."""
-        return load_target(path, size=self.resolution)
+        return load_target(path, size=self.resolution, cfg=cfg)
 
     def loss_fn(self, target: np.ndarray, expressive: np.ndarray | None = None) -> ImageLoss:
         return ImageLoss(target, self.loss_cfg, self.clip, expressive)
@@ -116,7 +128,11 @@ class Imitator:
         progress: Callable[[str, int, int, float], None] | None = None,
         cancel: threading.Event | None = None,
     ) -> ImitationResult:
-        """Search then (optionally) refine. ``progress(stage, step, total, best_loss)``."""
+        """Search then (optionally) refine. ``progress(stage, step, total, best_loss)``.
+
+        Setting ``cancel`` stops early: the result is then flagged ``cancelled`` and holds the best pose found so
+        far (the searched pose when refinement had not started or found no collision-free pose).
+        """
         if self.refiner.closed:
             raise ClosedError("this Imitator was closed; make a new one (or imitate inside its `with` block)")
         t0 = time.perf_counter()
@@ -132,17 +148,19 @@ class Imitator:
         collides0 = bool(self.refiner.world.in_collision(search.theta)[0])
         result = None
         theta, shadow, comps = search.theta, shadow0, {k: float(v[0]) for k, v in comps0.items()}
-        if refine:
+        cancelled = search.cancelled
+        if refine and not cancelled:
             for start in distinct_best(search.batch_theta, search.batch_loss, self.candidates):
                 if cancel is not None and cancel.is_set():
                     break
                 r = self.refiner.refine(loss_fn, start, self.refine_cfg, stage("refine"), cancel)
                 if result is None or r.loss < result.loss:
                     result = r
-            if result.collision_free:
+            if result is not None and result.collision_free:
                 theta, comps = result.theta, result.components
                 shadow = self.renderer.render_one(theta)
         t2 = time.perf_counter()
+        cancelled = cancelled or (cancel is not None and cancel.is_set())
         collision_free = not bool(self.refiner.world.in_collision(theta)[0])
         return ImitationResult(
             target=np.asarray(target, dtype=np.uint8),
@@ -158,4 +176,5 @@ class Imitator:
             collision_free=collision_free,
             seconds=t2 - t0,
             timings={"search": t1 - t0, "refine": t2 - t1},
+            cancelled=cancelled,
         )

@@ -9,7 +9,10 @@ The steps, each a config field with a default that loads every target in ``share
    (ASL cut-outs, MPEG-7, DAVIS masks) and a bright border a dark shape on white. The image is turned into
    *shadowness* (0-255, high = shadow) accordingly.
 3. Threshold the shadowness: a fixed level (default 25, right for the ASL cut-outs: dark skin stays shadow) or
-   Otsu (``threshold=None``, for photographs whose backdrop is not black).
+   Otsu (``threshold=None``, for photographs whose backdrop is not black). With ``auto_otsu`` (the default) Otsu
+   is also chosen by itself when the backdrop is not dark: when the median shadowness of the border is above the
+   fixed level, that level would make the backdrop shadow (a grey wall, as in Muybridge's horse), so the image is
+   split where its histogram says instead. Every ASL, MPEG-7 and DAVIS target has a black backdrop and keeps 25.
 4. Keep the largest 8-connected pieces (``max_components``, ``min_component_share`` of the largest).
 5. Fill holes (4-connected backdrop regions not touching the border) unless they are real openings. A hole is a
    real opening when its *core* (its surely-backdrop pixels, shadowness ≤ ``backdrop_level`` × threshold) covers at
@@ -50,14 +53,15 @@ class TargetConfig:
     """How an image becomes a binary shadow mask (defaults load the ASL, MPEG-7 and DAVIS targets)."""
 
     polarity: str = "auto"  # "auto" (border = backdrop), "bright" (white shape on black), "dark" (black on white)
-    threshold: float | None = 25.0  # shadowness (0-255, after polarity) above which a pixel is shadow; None = Otsu
-    max_components: int = 3  # keep at most this many 8-connected shadow pieces, largest first
-    min_component_share: float = 0.1  # drop pieces smaller than this fraction of the largest piece (specks)
+    threshold: float | None = 25.0  # shadowness (after polarity) above which a pixel is shadow; None: Otsu [0, 255)
+    auto_otsu: bool = True  # use Otsu instead of the fixed threshold when the border (backdrop) is above it
+    max_components: int = 3  # keep at most this many 8-connected shadow pieces, largest first [1, ∞)
+    min_component_share: float = 0.1  # drop pieces smaller than this fraction of the largest piece (specks) [0, 1]
     min_hole_area: float = 0.015  # smallest real opening's core: < 1 → fraction of the shadow area, ≥ 1 → pixels
-    min_core_share: float = 0.3  # a hole whose core is less than this share of its area is a crease and is filled
-    backdrop_level: float = 0.25  # core pixels: shadowness ≤ backdrop_level × threshold (surely backdrop)
+    min_core_share: float = 0.3  # a hole whose core is less than this share of its area is a crease [0, 1]
+    backdrop_level: float = 0.25  # core pixels: shadowness ≤ backdrop_level × threshold (surely backdrop) [0, 1]
     frame: str = "shadow"  # load_target(size=…) frames "shadow" (its bounding box + margin) or the whole "image"
-    margin: float = 0.1  # frame margin around the shadow box on each side, fraction of the box's longer side
+    margin: float = 0.1  # frame margin around the shadow box on each side, fraction of its longer side [0, ∞)
 
     def __post_init__(self) -> None:
         if self.polarity not in ("auto", "bright", "dark"):
@@ -102,6 +106,13 @@ def shadowness(grey: np.ndarray, polarity: str = "auto") -> np.ndarray:
         border = np.concatenate([grey[0], grey[-1], grey[:, 0], grey[:, -1]])
         polarity = "bright" if np.median(border) < 128 else "dark"
     return grey if polarity == "bright" else 255 - grey
+
+
+def backdrop_is_shadow(shade: np.ndarray, threshold: float) -> bool:
+    """Whether the fixed ``threshold`` would make the backdrop shadow: the border's median shadowness is above it
+    (and the image is not one flat level, where Otsu has nothing to split)."""
+    border = np.concatenate([shade[0], shade[-1], shade[:, 0], shade[:, -1]])
+    return bool(np.median(border) > threshold and shade.min() < shade.max())
 
 
 def keep_largest_components(mask: np.ndarray, max_components: int = 1, min_share: float = 0.0) -> np.ndarray:
@@ -161,7 +172,7 @@ def mask_from_grey(grey: np.ndarray, cfg: TargetConfig | None = None, source: st
     if grey.ndim != 2 or min(grey.shape) < 2:
         raise TargetError(f"image must be at least 2×2 pixels, got shape {grey.shape}: {source}")
     shade = shadowness(grey, cfg.polarity)
-    if cfg.threshold is None:
+    if cfg.threshold is None or (cfg.auto_otsu and backdrop_is_shadow(shade, cfg.threshold)):
         if shade.min() == shade.max():
             raise TargetError(f"empty target: the image is one flat grey level {shade.min()}, no shadow: {source}")
         level, _ = cv2.threshold(shade, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
