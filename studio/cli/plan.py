@@ -8,9 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
+from studio.cli.flags import add_config_flags, config_from_args
 from studio.motion.limits import LimitsConfig
+from studio.motion.path import PathConfig
 from studio.motion.plan import PlanConfig, load_keyframes, plan_show
 from studio.motion.show import export_csv, load_show, save_show
+from studio.motion.timing import TimingConfig
 from studio.sim.hand import load_hand
 
 
@@ -18,25 +21,22 @@ def _plan(args: argparse.Namespace) -> int:
     hand = load_hand(args.urdf)
     kf = load_keyframes(args.poses, hand)
     base = PlanConfig()
-    limits = dataclasses.replace(
-        base.limits,
-        velocity_scale=args.velocity_scale if args.velocity_scale is not None else base.limits.velocity_scale,
-        acceleration=args.acceleration if args.acceleration is not None else base.limits.acceleration,
-        jerk=args.jerk if args.jerk is not None else base.limits.jerk,
-    )
     cfg = dataclasses.replace(
         base,
-        limits=limits,
-        path=dataclasses.replace(base.path, seed=args.seed),
-        timing=dataclasses.replace(base.timing, allow_late=args.allow_late),
+        limits=config_from_args(args, LimitsConfig, base=base.limits),
+        path=config_from_args(args, PathConfig, base=base.path),
+        timing=config_from_args(args, TimingConfig, base=base.timing),
     )
     result = plan_show(hand, kf, cfg, title=args.title)
     out = save_show(result.show, args.out, hand)
     for seg in result.trajectory.late:
         print(f"warning: {seg.describe()}; stretched, later keyframes are late by the difference")
     s = result.show
+    if len(s.times) == 1:
+        print("one keyframe at t = 0: the show holds that pose (no home move; a player ramps the hand to it first)")
     print(
-        f"planned {len(s.keyframes)} keyframes{' (+ home at t = 0)' if result.home_added else ''}: "
+        f"planned {len(s.keyframes)} keyframe{'s' if len(s.keyframes) != 1 else ''}"
+        f"{' (+ home at t = 0)' if result.home_added else ''}: "
         f"{s.duration:.3f} s, {len(s.times)} samples at {s.rate_hz:g} Hz, "
         f"{int(result.path.repaired.sum())} path points repaired, {int(result.path.refined.sum())} fingertip-refined, "
         f"{result.collision_checks} collision checks, max jerk {result.max_jerk_ratio:.0%} of its limit"
@@ -85,17 +85,15 @@ def _csv(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the motion verbs to ``shadow-studio``."""
-    d = LimitsConfig()
     p = sub.add_parser("plan", help="plan a collision-free, jerk-limited show through keyframes (POSES.json)")
     p.add_argument("poses", type=Path, help='keyframes: {"keyframes": [{"t": s, "pose": {joint: rad}}, ...]}')
     p.add_argument("--out", type=Path, required=True, help="show file to write (JSON)")
     p.add_argument("--title", default=None, help="show title (default: the keyframes file's, else 'untitled')")
     p.add_argument("--csv", type=Path, default=None, help="also export the samples as CSV")
-    p.add_argument("--allow-late", action="store_true", help="stretch too-fast segments instead of failing")
-    p.add_argument("--velocity-scale", type=float, default=None, help=f"fraction of URDF speed ({d.velocity_scale})")
-    p.add_argument("--acceleration", type=float, default=None, help=f"rad/s² limit ({d.acceleration})")
-    p.add_argument("--jerk", type=float, default=None, help=f"rad/s³ limit ({d.jerk})")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the repair passes")
+    add_config_flags(p, TimingConfig, ("allow_late",))
+    add_config_flags(p, LimitsConfig, ("velocity_scale", "acceleration", "jerk"),
+                     ranges={"velocity_scale": "(0, 1]", "acceleration": "(0, ∞)", "jerk": "(0, ∞)"})  # fmt: skip
+    add_config_flags(p, PathConfig, ("seed",), ranges={"seed": "[0, ∞)"})
     p.add_argument("--urdf", type=Path, default=None, help="hand URDF (default: the shipped hand)")
     p.set_defaults(func=_plan)
 

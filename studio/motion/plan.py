@@ -9,7 +9,10 @@ Keyframes file (``POSES.json``, as ``imitate``/``imitate-video`` write it)::
 **Home.** A show starts at rest: when the first keyframe is later than t = 0, the hand's rest pose
 (``hand.rest_pose()``) is prepended as a held keyframe at t = 0 (the "home" keyframe); when the first keyframe is at
 t = 0 it is the start pose instead. The first and last keyframes are passed at rest (zero velocity), as are keyframes
-marked ``"hold": true``; every other keyframe is passed with the spline's velocity.
+marked ``"hold": true``; every other keyframe is passed with the spline's velocity. So a single keyframe at t = 0 (what
+``imitate --at 0`` writes) plans to a show of one sample that holds that pose: there is no home move to time, and a
+player brings the hand to a show's first pose before playing it (``hardware.player`` ramps there). A single keyframe
+at t > 0 is reached from home by then.
 
 **How the passes enter the trajectory.** ``studio.motion.path`` builds a collision-free path (spline, repair, fingertip
 refinement); ``studio.motion.timing`` times keyframe to keyframe with Ruckig and threads repaired/refined path points as

@@ -70,8 +70,13 @@ class TimedTrajectory:
         return float(self.key_times[-1])
 
     def state(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Position, velocity, acceleration ``(T, 21)`` at show times ``t (T,)`` (clamped to the show)."""
+        """Position, velocity, acceleration ``(T, 21)`` at show times ``t (T,)`` (clamped to the show).
+
+        A trajectory of one keyframe (no pieces, duration 0) holds that pose at rest."""
         t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.duration)
+        if not self.pieces:
+            hold = np.repeat(self.key_poses[:1], len(t), axis=0)
+            return hold, np.zeros_like(hold), np.zeros_like(hold)
         out = evaluate(self.pieces, t)
         hit = np.isin(t, self.key_times)  # keyframes exactly (Ruckig's end state is within ~1e-15 rad)
         out[0, hit] = self.key_poses[np.searchsorted(self.key_times, t[hit])]
