@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 
 def run(*args: str, cwd=None) -> subprocess.CompletedProcess:
@@ -86,3 +89,97 @@ def test_shipped_pose_renders_like_library(tmp_path, hand):
 
     theta = sample_poses(hand, 1, np.random.default_rng(4))[0][0]
     assert np.array_equal(mask, ShadowRenderer(hand, Rig(resolution=64)).render_one(theta))
+
+
+def _one_line_error(out: subprocess.CompletedProcess, words: str) -> None:
+    assert out.returncode == 2, (out.returncode, out.stderr)
+    assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr, out.stderr
+    assert words in out.stderr, out.stderr
+
+
+def test_crashing_values_are_one_line_errors(tmp_path):
+    """Values that used to crash (--candidates 0 refined the whole batch, --threads 0) or were silently replaced
+    (--search-batch 0 became the preset's 32) are refused before any work starts."""
+    target, out = "assets/targets/asl_o.jpeg", str(tmp_path / "o")
+    for flag in ("--candidates", "--threads", "--search-batch"):
+        proc = run("imitate", target, "--out", out, flag, "0", cwd=Path(__file__).resolve().parents[1])
+        _one_line_error(proc, f"shadow-studio imitate: error: argument {flag}: must be ≥ 1, got 0")
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (("imitate", "t.png", "--out", "o", "--search-iters", "0"), "--search-iters: must be ≥ 1, got 0"),
+        (("imitate", "t.png", "--out", "o", "--refine-steps", "-1"), "argument --refine-steps: must be ≥ 0, got -1"),
+        (("imitate", "t.png", "--out", "o", "--at", "-1"), "argument --at: must be ≥ 0, got -1"),
+        (("imitate", "t.png", "--out", "o", "--at", "inf"), "argument --at: expected a finite number, got 'inf'"),
+        (("imitate", "t.png", "--out", "o", "--threshold", "255"), "argument --threshold: must be in [0, 255)"),
+        (("imitate", "t.png", "--out", "o", "--otsu", "--threshold", "9"), "not allowed with argument --otsu"),
+        (("evaluate", "t.png", "--out", "o", "--search-batch", "0"), "argument --search-batch: must be ≥ 1, got 0"),
+        (("evaluate", "t.png", "--out", "o", "--refine-restarts", "0"), "argument --refine-restarts: must be ≥ 1"),
+        (("evaluate", "t.png", "--out", "o", "--threads", "-1"), "argument --threads: must be ≥ 0, got -1"),
+        (("collect", "--n", "0"), "argument --n: must be ≥ 1, got 0"),
+        (("render", "rest", "--resolution", "4"), "argument --resolution: must be ≥ 8, got 4"),
+        (("plan", "poses.json", "--out", "o", "--jerk", "0"), "argument --jerk: must be > 0, got 0"),
+        (("plan", "poses.json", "--out", "o", "--velocity-scale", "1.5"), "must be in (0, 1], got 1.5"),
+        (("nonsense",), "invalid choice: 'nonsense'"),
+    ],
+)
+def test_out_of_range_flags_are_one_line_argparse_errors(capsys, argv, words):
+    from studio.cli.main import main
+
+    with pytest.raises(SystemExit) as e:
+        main(list(argv))
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1 and words in err, err
+
+
+BOOM_VERB = """
+def register(sub):
+    p = sub.add_parser("boom", help="raise an unexpected exception (a stand-in for a bug)")
+    p.set_defaults(func=lambda args: {}["missing key"])
+"""
+
+
+def _run_boom(tmp_path, *args: str) -> subprocess.CompletedProcess:
+    (tmp_path / "boom_verb.py").write_text(BOOM_VERB)
+    code = "import sys; from studio.cli.main import main; sys.exit(main(sys.argv[1:], verb_modules=['boom_verb']))"
+    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
+    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, env=env, timeout=120)
+
+
+def test_a_bug_is_one_line_and_verbose_shows_the_traceback(tmp_path):
+    quiet = _run_boom(tmp_path, "boom")
+    assert quiet.returncode == 1 and "Traceback" not in quiet.stderr
+    assert quiet.stderr.strip().splitlines() == [
+        "shadow-studio boom: internal error: KeyError: 'missing key' (run with -v for the traceback)"
+    ]
+    loud = _run_boom(tmp_path, "-v", "boom")
+    assert loud.returncode == 1
+    assert "Traceback (most recent call last)" in loud.stderr and "KeyError: 'missing key'" in loud.stderr
+    assert "boom_verb.py" in loud.stderr  # the frame of the bug is shown
+
+
+def test_user_errors_stay_one_line_but_verbose_adds_the_traceback(tmp_path):
+    quiet = run("render", str(tmp_path / "absent.json"), "--out", str(tmp_path / "x.png"))
+    _one_line_error(quiet, "pose file not found")
+    loud = run("-v", "render", str(tmp_path / "absent.json"), "--out", str(tmp_path / "x.png"))
+    assert loud.returncode == 2 and "Traceback" in loud.stderr
+    assert loud.stderr.strip().splitlines()[-1] == quiet.stderr.strip()
+
+
+def test_plan_one_keyframe_at_zero_holds_that_pose(tmp_path, hand):
+    """The single keyframe at t = 0 (what `imitate --at 0` writes) plans to a one-sample show holding the pose."""
+    from studio.motion.show import load_show
+
+    pose = hand.pose_to_dict(hand.rest_pose())
+    pose["index_mcp_flex"] = 0.8
+    (tmp_path / "pose.json").write_text(json.dumps({"keyframes": [{"t": 0.0, "pose": pose, "hold": True}]}))
+    out = run("plan", str(tmp_path / "pose.json"), "--out", str(tmp_path / "show.json"))
+    assert out.returncode == 0, out.stderr
+    assert "holds that pose" in out.stdout
+    show = load_show(tmp_path / "show.json")
+    assert show.times.tolist() == [0.0] and show.duration == 0.0
+    assert np.array_equal(show.positions[0], [pose[n] for n in show.joint_names])
+    assert [k.t for k in show.keyframes] == [0.0]

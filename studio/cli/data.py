@@ -7,15 +7,19 @@ import json
 import time
 from pathlib import Path
 
+from studio.cli.flags import add_config_flags, config_from_args
+from studio.learn.dataset import CollectConfig
+
+# CollectConfig's comments give no ranges: they are stated here
+COLLECT_RANGES = {"n": "[1, ∞)", "shard_size": "[1, ∞)", "seed": "[0, ∞)", "resolution": "[8, ∞)", "window": "(0, ∞)"}
+
 
 def _collect(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from studio.learn.dataset import CollectConfig, collect
+    from studio.learn.dataset import collect
 
-    cfg = CollectConfig(
-        n=args.n, shard_size=args.shard_size, seed=args.seed, resolution=args.resolution, window=args.window
-    )
+    cfg = config_from_args(args, CollectConfig)
     t0 = time.perf_counter()
     with tqdm(total=cfg.n, unit="pair", desc="collect", disable=args.quiet) as bar:
 
@@ -31,11 +35,7 @@ def _collect(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("collect", help="sample poses, render their shadows, write resumable shards")
-    p.add_argument("--n", type=int, default=20000, help="number of pose/shadow pairs (default 20000)")
     p.add_argument("--out", default="data/selfexplore", help="dataset folder (default data/selfexplore)")
-    p.add_argument("--shard-size", type=int, default=5000, help="pairs per shard file (default 5000)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--resolution", type=int, default=256, help="shadow image side in pixels (default 256)")
-    p.add_argument("--window", type=float, default=0.6, help="backdrop window side in metres (default 0.6)")
+    add_config_flags(p, CollectConfig, ("n", "shard_size", "seed", "resolution", "window"), ranges=COLLECT_RANGES)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_collect)

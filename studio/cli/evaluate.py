@@ -7,12 +7,15 @@ import json
 from pathlib import Path
 
 from studio.assets import asset
+from studio.cli.flags import add_config_flags, config_from_args, ranged
+from studio.cli.imitate import add_target_flags, target_config_from_args
+from studio.imitate.refine import RefineConfig
+from studio.imitate.search import CPU_SEARCH, SearchConfig
 
 DEFAULT_INVERSE = asset("models/inverse_cpu128.pt", must_exist=False)
 
 
 def _train_inverse(args: argparse.Namespace) -> int:
-    from studio.cli.flags import config_from_args
     from studio.cli.train import run_training
     from studio.learn.config import InverseConfig, InverseTrainConfig
     from studio.learn.inverse import train_inverse
@@ -39,19 +42,19 @@ def _run_evaluation(args: argparse.Namespace) -> int:
 
     from studio.evaluate.table1 import EvalConfig, Evaluator, gather_targets, write_table
     from studio.imitate.clip_loss import clip_from_args
-    from studio.imitate.refine import RefineConfig
-    from studio.imitate.search import CPU_SEARCH, SearchConfig
     from studio.imitate.still import DEFAULT_MODEL, Imitator
+    from studio.imitate.targets import load_target
+    from studio.learn.selfmodel import load_selfmodel
 
     files = gather_targets(args.targets, args.per_folder)
-    search = SearchConfig(
-        batch=args.search_batch or CPU_SEARCH.batch, iterations=args.search_iters or CPU_SEARCH.iterations,
-        lr=CPU_SEARCH.lr, seed=args.seed,
-    )  # fmt: skip
-    refine = RefineConfig(steps=args.refine_steps, restarts=args.refine_restarts, seed=args.seed)
-    clip = clip_from_args(args)
-    imitator = Imitator(model_path=Path(args.model or DEFAULT_MODEL), clip=clip, search=search, refine=refine)
-    targets = [(str(f), imitator.load(f)) for f in files]  # every file loads before the slow part starts
+    target_cfg = target_config_from_args(args)
+    search = config_from_args(args, SearchConfig, prefix="search-", base=CPU_SEARCH, seed=args.seed)
+    refine = config_from_args(args, RefineConfig, prefix="refine-", seed=args.seed)
+    model, _ = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
+    size = model.cfg.resolution
+    targets = [(str(f), load_target(f, size, target_cfg)) for f in files]  # every file loads before the slow part
+    clip = clip_from_args(args, device=next(model.parameters()).device)  # CLIP sits with the self-model
+    imitator = Imitator(model, clip=clip, search=search, refine=refine)
     evaluator = Evaluator(imitator, Path(args.inverse), Path(args.nn_data), EvalConfig(seed=args.seed))
     with tqdm(total=len(targets), unit="target", desc="evaluate", disable=args.quiet) as bar:
         result = evaluator.run(targets, progress=lambda done, total, name: (bar.update(1), bar.set_postfix_str(name)))
@@ -72,23 +75,26 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", default=None, help="self-model checkpoint (default assets/models/selfmodel_cpu128.pt)")
     p.add_argument("--inverse", default=str(DEFAULT_INVERSE), help="inverse-CNN checkpoint (from train-inverse)")
     p.add_argument("--nn-data", default="data/sx128", help="training shards for Random and Nearest Neighbour")
-    p.add_argument("--per-folder", type=int, default=None, help="take the first N images of each sub-folder")
-    p.add_argument("--search-batch", type=int, default=None, help="gradient-search batch (default: CPU preset)")
-    p.add_argument("--search-iters", type=int, default=None, help="gradient-search iterations (default: CPU preset)")
-    p.add_argument("--refine-steps", type=int, default=1000, help="hill-climbing steps per restart (paper 1000)")
-    p.add_argument("--refine-restarts", type=int, default=8, help="hill-climbing restarts (paper 8)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the search, refinement and Random baseline")
+    p.add_argument("--per-folder", type=ranged(int, "[1, ∞)"), default=None, metavar="N",
+                   help="take the first N images of each sub-folder (default: all)")  # fmt: skip
+    add_target_flags(p)
+    add_config_flags(p, SearchConfig, ("batch", "iterations"), prefix="search-", base=CPU_SEARCH,
+                     base_name="CPU_SEARCH", aliases={"iterations": "iters"})  # fmt: skip
+    add_config_flags(p, RefineConfig, ("steps", "restarts"), prefix="refine-")
     p.add_argument(
-        "--threads",
-        type=int,
-        default=1,
-        help="torch CPU threads (default 1: fastest on shared cores; 0 = torch's default)",
+        "--seed",
+        type=ranged(int, "[0, ∞)"),
+        default=SearchConfig.seed,
+        metavar="N",
+        help=f"seed of the search, refinement and Random baseline (default: {SearchConfig.seed})",
     )
+    p.add_argument("--threads", type=ranged(int, "[0, ∞)"), default=1, metavar="N",
+                   help="torch CPU threads (default: 1, fastest on shared cores; 0 = torch's default)")  # fmt: skip
+    p.add_argument("--device", default=None, help="cpu or cuda, for the self-model and CLIP (default: cuda if present)")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no table on stdout (JSON only)")
     add_clip_arguments(p)
     p.set_defaults(func=_evaluate)
 
-    from studio.cli.flags import add_config_flags
     from studio.cli.train import add_trainer_flags
     from studio.learn.config import InverseConfig, InverseTrainConfig
 

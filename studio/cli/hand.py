@@ -8,7 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
+from studio.cli.flags import add_config_flags, config_from_args, ranged
 from studio.errors import StudioError
+from studio.sim.shadow import Rig
 
 
 def read_pose_json(path: Path, hand) -> np.ndarray:
@@ -47,7 +49,7 @@ def write_shadow_png(path: Path, mask: np.ndarray, as_mask: bool = False) -> Non
 def _render(args: argparse.Namespace) -> int:
     from studio.sim.hand import load_hand
     from studio.sim.sampling import sample_poses
-    from studio.sim.shadow import Rig, ShadowRenderer
+    from studio.sim.shadow import ShadowRenderer
 
     hand = load_hand(args.urdf)
     if args.pose == "rest":
@@ -56,7 +58,7 @@ def _render(args: argparse.Namespace) -> int:
         theta = sample_poses(hand, 1, np.random.default_rng(args.seed))[0][0]
     else:
         theta = read_pose_json(Path(args.pose), hand)
-    renderer = ShadowRenderer(hand, Rig(window=args.window, resolution=args.resolution))
+    renderer = ShadowRenderer(hand, config_from_args(args, Rig))
     mask = renderer.render_one(theta)
     write_shadow_png(Path(args.out), mask, as_mask=args.mask)
     print(json.dumps({"out": str(args.out), "shadow_pixels": int(mask.sum()), "pose": hand.pose_to_dict(theta)}))
@@ -82,9 +84,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("render", help="write the shadow of a pose (rest, random, or a JSON file) as PNG")
     p.add_argument("pose", nargs="?", default="rest", help="'rest', 'random', or a JSON file of joint angles (rad)")
     p.add_argument("--out", default="shadow.png", help="PNG file to write (default: shadow.png)")
-    p.add_argument("--resolution", type=int, default=256, help="image side in pixels (default 256)")
-    p.add_argument("--window", type=float, default=0.6, help="backdrop window side in metres (default 0.6)")
-    p.add_argument("--seed", type=int, default=0, help="seed for 'random' (default 0)")
+    add_config_flags(p, Rig, ("resolution", "window"), ranges={"resolution": "[8, ∞)", "window": "(0, ∞)"})
+    p.add_argument("--seed", type=ranged(int, "[0, ∞)"), default=0, metavar="N", help="seed for 'random' (default 0)")
     p.add_argument("--mask", action="store_true", help="write white shadow on black (1 = shadow) instead")
     p.add_argument("--urdf", default=None, help="hand URDF (default: the shipped assets/hand.urdf)")
     p.set_defaults(func=_render)

@@ -3,20 +3,32 @@
 Writes ``pose.json`` (joint names → radians, plus losses and provenance; its ``keyframes`` list is what
 ``shadow-studio plan`` reads), ``shadow.png`` (the final pose's rendered
 shadow), ``compare.png`` (target | self-model | rendered | overlay), ``review.rrd`` (Rerun) and prints a JSON
-summary last.
+summary last. The target's holes (its openings) are the expressive region, as in ``evaluate``. Ctrl-C stops the
+search or refinement early and still writes the best pose found so far (exit code 130); a second Ctrl-C stops at
+once.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
-from dataclasses import asdict, replace
+import signal
+import sys
+import threading
+from collections.abc import Iterator
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
 from studio.atomic import write_bytes, write_json
+from studio.cli.flags import add_config_flags, config_from_args, given, ranged
+from studio.imitate.refine import RefineConfig
+from studio.imitate.search import CPU_SEARCH, SearchConfig
+from studio.imitate.still import ImitateConfig
+from studio.imitate.targets import TargetConfig
 
 
 def _finite(d: dict) -> dict:
@@ -40,6 +52,40 @@ def write_compare_png(path: Path, result) -> None:
     write_bytes(path, png.tobytes())
 
 
+def add_target_flags(parser: argparse.ArgumentParser) -> None:
+    """``--threshold N`` or ``--otsu``: how target images are thresholded (:class:`TargetConfig`)."""
+    group = parser.add_mutually_exclusive_group()
+    add_config_flags(group, TargetConfig, ("threshold",))
+    group.add_argument("--otsu", action="store_true", help="threshold the target by Otsu's method")
+
+
+def target_config_from_args(args: argparse.Namespace) -> TargetConfig:
+    """``--threshold N`` (a fixed level, always used) or ``--otsu``; neither: the defaults (Otsu by itself on a
+    backdrop that is not dark)."""
+    if args.otsu:
+        return TargetConfig(threshold=None)
+    return config_from_args(args, TargetConfig, auto_otsu=not given(args, "threshold"))
+
+
+@contextlib.contextmanager
+def ctrl_c_cancels() -> Iterator[threading.Event]:
+    """An event that the first Ctrl-C sets (a second one raises ``KeyboardInterrupt`` as usual)."""
+    cancel = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield cancel
+        return
+
+    def on_sigint(signum, frame) -> None:
+        cancel.set()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield cancel
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _imitate(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
@@ -47,22 +93,24 @@ def _imitate(args: argparse.Namespace) -> int:
     from studio.cli.hand import write_shadow_png
     from studio.imitate.clip_loss import clip_from_args
     from studio.imitate.losses import LossConfig
-    from studio.imitate.refine import RefineConfig
-    from studio.imitate.search import CPU_SEARCH
     from studio.imitate.still import DEFAULT_MODEL, Imitator
+    from studio.imitate.targets import find_holes, load_target
     from studio.learn.selfmodel import load_selfmodel
     from studio.review.rerun import log_imitation
 
     torch.set_num_threads(args.threads)  # one thread is far faster when the cores are shared, and close otherwise
     target_path = Path(args.target)
+    target_cfg = target_config_from_args(args)
     model, info = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
     clip = clip_from_args(args, device=next(model.parameters()).device)
-    search = replace(CPU_SEARCH, batch=args.search_batch or CPU_SEARCH.batch,
-                     iterations=args.search_iters or CPU_SEARCH.iterations, seed=args.seed)  # fmt: skip
-    refine = RefineConfig(steps=args.refine_steps, seed=args.seed)
+    search = config_from_args(args, SearchConfig, prefix="search-", base=CPU_SEARCH, seed=args.seed)
+    refine = config_from_args(args, RefineConfig, prefix="refine-", seed=args.seed)
+    candidates = config_from_args(args, ImitateConfig).candidates
+    target = load_target(target_path, size=model.cfg.resolution, cfg=target_cfg)  # before the slow set-up
     loss_cfg = LossConfig(use_clip=clip is not None, crop_size=model.cfg.resolution)
-    imitator = Imitator(model, loss_cfg=loss_cfg, clip=clip, search=search, refine=refine, candidates=args.candidates)
-    target = imitator.load(target_path)
+    imitator = Imitator(model, loss_cfg=loss_cfg, clip=clip, search=search, refine=refine, candidates=candidates)
+    holes = find_holes(target)  # the expressive region of a still target: its openings (as `evaluate` does)
+    expressive = holes if holes.any() else None
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     bars: dict[str, tqdm] = {}
@@ -74,20 +122,23 @@ def _imitate(args: argparse.Namespace) -> int:
         bar.update(step - bar.n)
         bar.set_postfix(best=f"{best:.4f}", refresh=False)
 
-    result = imitator.imitate(target, refine=not args.no_refine, progress=progress)
+    with ctrl_c_cancels() as cancel:
+        result = imitator.imitate(target, expressive, refine=not args.no_refine, progress=progress, cancel=cancel)
     for bar in bars.values():
         bar.close()
     hand = imitator.hand
     provenance = {
-        "target": str(target_path), "model": str(args.model or DEFAULT_MODEL), "model_metrics": info.metrics,
+        "target": str(target_path), "target_config": asdict(target_cfg), "expressive_pixels": int(holes.sum()),
+        "model": str(args.model or DEFAULT_MODEL), "model_metrics": info.metrics,
         "clip": None if clip is None else clip.name, "no_clip": clip is None, "loss_config": loss_cfg.to_dict(),
-        "search": asdict(search), "refine": asdict(refine), "candidates": args.candidates, "hand_hash": hand.hash,
+        "search": asdict(search), "refine": asdict(refine), "candidates": candidates, "hand_hash": hand.hash,
     }  # fmt: skip
     keyframe = {"t": args.at, "pose": hand.pose_to_dict(result.theta), "hold": True, "target": str(target_path),
                 "loss": result.loss["total"]}  # fmt: skip
     write_json(out / "pose.json", {
         "keyframes": [keyframe],  # the shape `shadow-studio plan` reads
         "pose": hand.pose_to_dict(result.theta), "loss": _finite(result.loss), "collision_free": result.collision_free,
+        "cancelled": result.cancelled,
         "unrefined": {"pose": hand.pose_to_dict(result.search.theta), "loss": _finite(result.unrefined_loss),
                       "collides": result.unrefined_collides, "self_model_loss": result.search.loss},
         "provenance": provenance,
@@ -98,11 +149,15 @@ def _imitate(args: argparse.Namespace) -> int:
     log_imitation(out / "review.rrd", result, hand, name=target_path.stem, notes=notes)
     summary = {
         "total": result.loss["total"], "iou_loss": result.loss["iou_loss"], "collision_free": result.collision_free,
-        "seconds": round(result.seconds, 2), "no_clip": clip is None, "out": str(out),
+        "exp_iou": result.loss["exp_iou"], "seconds": round(result.seconds, 2), "no_clip": clip is None,
+        "cancelled": result.cancelled, "out": str(out),
     }  # fmt: skip
     if result.refine is not None and not result.refine.collision_free:
         summary["warning"] = result.refine.message
     print(json.dumps(_finite(summary)))
+    if result.cancelled:
+        print(f"shadow-studio imitate: cancelled: wrote the best pose found so far to {out}", file=sys.stderr)
+        return 130
     return 0 if result.collision_free else 1
 
 
@@ -113,14 +168,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("target", help="target image (PNG, JPEG, GIF, BMP): a silhouette, either polarity")
     p.add_argument("--out", required=True, help="folder for pose.json, shadow.png, compare.png, review.rrd")
     p.add_argument("--model", default=None, help="self-model checkpoint (default: the shipped CPU model)")
-    p.add_argument("--search-batch", type=int, default=None, help="joint vectors searched together")
-    p.add_argument("--search-iters", type=int, default=None, help="gradient steps")
-    p.add_argument("--refine-steps", type=int, default=1000, help="hill-climbing steps per chain (default 1000)")
+    add_target_flags(p)
+    add_config_flags(p, SearchConfig, ("batch", "iterations"), prefix="search-", base=CPU_SEARCH,
+                     base_name="CPU_SEARCH", aliases={"iterations": "iters"})  # fmt: skip
+    add_config_flags(p, RefineConfig, ("steps", "restarts"), prefix="refine-")
     p.add_argument("--no-refine", action="store_true", help="skip the collision-aware refinement")
-    p.add_argument("--candidates", type=int, default=4, help="distinct best search results refined (default 4)")
-    p.add_argument("--at", type=float, default=2.0, help="time of this pose in a show, s (pose.json keyframe)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    add_config_flags(p, ImitateConfig, ("candidates",))
+    p.add_argument("--at", type=ranged(float, "[0, ∞)"), default=2.0, metavar="S",
+                   help="time of this pose in a show, s (the pose.json keyframe; default: 2.0; ≥ 0)")  # fmt: skip
+    p.add_argument("--seed", type=ranged(int, "[0, ∞)"), default=SearchConfig.seed, metavar="N",
+                   help=f"seed of the search and the refinement (default: {SearchConfig.seed}; ≥ 0)")  # fmt: skip
+    p.add_argument("--threads", type=ranged(int, "[1, ∞)"), default=1, metavar="N",
+                   help="torch CPU threads (default: 1, fastest on shared cores; ≥ 1)")  # fmt: skip
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     add_clip_arguments(p)
