@@ -100,11 +100,17 @@ def read_grey(path: str | Path) -> np.ndarray:
         raise TargetError(f"unreadable image ({e}): {path}") from None
 
 
+def detect_polarity(grey: np.ndarray) -> str:
+    """The polarity rule (module doc, step 2) on grey ``(H, W)`` or a stack ``(N, H, W)`` (one answer for all):
+    ``"bright"`` (a bright shape on a dark border) or ``"dark"`` (a dark shape on a bright border)."""
+    border = np.concatenate([grey[..., 0, :], grey[..., -1, :], grey[..., :, 0], grey[..., :, -1]], axis=-1)
+    return "bright" if np.median(border) < 128 else "dark"
+
+
 def shadowness(grey: np.ndarray, polarity: str = "auto") -> np.ndarray:
     """Grey ``(H, W)`` uint8 → shadowness ``(H, W)`` uint8, high = shadow, by the polarity rule (module doc)."""
     if polarity == "auto":
-        border = np.concatenate([grey[0], grey[-1], grey[:, 0], grey[:, -1]])
-        polarity = "bright" if np.median(border) < 128 else "dark"
+        polarity = detect_polarity(grey)
     return grey if polarity == "bright" else 255 - grey
 
 
@@ -166,18 +172,24 @@ def fill_holes(
     return out
 
 
+def threshold_level(shade: np.ndarray, cfg: TargetConfig, source: str = "<array>") -> float:
+    """The shadowness level of step 3 for ``shade`` ``(H, W)`` uint8: ``cfg.threshold``, or Otsu's when it is None
+    or (``auto_otsu``) when the fixed level would make the backdrop shadow; pixels above it are shadow."""
+    if cfg.threshold is None or (cfg.auto_otsu and backdrop_is_shadow(shade, cfg.threshold)):
+        if shade.min() == shade.max():
+            raise TargetError(f"empty target: the image is one flat grey level {shade.min()}, no shadow: {source}")
+        level, _ = cv2.threshold(shade, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+        return float(level)
+    return float(cfg.threshold)
+
+
 def mask_from_grey(grey: np.ndarray, cfg: TargetConfig | None = None, source: str = "<array>") -> np.ndarray:
     """Grey image ``(H, W)`` uint8 → shadow mask ``(H, W)`` uint8 (steps 2-5); errors name ``source``."""
     cfg = cfg or TargetConfig()
     if grey.ndim != 2 or min(grey.shape) < 2:
         raise TargetError(f"image must be at least 2×2 pixels, got shape {grey.shape}: {source}")
     shade = shadowness(grey, cfg.polarity)
-    if cfg.threshold is None or (cfg.auto_otsu and backdrop_is_shadow(shade, cfg.threshold)):
-        if shade.min() == shade.max():
-            raise TargetError(f"empty target: the image is one flat grey level {shade.min()}, no shadow: {source}")
-        level, _ = cv2.threshold(shade, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-    else:
-        level = cfg.threshold
+    level = threshold_level(shade, cfg, source)
     mask = (shade > level).astype(np.uint8)
     if not mask.any():
         raise TargetError(f"empty target: no shadow pixels (none above grey level {level:.0f}): {source}")
