@@ -389,3 +389,6 @@ def test_cuda_self_model_and_clip_score_cpu_renders(hand):
         assert total == pytest.approx(cpu_total, abs=1e-4)
         result = im.imitate(target)
         assert np.isfinite(result.loss["clip"])
+        # CPU images under a CUDA encoder (what evaluate's baselines and table score do): scored, on the CPU
+        cpu_total2, comps2 = loss_fn(torch.from_numpy(im.renderer.render(poses, check=False)).float())
+        assert comps2["clip"].device.type == "cpu" and cpu_total2.numpy() == pytest.approx(cpu_total, abs=1e-4)

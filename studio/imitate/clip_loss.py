@@ -76,7 +76,10 @@ class ClipImageEncoder(nn.Module):
         return (x - self.mean) / self.std
 
     def forward(self, shadow: torch.Tensor) -> torch.Tensor:
-        return F.normalize(self.visual(self.preprocess(shadow)).float(), dim=-1)
+        """Unit embeddings ``(B, D)``, computed on the encoder's device and returned on ``shadow``'s (so CPU renders
+        can be scored by a CUDA encoder)."""
+        x = self.preprocess(shadow.to(self.mean.device))
+        return F.normalize(self.visual(x).float(), dim=-1).to(shadow.device)
 
 
 def tiny_clip(seed: int = 0, invert: bool = True) -> ClipImageEncoder:

@@ -67,7 +67,8 @@ def soft_iou(pred: torch.Tensor, target: torch.Tensor, eps: float = 1e-6) -> tor
 
 def clip_distance(clip: ClipImageEncoder, pred: torch.Tensor, target_emb: torch.Tensor) -> torch.Tensor:
     """``1 − cos(CLIP(pred), target_emb)`` per sample: pred ``(B, S, S)``, target_emb ``(B or 1, D)`` → ``(B,)``."""
-    return 1.0 - (clip(pred) * target_emb).sum(dim=-1)
+    emb = clip(pred)  # on pred's device, whatever the encoder's
+    return 1.0 - (emb * target_emb.to(emb.device)).sum(dim=-1)
 
 
 def temporal_loss(theta: torch.Tensor, theta_prev: torch.Tensor, weight: float = 0.2) -> torch.Tensor:
