@@ -25,6 +25,7 @@ VERB_MODULES = (
     "studio.cli.train",
     "studio.cli.evaluate",
     "studio.cli.imitate",
+    "studio.cli.video",
     "studio.cli.servos",
     "studio.cli.plan",
 )
