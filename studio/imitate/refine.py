@@ -88,14 +88,22 @@ class Refiner:
             raise ClosedError("this Refiner was closed; make a new one (or refine inside its `with` block)")
 
     @torch.no_grad()
-    def score(self, loss_fn: ImageLoss, theta: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    def score(
+        self, loss_fn: ImageLoss, theta: np.ndarray, theta_prev: np.ndarray | None = None
+    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Rendered-shadow losses of poses ``(B, 21)`` → totals ``(B,)`` and components.
 
-        The renders go to the CLIP encoder's device (a CUDA encoder scores CUDA crops)."""
+        With ``theta_prev (21,)`` rad the totals add the temporal term ``w_temporal·‖θ − θ_prev‖²`` (reported as
+        the ``temporal`` component, NaN without it). The renders go to the CLIP encoder's device (a CUDA encoder
+        scores CUDA crops)."""
         self._check_open()
         device = next(loss_fn.clip.parameters()).device if loss_fn.clip is not None else torch.device("cpu")
         shadows = torch.from_numpy(self.renderer.render(theta, check=False)).float().to(device)
-        total, comps = loss_fn(shadows)
+        if theta_prev is None:
+            total, comps = loss_fn(shadows)
+        else:
+            th = torch.as_tensor(np.asarray(theta, dtype=np.float64), device=device)
+            total, comps = loss_fn(shadows, th, torch.as_tensor(np.asarray(theta_prev, dtype=np.float64)))
         return total.double().cpu().numpy(), {k: v.double().cpu().numpy() for k, v in comps.items()}
 
     def refine(
@@ -105,18 +113,25 @@ class Refiner:
         cfg: RefineConfig | None = None,
         progress: Callable[[int, int, float], None] | None = None,
         cancel: threading.Event | None = None,
+        theta_prev: np.ndarray | None = None,
     ) -> RefineResult:
+        """Hill-climb from ``theta_start (21,)`` rad (module doc); ``progress(step, total, best_loss)``.
+
+        ``theta_prev (21,)`` rad (a sequence's previous keyframe optimum) adds the temporal term to every score,
+        so a proposal that drifts away from the previous pose must pay for it with a better shadow; None scores
+        the shadow alone.
+        """
         self._check_open()
         cfg = cfg or RefineConfig()
         lo, hi = self.hand.lower, self.hand.upper
         start = self.hand.check_theta(theta_start)[0]
         rng = np.random.default_rng(cfg.seed)
-        start_loss = float(self.score(loss_fn, start[None])[0][0])
+        start_loss = float(self.score(loss_fn, start[None], theta_prev)[0][0])
         start_collides = bool(self.world.in_collision(start, check=False)[0])
 
         cur = np.clip(start + rng.normal(0, cfg.restart_noise, (cfg.restarts, self.hand.dof)), lo, hi)
         cur[0] = start
-        cur_loss, _ = self.score(loss_fn, cur)
+        cur_loss, _ = self.score(loss_fn, cur, theta_prev)
         # A colliding chain has loss +inf: it accepts any collision-free proposal, and meanwhile any proposal that
         # lowers its collision score S_col (so a chain that starts deep in collision can climb out of it).
         cur_col = self.world.collision_score(cur, check=False)
@@ -129,7 +144,7 @@ class Refiner:
                 cancelled = True
                 break
             prop = np.clip(cur + rng.normal(0, sigma, cur.shape), lo, hi)
-            loss, _ = self.score(loss_fn, prop)
+            loss, _ = self.score(loss_fn, prop, theta_prev)
             evaluations += len(prop)
             better = loss < cur_loss
             accepted = np.zeros(len(prop), dtype=bool)
@@ -153,7 +168,7 @@ class Refiner:
                     progress(step, cfg.steps, best_loss)
         found = bool(np.isfinite(best_loss))
         theta = best_theta if found else start
-        _, comps = self.score(loss_fn, theta[None])
+        _, comps = self.score(loss_fn, theta[None], theta_prev)
         return RefineResult(
             theta=theta,
             loss=best_loss if found else float("inf"),
