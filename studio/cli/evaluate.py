@@ -55,9 +55,11 @@ def _run_evaluation(args: argparse.Namespace) -> int:
     targets = [(str(f), load_target(f, size, target_cfg)) for f in files]  # every file loads before the slow part
     clip = clip_from_args(args, device=next(model.parameters()).device)  # CLIP sits with the self-model
     imitator = Imitator(model, clip=clip, search=search, refine=refine)
-    evaluator = Evaluator(imitator, Path(args.inverse), Path(args.nn_data), EvalConfig(seed=args.seed))
-    with tqdm(total=len(targets), unit="target", desc="evaluate", disable=args.quiet) as bar:
-        result = evaluator.run(targets, progress=lambda done, total, name: (bar.update(1), bar.set_postfix_str(name)))
+    with imitator, Evaluator(imitator, Path(args.inverse), Path(args.nn_data), EvalConfig(seed=args.seed)) as evaluator:
+        with tqdm(total=len(targets), unit="target", desc="evaluate", disable=args.quiet) as bar:
+            result = evaluator.run(
+                targets, progress=lambda done, total, name: (bar.update(1), bar.set_postfix_str(name))
+            )
     paths = write_table(result, Path(args.out))
     if not args.quiet:
         print(Path(paths["markdown"]).read_text())

@@ -122,7 +122,7 @@ def _imitate(args: argparse.Namespace) -> int:
         bar.update(step - bar.n)
         bar.set_postfix(best=f"{best:.4f}", refresh=False)
 
-    with ctrl_c_cancels() as cancel:
+    with imitator, ctrl_c_cancels() as cancel:
         result = imitator.imitate(target, expressive, refine=not args.no_refine, progress=progress, cancel=cancel)
     for bar in bars.values():
         bar.close()
