@@ -24,9 +24,9 @@ from studio.imitate.clip_loss import (
     load_clip,
     tiny_clip,
 )
-from studio.sim.crop import align, as_image_batch, pad_pixels, square_boxes
 from studio.imitate.losses import COMPONENTS, ImageLoss, LossConfig, mae, soft_iou, temporal_loss
 from studio.imitate.targets import find_holes, load_target, shadow_box, square_frame
+from studio.sim.crop import align, as_image_batch, pad_pixels, square_boxes
 
 CFG = LossConfig(crop_size=64)  # small crops: CPU tests in milliseconds
 

@@ -93,8 +93,8 @@ def _imitate(args: argparse.Namespace) -> int:
     from studio.cli.hand import write_shadow_png
     from studio.imitate.clip_loss import clip_from_args
     from studio.imitate.losses import LossConfig
-    from studio.imitate.still import DEFAULT_MODEL, Imitator
-    from studio.imitate.targets import find_holes, load_target
+    from studio.imitate.still import DEFAULT_MODEL, Imitator, still_expressive
+    from studio.imitate.targets import load_target
     from studio.learn.selfmodel import load_selfmodel
     from studio.review.rerun import log_imitation
 
@@ -109,8 +109,7 @@ def _imitate(args: argparse.Namespace) -> int:
     target = load_target(target_path, size=model.cfg.resolution, cfg=target_cfg)  # before the slow set-up
     loss_cfg = LossConfig(use_clip=clip is not None, crop_size=model.cfg.resolution)
     imitator = Imitator(model, loss_cfg=loss_cfg, clip=clip, search=search, refine=refine, candidates=candidates)
-    holes = find_holes(target)  # the expressive region of a still target: its openings (as `evaluate` does)
-    expressive = holes if holes.any() else None
+    expressive = still_expressive(target)  # a still target's openings (as `evaluate` does)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     bars: dict[str, tqdm] = {}
@@ -128,7 +127,8 @@ def _imitate(args: argparse.Namespace) -> int:
         bar.close()
     hand = imitator.hand
     provenance = {
-        "target": str(target_path), "target_config": asdict(target_cfg), "expressive_pixels": int(holes.sum()),
+        "target": str(target_path), "target_config": asdict(target_cfg),
+        "expressive_pixels": 0 if expressive is None else int(expressive.sum()),
         "model": str(args.model or DEFAULT_MODEL), "model_metrics": info.metrics,
         "clip": None if clip is None else clip.name, "no_clip": clip is None, "loss_config": loss_cfg.to_dict(),
         "search": asdict(search), "refine": asdict(refine), "candidates": candidates, "hand_hash": hand.hash,

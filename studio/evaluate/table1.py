@@ -33,8 +33,8 @@ from studio.evaluate.baselines import (
     RandomImage,
     TrainingSet,
 )
-from studio.imitate.still import Imitator
-from studio.imitate.targets import IMAGE_SUFFIXES, TargetError, find_holes, find_target_files
+from studio.imitate.still import Imitator, still_expressive
+from studio.imitate.targets import IMAGE_SUFFIXES, TargetError, find_target_files
 from studio.learn.inverse import InverseCNN
 
 METHODS = ("Random", "Inverse CNN", "Nearest Neighbour", "Ours w/o refinement", "Ours")
@@ -154,8 +154,7 @@ class Evaluator:
         """One record per method for one ``(R, R)`` target mask."""
         if self.inverse.closed:
             raise ClosedError("this Evaluator was closed; make a new one (or evaluate inside its `with` block)")
-        holes = find_holes(target)
-        expressive = holes if holes.any() else None
+        expressive = still_expressive(target)
         loss_fn = self.imitator.loss_fn(target, expressive)
         ours = self.imitator.imitate(target, expressive, refine=True, cancel=cancel)
         unrefined = BaselineOutput(ours.search.theta, ours.unrefined_shadow, ours.unrefined_collides,

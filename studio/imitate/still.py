@@ -20,7 +20,7 @@ from studio.errors import ClosedError
 from studio.imitate.losses import ImageLoss, LossConfig
 from studio.imitate.refine import RefineConfig, Refiner, RefineResult
 from studio.imitate.search import CPU_SEARCH, SearchConfig, SearchResult, gradient_search
-from studio.imitate.targets import TargetConfig, load_target
+from studio.imitate.targets import TargetConfig, find_holes, load_target
 from studio.learn.selfmodel import SelfModel, load_selfmodel
 from studio.sim.shadow import Rig, ShadowRenderer
 
@@ -178,3 +178,37 @@ class Imitator:
             timings={"search": t1 - t0, "refine": t2 - t1},
             cancelled=cancelled,
         )
+
+
+def still_expressive(target: np.ndarray) -> np.ndarray | None:
+    """The expressive region of a still target: its holes (openings), or None when it has none (DESIGN §4)."""
+    holes = find_holes(target)
+    return holes if holes.any() else None
+
+
+def imitate_still(
+    target: np.ndarray | str | Path,
+    model_path: Path | None = None,
+    search: SearchConfig | None = None,
+    refine: RefineConfig | None = None,
+    target_cfg: TargetConfig | None = None,
+    device: str | None = None,
+    progress: Callable[[str, int, int, float], None] | None = None,
+    cancel: threading.Event | None = None,
+) -> ImitationResult:
+    """One still target end to end with the shipped model (or ``model_path``), CLIP off, holes as expressive region.
+
+    ``target`` is an image path (loaded with ``target_cfg``) or a mask ``(R, R)`` framed at the model's resolution
+    (``load_target(path, size=R)``). For many targets keep an :class:`Imitator` instead: it loads the model once.
+    """
+    with Imitator(model_path=model_path, search=search, refine=refine, device=device) as imitator:
+        if isinstance(target, (str, Path)):
+            mask = imitator.load(Path(target), target_cfg)
+        else:
+            mask = np.asarray(target)
+            r = imitator.resolution
+            if mask.shape != (r, r):
+                raise ValueError(
+                    f"target mask is {mask.shape}; this model works at ({r}, {r}): load_target(path, size={r})"
+                )
+        return imitator.imitate(mask, still_expressive(mask), progress=progress, cancel=cancel)
