@@ -101,3 +101,16 @@ def test_world_closes_its_pybullet_client(hand):
     for query in (w.in_collision, w.collision_score, w.contacts, w.closest_pairs_reference):
         with pytest.raises(ClosedError, match="CollisionWorld was closed"):
             query(hand.rest_pose())
+
+
+def test_pybullet_banner_never_reaches_stderr():
+    """PyBullet prints a banner when first imported; a CLI error after a world is made must stay one line."""
+    import subprocess
+    import sys
+
+    code = (
+        "from studio.sim.physics import CollisionWorld\n"
+        "with CollisionWorld() as w: print(w.in_collision(w.hand.rest_pose())[0])"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "False" and out.stderr == "", out.stderr

@@ -12,12 +12,40 @@ all-pairs ``getClosestPoints`` reference that tests hold it against.
 
 from __future__ import annotations
 
+import os
+import sys
+import threading
 from dataclasses import dataclass
 
 import numpy as np
 
 from studio.errors import ClosedError
 from studio.sim.hand import Hand, load_hand
+
+_import_lock = threading.Lock()
+
+
+def pybullet_module():
+    """``pybullet``, imported with stderr silenced the first time: its import prints a "build time" banner there,
+    which would turn every one-line CLI error after it into two lines. Import pybullet only through this."""
+    with _import_lock:
+        if "pybullet" not in sys.modules:
+            sys.stderr.flush()
+            saved = os.dup(2)
+            try:
+                with open(os.devnull, "w") as null:
+                    os.dup2(null.fileno(), 2)
+                    import pybullet  # noqa: F401
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+        return sys.modules["pybullet"]
+
+
+def connect_direct() -> int:
+    """A new PyBullet DIRECT client (physics server in this process)."""
+    p = pybullet_module()
+    return p.connect(p.DIRECT)
 
 
 @dataclass(frozen=True)
@@ -49,12 +77,11 @@ class CollisionWorld:
     """
 
     def __init__(self, hand: Hand | None = None, cfg: CollisionConfig | None = None):
-        import pybullet as p
-
+        p = pybullet_module()
         self.p = p
         self.hand = hand or load_hand()
         self.cfg = cfg or CollisionConfig()
-        self.client = p.connect(p.DIRECT)
+        self.client = connect_direct()
         try:
             self._load()
         except BaseException:

@@ -18,6 +18,7 @@ import numpy as np
 
 from studio.errors import ClosedError
 from studio.sim.hand import Hand
+from studio.sim.physics import connect_direct, pybullet_module
 from studio.sim.shadow import Rig
 
 
@@ -76,11 +77,10 @@ class PyBulletShadowCamera:
     """
 
     def __init__(self, hand: Hand, rig: Rig, half_pixel_shift: bool = True):
-        import pybullet as p
-
+        p = pybullet_module()
         self.p, self.hand, self.rig = p, hand, rig
         self._tmp = tempfile.TemporaryDirectory(prefix="shadow_ref_")
-        self.client = p.connect(p.DIRECT)
+        self.client = connect_direct()
         try:
             self._load(half_pixel_shift)
         except BaseException:
