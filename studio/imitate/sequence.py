@@ -1,0 +1,285 @@
+"""A video end to end (engine side, pure compute): one pose per keyframe, optimised in order of first appearance.
+
+DESIGN §4 "Gradient search", "Refinement", "Losses" and "Transition success". Each keyframe is searched through the
+self-model and refined on the renderer (collision checked), like a still (:mod:`studio.imitate.still`), in one of
+two modes:
+
+- ``independent``: every keyframe alone, from a fresh batch of the self-exploration sampler (``first`` search);
+- ``sequential``: the first keyframe from scratch (``first``), each later one from the previous keyframe's final
+  pose + N(0, ``next.init_noise`` = 0.05 rad) (``next`` search; the paper's 128 × 1200).
+
+Switches: ``expressive`` adds ``L_expr`` on the keyframe's expressive region; ``temporal`` adds
+``L_temp = w_temporal·‖θ − θ*_{k−1}‖²`` against the previous keyframe's final pose to the search *and* to the
+refinement (a refinement that jumps away from the previous pose would break the transition the search kept).
+
+Every keyframe reports two sets of loss components of its rendered shadow: ``loss``, what its row optimised (NaN
+where that row does not compute a term), and ``evaluation``, the same measure for every row (the expressive term
+whenever expressive masks were given, the temporal term against the previous keyframe for k ≥ 1), from which
+:mod:`studio.imitate.transitions` judges the transitions (``SequenceResult.transitions``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from studio.errors import ClosedError
+from studio.imitate.losses import COMPONENTS, ImageLoss, LossConfig
+from studio.imitate.refine import RefineConfig
+from studio.imitate.search import CPU_SEARCH, PAPER_SEQUENCE_FIRST, PAPER_SEQUENCE_NEXT, SearchConfig, gradient_search
+from studio.imitate.still import Imitator, distinct_best
+from studio.imitate.transitions import TransitionConfig, TransitionReport, transition_success
+from studio.learn.selfmodel import SelfModel
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[str, int, int, float], None]  # (stage, step, total, best loss)
+MODES = ("independent", "sequential")
+
+
+@dataclass(frozen=True)
+class SequenceConfig:
+    """How a sequence of keyframes is optimised (paper sizes: the GPU preset; ``CPU_SEQUENCE`` for 2 CPU cores)."""
+
+    mode: str = "sequential"  # "independent" (each keyframe from scratch) | "sequential" (from the previous optimum)
+    expressive: bool = True  # add the expressive term L_expr on each keyframe's expressive region
+    temporal: bool = True  # add L_temp = w_temporal·‖θ − θ*_{k−1}‖² (LossConfig) to search and refinement, k ≥ 1
+    first: SearchConfig = PAPER_SEQUENCE_FIRST  # search of the first keyframe (every keyframe when independent)
+    next: SearchConfig = PAPER_SEQUENCE_NEXT  # sequential, later keyframes: from θ*_{k−1} + N(0, init_noise)
+    refine: RefineConfig = RefineConfig()  # hill climbing of each keyframe on the rendered shadow
+    candidates: int = 4  # distinct best search results refined per keyframe, the best kept [1, ∞)
+    refine_enabled: bool = True  # False: keep the searched poses (no rendered-shadow refinement)
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be 'independent' or 'sequential', not {self.mode!r}")
+        if self.candidates < 1:
+            raise ValueError(f"candidates must be ≥ 1 (distinct search results to refine), got {self.candidates}")
+
+
+PAPER_SEQUENCE = SequenceConfig()  # the paper's sizes (GPU): first 500 × 3000, next 128 × 1200, 8 × 1000 refinement
+# CPU preset, measured sequential +Exp+Temp with the shipped 128² model (1 torch thread) on the shared DAVIS flamingo
+# (4 keyframes) and blackswan (3): about 15 s a sequence, the first keyframe's search most of it. Refining 4
+# candidates × 500 steps instead of 2 × 150 lowers L_base by up to 0.01 for 10 % more time; a later-keyframe search
+# of 32 × 100 instead of 16 × 60 changes L_base by < 0.003 and doubles the time.
+CPU_SEQUENCE = SequenceConfig(
+    first=CPU_SEARCH,  # 32 × 150
+    next=SearchConfig(batch=16, iterations=60, lr=0.08),
+    refine=RefineConfig(steps=500),
+    candidates=4,
+)
+
+
+@dataclass
+class KeyframeResult:
+    """One keyframe's pose and how well its shadow imitates its target (plain data)."""
+
+    index: int  # keyframe number k (first-appearance order)
+    theta: np.ndarray  # (21,) rad, final pose (within the joint limits)
+    shadow: np.ndarray  # (R, R) uint8 rendered shadow of the final pose, 1 = shadow
+    loss: dict[str, float]  # components of the objective this row optimised (losses.COMPONENTS; NaN = not computed)
+    evaluation: dict[str, float]  # components under the common measure (module doc), total incl. temporal
+    collision_free: bool  # the final pose does not penetrate itself
+    search_loss: float  # the self-model loss of the searched pose
+    seconds: float  # wall time of this keyframe's search + refinement
+    timings: dict[str, float] = field(default_factory=dict)  # seconds per stage ("search", "refine")
+
+    def total(self, reading: str = "base") -> float:
+        """The endpoint total of the transition test (:mod:`studio.imitate.transitions`): ``"base"`` L_base,
+        ``"image"`` L_base + L_expr (the expressive term when masks were given), ``"full"`` + L_temp (k ≥ 1)."""
+        e = self.evaluation
+        parts = {"base": ("base",), "image": ("base", "expr"), "full": ("base", "expr", "temporal")}[reading]
+        return e["base"] + sum(0.0 if math.isnan(e[p]) else e[p] for p in parts[1:])
+
+
+@dataclass
+class SequenceResult:
+    """Every finished keyframe of a sequence, in first-appearance order (plain data)."""
+
+    keyframes: list[KeyframeResult]  # done keyframes (fewer than asked when cancelled)
+    cfg: SequenceConfig  # what was run
+    requested: int  # keyframes asked for (K)
+    seconds: float  # wall time of the whole sequence
+    cancelled: bool = False  # the cancel event stopped it: only the keyframes finished before it
+
+    @property
+    def thetas(self) -> np.ndarray:
+        """``(K, 21)`` rad, the final poses."""
+        return np.stack([k.theta for k in self.keyframes]) if self.keyframes else np.zeros((0, 21))
+
+    @property
+    def shadows(self) -> np.ndarray:
+        """``(K, R, R)`` uint8, the rendered shadows."""
+        return np.stack([k.shadow for k in self.keyframes])
+
+    def totals(self, reading: str = "base") -> np.ndarray:
+        """``(K,)`` the transition test's endpoint totals (:meth:`KeyframeResult.total`)."""
+        return np.array([k.total(reading) for k in self.keyframes], dtype=np.float64)
+
+    def transitions(self, cfg: TransitionConfig | None = None) -> TransitionReport:
+        """Transition success between consecutive keyframes (DESIGN §4), totals read as ``cfg.total``."""
+        cfg = cfg or TransitionConfig()
+        return transition_success(self.thetas, self.totals(cfg.total), cfg)[1]
+
+
+def _components(comps: dict[str, np.ndarray]) -> dict[str, float]:
+    return {k: float(comps[k][0]) for k in COMPONENTS}
+
+
+class SequenceImitator:
+    """Reusable machinery for sequences: an :class:`~studio.imitate.still.Imitator` (self-model, renderer,
+    collision world, CLIP) shared by every keyframe. One made here is closed by ``close()`` (or a ``with`` block);
+    one passed in stays the caller's."""
+
+    def __init__(
+        self,
+        model: SelfModel | None = None,
+        cfg: SequenceConfig | None = None,
+        loss_cfg: LossConfig | None = None,
+        clip=None,
+        imitator: Imitator | None = None,
+        device: str | None = None,
+    ):
+        self.cfg = cfg or CPU_SEQUENCE
+        self._owns = imitator is None
+        self.imitator = imitator or Imitator(model, loss_cfg=loss_cfg, clip=clip, device=device)
+        self.model, self.renderer, self.refiner = self.imitator.model, self.imitator.renderer, self.imitator.refiner
+        self.loss_cfg = self.imitator.loss_cfg
+
+    def close(self) -> None:
+        """Close the imitator if this object made it (idempotent)."""
+        if self._owns:
+            self.imitator.close()
+
+    def __enter__(self) -> SequenceImitator:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def imitate(
+        self,
+        masks: np.ndarray,
+        expressive: np.ndarray | None = None,
+        progress: Progress | None = None,
+        cancel: threading.Event | None = None,
+        cfg: SequenceConfig | None = None,
+    ) -> SequenceResult:
+        """Keyframe targets ``masks (K, S, S)`` uint8 (1 = shadow) in first-appearance order (all N frames work too:
+        each is then its own keyframe), their expressive masks ``(K, S, S)`` or None → :class:`SequenceResult`.
+
+        ``progress(stage, step, total, best)`` with stages "keyframe k/K: search" and "keyframe k/K: refine".
+        Setting ``cancel`` returns within a search or refinement step, with the keyframes finished before it and
+        ``cancelled=True`` (a keyframe interrupted half-way is left out). ``cfg`` overrides this object's config
+        for this call.
+        """
+        if self.refiner.closed:
+            raise ClosedError("this SequenceImitator was closed; make a new one (or imitate inside its `with` block)")
+        cfg = cfg or self.cfg
+        masks = np.asarray(masks)
+        if masks.ndim != 3 or len(masks) == 0:
+            raise ValueError(f"masks must be a non-empty sequence (K, S, S), not an array of shape {masks.shape}")
+        if expressive is not None and np.shape(expressive) != masks.shape:
+            raise ValueError(f"expressive masks {np.shape(expressive)} do not match the targets {masks.shape}")
+        if cfg.expressive and expressive is None:
+            raise ValueError(
+                "the expressive term needs expressive masks (expressive_masks(video.masks)), "
+                "or SequenceConfig(expressive=False)"
+            )
+        t0 = time.perf_counter()
+        done: list[KeyframeResult] = []
+        n = len(masks)
+        for k in range(n):
+            if cancel is not None and cancel.is_set():
+                break
+            prev = done[-1].theta if done else None
+            exp_k = None if expressive is None else expressive[k]
+            r = self._keyframe(cfg, k, n, masks[k], exp_k, prev, progress, cancel)
+            if r is None:  # cancelled half-way
+                break
+            done.append(r)
+            log.info(
+                "keyframe %d/%d: total %.4f (base %.4f, image %.4f) in %.1f s",
+                k + 1,
+                n,
+                r.loss["total"],
+                r.evaluation["base"],
+                r.total("image"),
+                r.seconds,
+            )
+        cancelled = len(done) < n
+        return SequenceResult(done, cfg, n, time.perf_counter() - t0, cancelled)
+
+    def _keyframe(self, cfg, k, n, target, expressive, prev, progress, cancel) -> KeyframeResult | None:
+        t0 = time.perf_counter()
+        loss_fn = ImageLoss(target, self.loss_cfg, self.imitator.clip, expressive if cfg.expressive else None)
+        prev_t = prev if (cfg.temporal and prev is not None) else None  # the temporal term's θ*_{k−1}
+        inherit = cfg.mode == "sequential" and prev is not None
+        search_cfg = replace(cfg.next if inherit else cfg.first, seed=(cfg.next if inherit else cfg.first).seed + k)
+        name = f"keyframe {k + 1}/{n}"
+        stage = (lambda s: lambda i, m, b: progress(f"{name}: {s}", i, m, b)) if progress else (lambda s: None)
+        search = gradient_search(
+            self.model, loss_fn, search_cfg, prev if inherit else None, prev_t, stage("search"), cancel
+        )
+        t1 = time.perf_counter()
+        if search.cancelled:
+            return None
+        theta = search.theta
+        if cfg.refine_enabled:
+            best = None
+            for start in distinct_best(search.batch_theta, search.batch_loss, cfg.candidates):
+                r = self.refiner.refine(loss_fn, start, cfg.refine, stage("refine"), cancel, theta_prev=prev_t)
+                if r.cancelled:
+                    return None
+                if r.collision_free and (best is None or r.loss < best.loss):
+                    best = r
+            if best is not None:
+                theta = best.theta
+        t2 = time.perf_counter()
+        _, comps = self.refiner.score(loss_fn, theta[None], prev_t)
+        eval_fn = (
+            loss_fn
+            if (expressive is None or cfg.expressive)
+            else ImageLoss(target, self.loss_cfg, self.imitator.clip, expressive)
+        )
+        _, evaluation = self.refiner.score(eval_fn, theta[None], prev)
+        return KeyframeResult(
+            index=k,
+            theta=np.asarray(theta, dtype=np.float64),
+            shadow=self.renderer.render_one(theta),
+            loss=_components(comps),
+            evaluation=_components(evaluation),
+            collision_free=not bool(self.refiner.world.in_collision(theta)[0]),
+            search_loss=search.loss,
+            seconds=t2 - t0,
+            timings={"search": t1 - t0, "refine": t2 - t1},
+        )
+
+
+def imitate_sequence(
+    model: SelfModel | None,
+    masks: np.ndarray,
+    expressive: np.ndarray | None = None,
+    cfg: SequenceConfig | None = None,
+    progress: Progress | None = None,
+    cancel: threading.Event | None = None,
+    loss_cfg: LossConfig | None = None,
+    clip=None,
+) -> SequenceResult:
+    """One sequence with a :class:`SequenceImitator` opened and closed here (see its ``imitate``); ``model`` None
+    loads the shipped self-model. Many sequences: keep one ``SequenceImitator`` open instead."""
+    with SequenceImitator(model, cfg, loss_cfg=loss_cfg, clip=clip) as seq:
+        return seq.imitate(masks, expressive, progress, cancel)
+
+
+def keyframe_targets(masks: np.ndarray, expressive: np.ndarray | None, representatives: np.ndarray):
+    """Frames ``(N, S, S)`` (and their expressive masks) → the keyframes' ``(K, S, S)`` in first-appearance order,
+    ``representatives (K,)`` being :attr:`~studio.imitate.keyframes.Clusters.representatives`."""
+    reps = np.asarray(representatives, dtype=np.int64)
+    return np.asarray(masks)[reps], (None if expressive is None else np.asarray(expressive)[reps])
