@@ -20,42 +20,15 @@ import select
 import threading
 import time
 import tty
-from dataclasses import dataclass
 
 import numpy as np
 
 from hardware import constants as C
+from hardware.emulator_config import EmulatorConfig, Faults
 from hardware.protocol import Packet, StreamDecoder, encode_reply
 from hardware.servo_model import VirtualServo
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class Faults:
-    """Faults to inject; change them through :meth:`ServoEmulator.inject` while the emulator runs."""
-
-    drop_rate: float = 0.0  # probability that any answer is silently dropped
-    corrupt_rate: float = 0.0  # probability that one byte of an answer (CMD..CHK) is flipped
-    drop_ids: frozenset[int] = frozenset()  # servos whose answers are always dropped (they still move)
-    corrupt_ids: frozenset[int] = frozenset()  # servos whose answers always carry a flipped byte
-    missing_ids: frozenset[int] = frozenset()  # servos unplugged: they neither move nor answer
-    stuck_ids: frozenset[int] = frozenset()  # locked rotors: they do not move and report FAULT_LOCKED_ROTOR
-    hot_ids: frozenset[int] = frozenset()  # servos that run at over_temp_c and report FAULT_OVER_TEMPERATURE
-    wrong_id_ids: frozenset[int] = frozenset()  # servos that answer with the wrong ID in the packet
-    over_temp_c: int = 92  # temperature a hot servo reports, °C
-
-
-@dataclass
-class EmulatorConfig:
-    """How the virtual bus behaves."""
-
-    echo: bool = False  # the adapter echoes the host's bytes (single-wire adapters do)
-    reply_delay_s: float = 0.0  # extra latency before each answer (a real servo answers within ~1 ms)
-    vin_mv: int = 7400  # supply voltage every servo reports, mV
-    temp_c: int = 38  # temperature of a healthy servo, °C
-    speed_units_s: float = C.SERVO_SPEED_UNITS_S  # top speed of a servo, units/s
-    seed: int = 0  # seed of the fault-injection random generator
 
 
 class ServoEmulator:

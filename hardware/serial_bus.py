@@ -26,8 +26,8 @@ class BusConfig:
 
     port: str  # serial device, e.g. /dev/ttyUSB0 or the emulator's /dev/pts/N
     baud: int = C.BAUD  # bus rate, 8N1
-    timeout_s: float = 0.02  # time to wait for one answer (a servo answers in ~1 ms + 0.7 ms on the wire)
-    retries: int = 2  # extra attempts after a failed read
+    timeout_s: float = 0.02  # seconds to wait for one answer (a servo answers in ~1 ms + 0.7 ms on the wire) (0, 10]
+    retries: int = 2  # extra attempts after a failed read [0, 20]
     echo: bool = False  # the adapter echoes what the host sends (single-wire adapters); discarded here
     batch_size: int = 7  # servos per batch of moves (paper)
     batch_gap_s: float = 0.010  # pause between batches in write_positions (paper)

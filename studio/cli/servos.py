@@ -18,12 +18,14 @@ import numpy as np
 
 from hardware.bus import scan
 from hardware.calibration import check_writable, default_calibration, load_calibration, save_calibration
+from hardware.emulator_config import EmulatorConfig, Faults
 from hardware.errors import BusError, EStopLatched, HardwareError, ProtocolError, ServoTimeout
 from hardware.jog import HELP, Jog
 from hardware.playback_log import PlaybackResult, save_playback_log
 from hardware.player import Player, PlayerConfig
 from hardware.serial_bus import BusConfig, SerialServoBus
 from hardware.wizard import CalibrationWizard
+from studio.cli.flags import add_config_flags, config_from_args
 from studio.sim.hand import load_hand
 
 
@@ -38,13 +40,13 @@ def _ids(text: str) -> list[int]:
 
 def _bus_args(p: argparse.ArgumentParser, port_required: bool = True) -> None:
     p.add_argument("--port", required=port_required, help="serial device (or the path `emulate` prints)")
-    p.add_argument("--echo", action="store_true", help="the adapter echoes what it sends (single-wire adapters)")
-    p.add_argument("--timeout", type=float, default=0.02, help="seconds to wait for each answer (default 0.02)")
-    p.add_argument("--retries", type=int, default=2, help="extra attempts after a failed read (default 2)")
+    add_config_flags(
+        p, BusConfig, ("echo", "timeout_s", "retries"), base=BusConfig(""), aliases={"timeout_s": "timeout"}
+    )
 
 
 def _bus(args) -> SerialServoBus:
-    return SerialServoBus(BusConfig(args.port, timeout_s=args.timeout, retries=args.retries, echo=args.echo))
+    return SerialServoBus(config_from_args(args, BusConfig, base=BusConfig(args.port)))
 
 
 def _emulator():
@@ -61,15 +63,10 @@ def _emulator():
 
 def cmd_emulate(args) -> int:
     em = _emulator()
-    faults = em.Faults(
-        drop_rate=args.drop_rate,
-        corrupt_rate=args.corrupt_rate,
-        missing_ids=frozenset(_ids(args.missing)),
-        stuck_ids=frozenset(_ids(args.stuck)),
-        hot_ids=frozenset(_ids(args.hot)),
-    )
+    ids = {k: frozenset(_ids(getattr(args, k))) for k in ("missing", "stuck", "hot")}
+    faults = config_from_args(args, Faults, **{f"{k}_ids": v for k, v in ids.items()})
     dups = tuple(_ids(args.duplicate))
-    with em.ServoEmulator(_ids(args.ids), em.EmulatorConfig(echo=args.echo), faults, duplicate_ids=dups) as emu:
+    with em.ServoEmulator(_ids(args.ids), config_from_args(args, EmulatorConfig), faults, duplicate_ids=dups) as emu:
         print(emu.port, flush=True)
         print(f"{len(emu.servos)} virtual servos; Ctrl-C to stop", file=sys.stderr, flush=True)
         try:
@@ -201,9 +198,8 @@ def cmd_jog(args) -> int:
 def register(sub) -> None:
     p = sub.add_parser("emulate", help="run 21 virtual LX-15D servos on a pseudo-terminal until Ctrl-C")
     p.add_argument("--ids", default="1-21", help="servo IDs present (default 1-21)")
-    p.add_argument("--echo", action="store_true", help="echo the host's bytes like a single-wire adapter")
-    p.add_argument("--drop-rate", type=float, default=0.0, help="probability of dropping an answer")
-    p.add_argument("--corrupt-rate", type=float, default=0.0, help="probability of corrupting an answer")
+    add_config_flags(p, EmulatorConfig, ("echo",))
+    add_config_flags(p, Faults, ("drop_rate", "corrupt_rate"))
     p.add_argument("--missing", default="", help="IDs that do not answer, e.g. 5,7")
     p.add_argument("--stuck", default="", help="IDs with a locked rotor")
     p.add_argument("--hot", default="", help="IDs that report over-temperature")
