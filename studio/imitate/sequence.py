@@ -67,7 +67,8 @@ PAPER_SEQUENCE = SequenceConfig()  # the paper's sizes (GPU): first 500 × 3000,
 # CPU preset, measured sequential +Exp+Temp with the shipped 128² model (1 torch thread) on the shared DAVIS flamingo
 # (4 keyframes) and blackswan (3): about 15 s a sequence, the first keyframe's search most of it. Refining 4
 # candidates × 500 steps instead of 2 × 150 lowers L_base by up to 0.01 for 10 % more time; a later-keyframe search
-# of 32 × 100 instead of 16 × 60 changes L_base by < 0.003 and doubles the time.
+# of 32 × 100 instead of 16 × 60 changes L_base by < 0.003 and doubles the time. benchmarks/bench_sequence.py on the
+# six DAVIS sequences (2–4 keyframes each): 13 s a sequence sequential, 28 s independent (every keyframe 32 × 150).
 CPU_SEQUENCE = SequenceConfig(
     first=CPU_SEARCH,  # 32 × 150
     next=SearchConfig(batch=16, iterations=60, lr=0.08),
