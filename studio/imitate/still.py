@@ -195,12 +195,25 @@ def imitate_still(
     device: str | None = None,
     progress: Callable[[str, int, int, float], None] | None = None,
     cancel: threading.Event | None = None,
+    threads: int | None = 1,
 ) -> ImitationResult:
     """One still target end to end with the shipped model (or ``model_path``), CLIP off, holes as expressive region.
 
     ``target`` is an image path (loaded with ``target_cfg``) or a mask ``(R, R)`` framed at the model's resolution
-    (``load_target(path, size=R)``). For many targets keep an :class:`Imitator` instead: it loads the model once.
+    (``load_target(path, size=R)``). ``threads``: torch CPU threads for this call, restored after (1 is far faster
+    on shared cores, DESIGN §6; None leaves torch's setting). For many targets keep an :class:`Imitator` instead: it
+    loads the model once.
     """
+    before = torch.get_num_threads()
+    if threads:
+        torch.set_num_threads(threads)
+    try:
+        return _imitate_still(target, model_path, search, refine, target_cfg, device, progress, cancel)
+    finally:
+        torch.set_num_threads(before)
+
+
+def _imitate_still(target, model_path, search, refine, target_cfg, device, progress, cancel) -> ImitationResult:
     with Imitator(model_path=model_path, search=search, refine=refine, device=device) as imitator:
         if isinstance(target, (str, Path)):
             mask = imitator.load(Path(target), target_cfg)
