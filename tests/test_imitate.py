@@ -295,16 +295,15 @@ def test_imitate_at_zero_uses_the_opening_and_plans_to_a_held_pose(tmp_path):
 
     out = tmp_path / "o"
     proc = _imitate_cli(str(DEFAULT_TARGET), "--out", str(out), "--no-clip", "--quiet", "--at", "0",
-                        "--search-iters", "5", "--refine-steps", "20")  # fmt: skip
-    assert proc.returncode in (0, 1), proc.stderr  # 1: no collision-free pose in 20 steps (said in the summary)
+                        "--search-iters", "5", "--refine-steps", "60")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr  # seeded: collision-free within 60 steps
     pose = json.loads((out / "pose.json").read_text())
     assert pose["provenance"]["expressive_pixels"] > 0 and pose["cancelled"] is False
     assert pose["loss"]["exp_iou"] is not None and 0 <= pose["loss"]["exp_iou"] <= 1
     assert pose["loss"]["total"] == pytest.approx(pose["loss"]["base"] + pose["loss"]["expr"])
     assert pose["provenance"]["target_config"]["threshold"] == 25.0
     assert pose["keyframes"][0]["t"] == 0.0
-    if not pose["collision_free"]:
-        pytest.skip("no collision-free pose in 20 refinement steps: plan would refuse the keyframe")
+    assert pose["collision_free"]
     show = out / "show.json"
     planned = subprocess.run([sys.executable, "-m", "studio.cli", "plan", str(out / "pose.json"), "--out", str(show)],
                              capture_output=True, text=True, timeout=300)  # fmt: skip
