@@ -10,9 +10,6 @@ JSON-able dicts (NaN → None); :func:`write_table` writes them as Markdown and 
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import math
 import threading
 import time
@@ -23,7 +20,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from studio.atomic import write_text
 from studio.errors import ClosedError
 from studio.evaluate.baselines import (
     BaselineOutput,
@@ -33,6 +29,7 @@ from studio.evaluate.baselines import (
     RandomImage,
     TrainingSet,
 )
+from studio.evaluate.report import csv_text, markdown_table, write_report
 from studio.imitate.still import Imitator, still_expressive
 from studio.imitate.targets import IMAGE_SUFFIXES, TargetError, find_target_files
 from studio.learn.inverse import InverseCNN
@@ -88,10 +85,6 @@ def score(loss_fn, shadow: np.ndarray) -> dict[str, float]:
     """Loss components of one shadow ``(H, W)`` under a target's :class:`ImageLoss` (NaN = not computed)."""
     _, comps = loss_fn(torch.from_numpy(np.asarray(shadow, dtype=np.float32)[None]))
     return {k: float(v[0]) for k, v in comps.items()}
-
-
-def _nan_to_none(x: float) -> float | None:
-    return None if x is None or (isinstance(x, float) and math.isnan(x)) else x
 
 
 def summarise(records: list[dict]) -> list[dict]:
@@ -223,46 +216,22 @@ class Evaluator:
         return notes
 
 
-def _fmt(x: float | None, key: str) -> str:
-    if x is None or (isinstance(x, float) and math.isnan(x)):
-        return "n/a"
-    return f"{x:.1f}" if key in ("collide_pct", "seconds") else f"{x:.3f}"
+DIGITS = {"collide_pct": 1, "seconds": 1}  # decimals of the non-loss columns (losses: 3)
 
 
 def to_markdown(rows: list[dict], notes: Sequence[str] = ()) -> str:
     """Table 1 as a Markdown table (best Total in bold) followed by its notes."""
-    cols = {**LOSS_COLUMNS, **EXTRA_COLUMNS}
-    totals = [r["total"] for r in rows if r.get("total") is not None]
-    best = min(totals) if totals else None
-    lines = ["| Method | " + " | ".join(cols) + " |", "|---|" + "---:|" * len(cols)]
-    for r in rows:
-        cells = [_fmt(r.get(key), key) for key in cols.values()]
-        if best is not None and r.get("total") == best:
-            cells[0] = f"**{cells[0]}**"
-        lines.append(f"| {r['method']} | " + " | ".join(cells) + " |")
-    return "\n".join(lines + [""] + [f"- {n}" for n in notes]) + "\n"
-
-
-def _csv(keys: list[str], rows) -> str:
-    buf = io.StringIO(newline="")
-    w = csv.DictWriter(buf, fieldnames=keys, extrasaction="ignore")
-    w.writeheader()
-    w.writerows(rows)
-    return buf.getvalue()
+    return markdown_table("Method", rows, {**LOSS_COLUMNS, **EXTRA_COLUMNS}, "method", DIGITS, "total", notes)
 
 
 def write_table(result: EvalResult, out: Path) -> dict[str, str]:
     """Write ``table1.md``, ``table1.csv`` (one row per method), ``per_target.csv`` and ``settings.json`` (model,
     losses with ``use_clip``, search, refinement, Nearest Neighbour); returns their paths."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = {"markdown": out / "table1.md", "csv": out / "table1.csv", "per_target": out / "per_target.csv",
-             "settings": out / "settings.json"}  # fmt: skip
-    write_text(paths["markdown"], to_markdown(result.rows, result.notes))
-    write_text(paths["settings"], json.dumps(result.settings, indent=2, default=str))
     keys = ["method", *LOSS_COLUMNS.values(), "collide_pct", "seconds", "targets", "expressive_targets"]
-    write_text(paths["csv"], _csv(keys, ({k: "" if r.get(k) is None else r[k] for k in keys} for r in result.rows)))
     rec_keys = ["target", "method", *LOSS_COLUMNS.values(), "collides", "seconds"]
-    rows = ({k: "" if _nan_to_none(r[k]) is None else r[k] for k in rec_keys} for r in result.records)
-    write_text(paths["per_target"], _csv(rec_keys, rows))
-    return {k: str(v) for k, v in paths.items()}
+    texts = {
+        "markdown": ("table1.md", to_markdown(result.rows, result.notes)),
+        "csv": ("table1.csv", csv_text(keys, result.rows)),
+        "per_target": ("per_target.csv", csv_text(rec_keys, result.records)),
+    }
+    return write_report(out, texts, result.settings)

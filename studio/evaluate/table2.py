@@ -1,0 +1,318 @@
+"""The paper's Table 2 (DESIGN §4): the video ablation, six rows over a set of sequences, measured the same way.
+
+Rows: Independent / Sequential (:data:`studio.imitate.sequence.MODES`) × Base / +Exp / +Exp+Temp (the expressive
+and temporal switches of :class:`~studio.imitate.sequence.SequenceConfig`). Each sequence is prepared once
+(:func:`prepare_sequence`: sampled frames, expressive masks, keyframes, in first-appearance order) and the same
+keyframe targets go to all six rows, with the same seeds.
+
+Every row is scored by one measure, :attr:`KeyframeResult.evaluation <studio.imitate.sequence.KeyframeResult>`: the
+rendered shadow of each keyframe's final pose against its target, *with* the expressive term on the keyframe's
+expressive region even in the Base rows that do not optimise it (as the paper's table shows Exp. columns for
+every row). The table's **Total** is ``L_base + L_expr`` of that measure (``KeyframeResult.total("image")``); the
+temporal term is left out of it (the transition test's Δθ bounds judge the motion, and the first keyframe has
+none). Loss columns are means over all keyframes of all sequences (NaN-aware: CLIP columns are n/a without CLIP).
+Transition success (:mod:`studio.imitate.transitions`) is counted over the K − 1 transitions of each sequence and
+summed over sequences. Rows, records (one per sequence and row) and keyframes are JSON-able dicts (NaN → None);
+:func:`write_table` writes Markdown, CSVs and the settings through :mod:`studio.evaluate.report`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from studio.evaluate.report import csv_text, markdown_table, nan_to_none, write_report
+from studio.evaluate.table1 import LOSS_COLUMNS
+from studio.imitate.expressive import expressive_masks
+from studio.imitate.keyframes import KeyframeConfig, cluster_keyframes
+from studio.imitate.sequence import MODES, SequenceConfig, SequenceImitator, keyframe_targets
+from studio.imitate.targets import IMAGE_SUFFIXES, TargetError
+from studio.imitate.transitions import TransitionConfig
+from studio.imitate.video import VideoConfig, load_video
+from studio.imitate.video_read import VIDEO_SUFFIXES
+
+log = logging.getLogger(__name__)
+
+EXTRA_COLUMNS = {"Transitions": "transitions_text", "Success (%)": "success_pct", "Mean Δθ (rad)": "mean_step",
+                 "Seconds / sequence": "seconds"}  # fmt: skip
+DIGITS = {"success_pct": 1, "mean_step": 3, "seconds": 1}
+LOSS_KEYS = (*LOSS_COLUMNS.values(), "expr", "temporal")  # kept per keyframe (Total = base + expr, module doc)
+Progress = Callable[[str, int, int, float], None]  # (stage, step, total, best loss), stage names sequence and row
+
+
+@dataclass(frozen=True)
+class Row:
+    """One row of Table 2: a mode and the two switches."""
+
+    name: str  # "Independent Base", …, "Sequential +Exp+Temp"
+    mode: str  # "independent" | "sequential"
+    expressive: bool  # optimises L_expr
+    temporal: bool  # optimises L_temp
+
+    def config(self, base: SequenceConfig) -> SequenceConfig:
+        return replace(base, mode=self.mode, expressive=self.expressive, temporal=self.temporal)
+
+
+ROWS = tuple(
+    Row(f"{mode.title()} {label}", mode, exp, temp)
+    for mode in MODES
+    for label, exp, temp in (("Base", False, False), ("+Exp", True, False), ("+Exp+Temp", True, True))
+)
+
+
+@dataclass
+class PreparedSequence:
+    """One sequence's keyframe targets, computed once for all rows (plain data)."""
+
+    name: str  # shown in the tables (the file or folder name)
+    source: Path  # the video file or frame folder
+    times: np.ndarray  # (N,) s, source time of each sampled frame
+    assignment: np.ndarray  # (N,) keyframe of each frame
+    representatives: np.ndarray  # (K,) frame index of each keyframe, first-appearance order
+    masks: np.ndarray  # (K, S, S) uint8 keyframe targets
+    expressive: np.ndarray  # (K, S, S) uint8 their expressive masks (moving ∪ holes of the whole sequence)
+    seconds: float  # loading, expressive masks and clustering
+
+    @property
+    def frames(self) -> int:
+        return len(self.assignment)
+
+
+def gather_sequences(paths: Sequence[str | Path]) -> list[Path]:
+    """Sequence sources from the arguments: a video file; a folder of frames; or a folder of sequences (its
+    frame sub-folders and video files, by name). A GIF in a folder is a video, not a frame. Raises
+    :class:`TargetError` for a missing path or one holding no sequence."""
+    videos = (*VIDEO_SUFFIXES, ".gif")
+    frames = tuple(s for s in IMAGE_SUFFIXES if s != ".gif")
+
+    def is_frame_folder(d: Path) -> bool:
+        return any(f.is_file() and f.suffix.lower() in frames for f in d.iterdir())
+
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_file():
+            out.append(p)
+            continue
+        if not p.is_dir():
+            raise TargetError(f"sequence (video file or frame folder) not found: {p}")
+        if is_frame_folder(p):
+            out.append(p)
+            continue
+        found = sorted(e for e in p.iterdir() if (e.is_file() and e.suffix.lower() in videos)
+                       or (e.is_dir() and is_frame_folder(e)))  # fmt: skip
+        if not found:
+            raise TargetError(f"no sequences in {p}: no frames ({', '.join(frames)}), no frame sub-folders and no "
+                              f"video files ({', '.join(videos)})")  # fmt: skip
+        out += found
+    return out
+
+
+def prepare_sequence(
+    path: Path, video_cfg: VideoConfig | None = None, keyframe_cfg: KeyframeConfig | None = None, name: str = ""
+) -> PreparedSequence:
+    """Load one sequence (errors: :func:`~studio.imitate.video.load_video`), then :func:`sequence_from_masks`."""
+    t0 = time.perf_counter()
+    video = load_video(path, replace(video_cfg or VideoConfig(), keep_frames=False))
+    s = sequence_from_masks(video.masks, video.times, keyframe_cfg, name or Path(path).name, Path(path))
+    s.seconds = time.perf_counter() - t0
+    return s
+
+
+def sequence_from_masks(
+    masks: np.ndarray,
+    times: np.ndarray | None = None,
+    keyframe_cfg: KeyframeConfig | None = None,
+    name: str = "sequence",
+    source: Path | None = None,
+) -> PreparedSequence:
+    """Frames ``masks (N, S, S)`` uint8 (1 = shadow, one square frame) at ``times (N,)`` s (None: 0, 1, …) →
+    their expressive masks and keyframes (:func:`~studio.imitate.keyframes.cluster_keyframes`)."""
+    t0 = time.perf_counter()
+    masks = np.asarray(masks)
+    expressive = expressive_masks(masks)
+    clusters = cluster_keyframes(expressive, keyframe_cfg or KeyframeConfig())
+    targets, exp = keyframe_targets(masks, expressive, clusters.representatives)
+    times = np.arange(len(masks), dtype=float) if times is None else np.asarray(times, dtype=float)
+    return PreparedSequence(name, Path(source or name), times, clusters.assignment, clusters.representatives,
+                            targets, exp, time.perf_counter() - t0)  # fmt: skip
+
+
+def _mean(values) -> float | None:
+    v = np.asarray([np.nan if x is None else x for x in values], dtype=float)
+    v = v[~np.isnan(v)]
+    return float(v.mean()) if len(v) else None
+
+
+def summarise(records: list[dict], keyframes: list[dict], rows: Sequence[Row] = ROWS) -> list[dict]:
+    """Per-row summary: loss means over keyframes, transitions summed over sequences, seconds per sequence."""
+    out = []
+    for row in rows:
+        recs = [r for r in records if r["row"] == row.name]
+        if not recs:
+            continue
+        kfs = [k for k in keyframes if k["row"] == row.name]
+        # the switches as optimises_*: "expr" and "temporal" are loss keys (the measured terms)
+        s = {"row": row.name, "mode": row.mode, "optimises_expr": row.expressive, "optimises_temp": row.temporal,
+             "sequences": len(recs), "keyframes": len(kfs)}  # fmt: skip
+        s |= {key: _mean(k[key] for k in kfs) for key in LOSS_KEYS}
+        for key in ("success", "transitions", "success_image"):
+            s[key] = int(sum(r[key] for r in recs))
+        n = s["transitions"]
+        s["transitions_text"] = f"{s['success']}/{n}"
+        s["success_pct"] = 100.0 * s["success"] / n if n else None
+        s["success_image_pct"] = 100.0 * s["success_image"] / n if n else None
+        s["mean_step"] = _mean(x for r in recs for x in r["mean_steps"])
+        s["in_collision"] = int(sum(not k["collision_free"] for k in kfs))
+        s["seconds"] = float(np.mean([r["seconds"] for r in recs]))
+        out.append(s)
+    return out
+
+
+@dataclass
+class Table2Result:
+    """Table 2 and what it was computed from (plain data)."""
+
+    rows: list[dict]  # one per row (ROWS order) with at least one finished sequence
+    records: list[dict]  # one per (sequence, row): loss means, transitions, seconds
+    keyframes: list[dict]  # one per (sequence, row, keyframe): the evaluation components, pose, collision
+    notes: list[str]  # how the table was measured (printed under it)
+    settings: dict = field(default_factory=dict)  # sampling, keyframes, sequence budgets, losses, transition test
+    cancelled: bool = False  # the cancel event stopped it: only the (sequence, row) runs finished before it
+
+
+class VideoEvaluator:
+    """Runs the rows of Table 2 on prepared sequences with one :class:`SequenceImitator` (the caller's)."""
+
+    def __init__(self, seq: SequenceImitator, cfg: SequenceConfig, transition: TransitionConfig | None = None,
+                 rows: Sequence[Row] = ROWS):  # fmt: skip
+        self.seq, self.cfg, self.rows = seq, cfg, tuple(rows)
+        self.transition = transition or TransitionConfig()
+
+    def evaluate(self, s: PreparedSequence, row: Row, progress: Progress | None = None, cancel=None):
+        """One (sequence, row) run → ``(record, keyframe dicts)``, or None when cancelled half-way."""
+        name = f"{s.name} · {row.name}"
+        stage = (lambda st, i, m, b: progress(f"{name} · {st}", i, m, b)) if progress else None
+        result = self.seq.imitate(s.masks, s.expressive, stage, cancel, cfg=row.config(self.cfg))
+        if result.cancelled:
+            return None
+        rep = result.transitions(self.transition)
+        image = result.transitions(replace(self.transition, total="image"))
+        kfs = []
+        for k in result.keyframes:
+            rep_frame = int(s.representatives[k.index])
+            comps = {key: k.evaluation[key] for key in LOSS_KEYS} | {"total": k.total("image")}  # Total: module doc
+            kfs.append({"sequence": s.name, "row": row.name, "keyframe": k.index, "frame": rep_frame,
+                        "time": float(s.times[rep_frame]), **comps, "total_full": k.evaluation["total"],
+                        "collision_free": k.collision_free, "seconds": k.seconds,
+                        "theta": [float(x) for x in k.theta]})  # fmt: skip
+        record = {"sequence": s.name, "row": row.name, "frames": s.frames, "keyframes": len(kfs),
+                  **{key: _mean(k[key] for k in kfs) for key in LOSS_KEYS},
+                  "success": rep.count, "transitions": rep.total, "success_image": image.count,
+                  "ok": rep.ok.tolist(), "mean_steps": rep.mean_step.tolist(),
+                  "mean_step": _mean(rep.mean_step.tolist()),
+                  "max_step": float(rep.max_step.max()) if rep.total else None,
+                  "in_collision": int(sum(not k["collision_free"] for k in kfs)),
+                  "seconds": result.seconds}  # fmt: skip
+        total = math.nan if record["total"] is None else record["total"]
+        log.info("%s: %d/%d transitions, total %.4f, %.1f s", name, rep.count, rep.total, total, result.seconds)
+        return record, kfs
+
+    def run(
+        self,
+        sequences: Sequence[PreparedSequence],
+        progress: Progress | None = None,
+        on_run: Callable[[int, int, str], None] | None = None,
+        cancel: threading.Event | None = None,
+    ) -> Table2Result:
+        """Every row on every sequence (sequence by sequence); ``on_run(done, total, name)`` after each run.
+        Setting ``cancel`` stops within a search or refinement step; the run it interrupts is left out."""
+        records, keyframes, total, cancelled = [], [], len(sequences) * len(self.rows), False
+        for s in sequences:
+            for row in self.rows:
+                out = None if cancel is not None and cancel.is_set() else self.evaluate(s, row, progress, cancel)
+                if out is None:
+                    cancelled = True
+                    break
+                records.append(out[0])
+                keyframes += out[1]
+                if on_run:
+                    on_run(len(records), total, f"{s.name} · {row.name}")
+            if cancelled:
+                break
+        rows = summarise(records, keyframes, self.rows)
+        return Table2Result(rows, records, keyframes, self.notes(sequences, records, total), self.settings(sequences),
+                            cancelled)  # fmt: skip
+
+    def settings(self, sequences: Sequence[PreparedSequence]) -> dict:
+        return {
+            "resolution": self.seq.imitator.resolution, "losses": self.seq.loss_cfg.to_dict(),
+            "clip": getattr(self.seq.imitator.clip, "name", None), "sequence": asdict(self.cfg),
+            "transition": asdict(self.transition), "rows": [asdict(r) for r in self.rows],
+            "sequences": [{"name": s.name, "source": str(s.source), "frames": s.frames,
+                           "keyframes": len(s.representatives), "representatives": s.representatives.tolist(),
+                           "assignment": s.assignment.tolist(), "prepare_seconds": round(s.seconds, 2)}
+                          for s in sequences],
+        }  # fmt: skip
+
+    def notes(self, sequences: Sequence[PreparedSequence], records: list[dict], runs: int) -> list[str]:
+        cfg, t, lc = self.cfg, self.transition, self.seq.loss_cfg
+        n_frames = sum(s.frames for s in sequences)
+        n_key = sum(len(s.representatives) for s in sequences)
+        reading = {"base": "L_base", "image": "L_base + L_expr", "full": "L_base + L_expr + L_temp"}[t.total]
+        notes = [
+            f"{len(sequences)} sequences ({', '.join(s.name for s in sequences)}): {n_frames} sampled frames → "
+            f"{n_key} keyframes, {n_key - len(sequences)} transitions; each sequence's frames, expressive masks and "
+            f"keyframes computed once and shared by the six rows, keyframes optimised in order of first appearance.",
+            "Every row scored by the same measure: each keyframe's rendered shadow against its target, with the "
+            "expressive term on its expressive region (moving ∪ holes) also in the Base rows, which do not optimise "
+            "it. Total = Base + expressive term (L_base + L_expr; the temporal term is not in it). Loss columns: "
+            "means over keyframes; lower is better.",
+            f"Transitions: success when both endpoints' {reading} ≤ {t.max_total:g}, mean|Δθ| ≤ {t.max_mean_step:g} "
+            f"and max|Δθ| ≤ {t.max_step:g} rad (paper: 34.5 % independent → 86.2 % sequential +Exp+Temp). "
+            "Mean Δθ: mean over joints of |θ_{k+1} − θ_k|, averaged over the transitions.",
+            f"Search: first keyframe (every keyframe when independent) {cfg.first.batch} × {cfg.first.iterations}; "
+            f"later keyframes (sequential) {cfg.next.batch} × {cfg.next.iterations} from the previous pose + "
+            f"N(0, {cfg.next.init_noise:g} rad); refinement {cfg.refine.restarts} × {cfg.refine.steps} steps from "
+            f"each of the {cfg.candidates} best distinct search results"
+            + (" (off)" if not cfg.refine_enabled else "")
+            + ", keeping the temporal term in the +Temp rows. Seconds: wall time per sequence on this machine.",
+        ]
+        if not lc.use_clip:
+            notes.append("CLIP off (--no-clip): CLIP and Exp. CLIP not computed (n/a); Base = 0.06·MAE + 0.4·IoU loss.")
+        if len(records) < runs:
+            notes.append(f"Cancelled: {len(records)} of {runs} (sequence, row) runs finished; only those are shown.")
+        return notes
+
+
+def to_markdown(rows: list[dict], notes: Sequence[str] = ()) -> str:
+    """Table 2 as a Markdown table (best Total in bold) followed by its notes."""
+    return markdown_table("Row", rows, {**LOSS_COLUMNS, **EXTRA_COLUMNS}, "row", DIGITS, "total", notes)
+
+
+def write_table(result: Table2Result, out: Path) -> dict[str, str]:
+    """Write ``table2.md``, ``table2.csv`` (one row per row), ``per_sequence.csv``, ``per_keyframe.csv`` and
+    ``settings.json``; returns their paths."""
+    keys = ["row", *LOSS_KEYS, "success", "transitions", "success_pct", "success_image", "success_image_pct",
+            "mean_step", "in_collision", "seconds", "sequences", "keyframes"]  # fmt: skip
+    rec_keys = ["sequence", "row", "frames", "keyframes", *LOSS_KEYS, "success", "transitions", "success_image",
+                "mean_step", "max_step", "in_collision", "seconds"]  # fmt: skip
+    kf_keys = ["sequence", "row", "keyframe", "frame", "time", *LOSS_KEYS, "total_full", "collision_free", "seconds"]
+    texts = {
+        "markdown": ("table2.md", to_markdown(result.rows, result.notes)),
+        "csv": ("table2.csv", csv_text(keys, result.rows)),
+        "per_sequence": ("per_sequence.csv", csv_text(rec_keys, result.records)),
+        "per_keyframe": ("per_keyframe.csv", csv_text(kf_keys, result.keyframes)),
+    }
+    return write_report(out, texts, result.settings)
+
+
+def json_rows(rows: list[dict]) -> list[dict]:
+    """Rows for JSON: NaN → None."""
+    return [{k: nan_to_none(v) for k, v in r.items()} for r in rows]
