@@ -101,3 +101,11 @@ def test_no_module_level_cycles():
     for m in graph:
         if m not in state:
             visit(m, [m])
+
+
+def test_public_api_names_resolve():
+    import studio
+
+    missing = [name for name in studio.__all__ if getattr(studio, name, None) is None]
+    assert not missing, missing
+    assert set(studio.__all__) <= set(dir(studio))
