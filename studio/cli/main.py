@@ -26,6 +26,7 @@ VERB_MODULES = (
     "studio.cli.evaluate",
     "studio.cli.imitate",
     "studio.cli.video",
+    "studio.cli.imitate_video",
     "studio.cli.servos",
     "studio.cli.plan",
 )

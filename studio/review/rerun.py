@@ -159,6 +159,86 @@ def log_imitation(path: Path, result, hand: Hand, name: str = "target", notes: s
     return path
 
 
+def video_blueprint() -> rrb.Blueprint:
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Horizontal(
+                    rrb.Spatial2DView(origin="video/source", name="source"),
+                    rrb.Spatial2DView(origin="video/target", name="target"),
+                    rrb.Spatial2DView(origin="video/expressive", name="expressive"),
+                    rrb.Spatial2DView(origin="video/shadow", name="keyframe shadow"),
+                    rrb.Spatial2DView(origin="video/overlay", name="overlay"),
+                ),
+                rrb.TimeSeriesView(origin="loss", name="loss per frame"),
+            ),
+            rrb.Vertical(
+                rrb.Spatial3DView(origin="world", name="hand (show_time)"),
+                rrb.Spatial2DView(origin="show/shadow", name="show shadow"),
+            ),
+            column_shares=[2, 1],
+        ),
+        collapse_panels=True,
+    )
+
+
+def log_video(
+    path: Path,
+    hand: Hand,
+    masks: np.ndarray,
+    expressive: np.ndarray,
+    shadows: np.ndarray,
+    frames: np.ndarray | None = None,
+    keyframe: np.ndarray | None = None,
+    losses: np.ndarray | None = None,
+    show=None,
+    show_shadows: np.ndarray | None = None,
+    name: str = "video",
+    notes: str = "",
+) -> Path:
+    """Write an ``.rrd`` reviewing a video's imitation and its show; returns the path.
+
+    On the ``frame`` timeline (sampled frame k): ``video/source`` (RGB ``frames (N, S, S, 3)``, if given),
+    ``video/target`` (``masks (N, S, S)``), ``video/expressive`` (``expressive (N, S, S)``), ``video/shadow``
+    (``shadows (N, R, R)``: each frame's keyframe shadow), ``video/overlay``, and the scalars ``video/keyframe``
+    (``keyframe (N,)``, its keyframe number) and ``loss/total`` (``losses (N,)``). On ``show_time`` (s): the hand
+    of ``show`` (a ``studio.motion.show.Show``) at every sample under ``world/hand``, ``show/shadow`` (the rendered
+    ``show_shadows (T, R, R)``, one per show sample) and its keyframe markers in ``show/keyframes``."""
+    path = Path(path)
+    rec = rr.RecordingStream("shadow_studio", recording_id=f"imitate-video-{name}")
+    rec.save(str(path), default_blueprint=video_blueprint())
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)
+    log_hand_model(rec, hand)
+    if notes:
+        rec.log("notes", rr.TextDocument(notes), static=True)
+    for k in range(len(masks)):
+        rec.set_time("frame", sequence=k)
+        if frames is not None:
+            rec.log("video/source", rr.Image(frames[k]))
+        rec.log("video/target", rr.Image(display(masks[k])))
+        rec.log("video/expressive", rr.Image(display(expressive[k])))
+        rec.log("video/shadow", rr.Image(display(shadows[k])))
+        if shadows[k].shape == masks[k].shape and masks[k].any() and shadows[k].any():
+            rec.log("video/overlay", rr.Image(overlay(masks[k], shadows[k])))
+        if keyframe is not None:
+            rec.log("video/keyframe", rr.Scalars(float(keyframe[k])))
+        if losses is not None and np.isfinite(losses[k]):
+            rec.log("loss/total", rr.Scalars(float(losses[k])))
+    if show is not None:
+        rec.reset_time()  # the show's entities live on show_time only, not at the last frame
+        for m in show.keyframes:
+            rec.set_time("show_time", duration=float(m.t))
+            rec.log("show/keyframes", rr.TextLog(f"keyframe at {m.t:.3f} s (source frame {m.source_frame})"))
+        for i, t in enumerate(show.times):
+            rec.set_time("show_time", duration=float(t))
+            log_pose(rec, hand, show.positions[i])
+            if show_shadows is not None:
+                rec.log("show/shadow", rr.Image(display(show_shadows[i])))
+    rec.flush()
+    rec.disconnect()
+    return path
+
+
 def read_recording(path: Path) -> dict[str, dict]:
     """Read an ``.rrd`` back: ``{entity_path: {"static": bool, "rows": int, "columns": [...], "timelines": [...]}}``.
 

@@ -3,7 +3,9 @@
 Tiles follow the display convention of the rest of the studio (dark shadow on a light backdrop) and are RGB
 ``(T, T, 3)`` uint8. :func:`grid` lays out rows of tiles; :func:`keyframe_sheet` shows a sequence's keyframe
 clusters, one cluster per row (wrapped after ``columns`` tiles) with its representative first and framed, each tile
-the frame's mask with its expressive region tinted and labelled with its frame index (and time).
+the frame's mask with its expressive region tinted and labelled with its frame index (and time);
+:func:`pair_sheet` shows every frame of a sequence as ``target | shadow``; :func:`side_by_side` and
+:func:`write_video` make side-by-side review videos (OpenCV's ``VideoWriter``, MPEG-4).
 """
 
 from __future__ import annotations
@@ -105,6 +107,88 @@ def keyframe_sheet(
             tiles.append(frame_border(t) if i == rep else t)
         rows += [tiles[j : j + columns] for j in range(0, len(tiles), columns)]
     return grid(rows)
+
+
+def shadow_tile(mask: np.ndarray, tile: int) -> np.ndarray:
+    """A plain shadow ``(R, R)`` (1 = shadow, e.g. a rendered one) → RGB ``(T, T, 3)`` uint8 tile (no tint)."""
+    return tint(mask, None, tile)
+
+
+def pair_sheet(
+    targets: np.ndarray,
+    expressive: np.ndarray,
+    shadows: Sequence[np.ndarray],
+    labels: Sequence[str],
+    tile: int = 96,
+    columns: int = 6,
+) -> np.ndarray:
+    """A sequence's frames as RGB ``(H, W, 3)`` uint8 cells of ``target | shadow``, ``columns`` cells a row.
+
+    ``targets`` and ``expressive`` are ``(N, S, S)`` (the target tinted with its expressive region), ``shadows``
+    N shadows ``(R, R)`` (1 = shadow; a frame's keyframe shadow), ``labels`` N texts written on the targets."""
+    if not len(targets) == len(expressive) == len(shadows) == len(labels):
+        raise ValueError("a pair sheet needs one expressive mask, shadow and label per target")
+    if columns < 1:
+        raise ValueError("columns must be at least 1")
+    gap = np.full((tile, 2, 3), GAP, np.uint8)
+    cells = [
+        np.concatenate([label(tint(t, e, tile), text), gap, shadow_tile(s, tile)], axis=1)
+        for t, e, s, text in zip(targets, expressive, shadows, labels)
+    ]
+    return grid([cells[j : j + columns] for j in range(0, len(cells), columns)], gap=6)
+
+
+def fit_tile(rgb: np.ndarray, tile: int) -> np.ndarray:
+    """An RGB ``(H, W, 3)`` image resized to fit a ``tile × tile`` square (area averaging), padded with the gap
+    grey → ``(T, T, 3)`` uint8."""
+    h, w = rgb.shape[:2]
+    scale = tile / max(h, w)
+    nh, nw = max(1, round(h * scale)), max(1, round(w * scale))
+    small = cv2.resize(np.ascontiguousarray(rgb), (nw, nh), interpolation=cv2.INTER_AREA)
+    out = np.full((tile, tile, 3), GAP, np.uint8)
+    r0, c0 = (tile - nh) // 2, (tile - nw) // 2
+    out[r0 : r0 + nh, c0 : c0 + nw] = small
+    return out
+
+
+def side_by_side(panels: Sequence[np.ndarray], tile: int = 192) -> np.ndarray:
+    """RGB panels (each ``(H, W, 3)`` uint8) fitted to ``tile × tile`` squares side by side → ``(T, W', 3)``."""
+    gap = np.full((tile, 4, 3), GAP, np.uint8)
+    row = [x for p in panels for x in (fit_tile(p, tile), gap)][:-1]
+    return np.concatenate(row, axis=1)
+
+
+VIDEO_CODEC = "mp4v"  # MPEG-4 part 2: encodes in opencv-python-headless's bundled FFmpeg (H.264 'avc1' does not)
+
+
+def write_video(path: str | Path, frames_rgb: Sequence[np.ndarray], fps: float, codec: str = VIDEO_CODEC) -> Path:
+    """Write RGB frames ``(H, W, 3)`` uint8 (all one size) as a video at ``fps``; returns the path.
+
+    Written to a temporary name beside ``path`` and renamed when complete (a video is never half-written).
+    Odd sides are padded to even ones (MPEG-4 wants even sides). Raises ``OSError`` when no encoder opens."""
+    path = Path(path)
+    if not len(frames_rgb):
+        raise ValueError("a video needs at least one frame")
+    h, w = frames_rgb[0].shape[:2]
+    H, W = h + h % 2, w + w % 2
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*codec), float(fps), (W, H))
+    if not writer.isOpened():
+        raise OSError(f"OpenCV could not open a {codec!r} video encoder for {path}")
+    try:
+        for f in frames_rgb:
+            if f.shape[:2] != (h, w):
+                raise ValueError(f"every video frame must be {h}×{w}, got {f.shape[:2]}")
+            frame = np.full((H, W, 3), GAP, np.uint8)
+            frame[:h, :w] = f
+            writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    except BaseException:
+        writer.release()
+        tmp.unlink(missing_ok=True)
+        raise
+    writer.release()
+    tmp.replace(path)
+    return path
 
 
 def write_png(path: str | Path, rgb: np.ndarray) -> Path:
