@@ -57,10 +57,10 @@ class VideoTiming:
                 "to_frame": int(self.frame[b]),
                 "from_keyframe": None if a < 0 else int(self.cluster[a]),
                 "to_keyframe": int(self.cluster[b]),
-                "t_start": float(s.t_start),
-                "t_end": float(s.t_end),
-                "given_s": float(s.requested),
-                "needed_s": float(s.feasible),
+                "t_start": round(float(s.t_start), 6),
+                "t_end": round(float(s.t_end), 6),
+                "given_s": round(float(s.requested), 6),
+                "needed_s": round(float(s.feasible), 6),
             })  # fmt: skip
         return out
 
