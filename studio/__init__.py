@@ -60,6 +60,8 @@ _API: dict[str, str] = {
     "load_keyframes": "studio.motion.plan",
     "PlanConfig": "studio.motion.plan",
     "plan_show": "studio.motion.plan",
+    "video_keyframes": "studio.motion.video_timing",
+    "video_end": "studio.motion.video_timing",
     "Show": "studio.motion.show",
     "save_show": "studio.motion.show",
     "load_show": "studio.motion.show",
