@@ -44,7 +44,7 @@ def imports(path: Path, top_level_only: bool = False) -> set[str]:
 
 def stage(module: str) -> str | None:
     parts = module.split(".")
-    return parts[1] if parts[0] == "studio" and len(parts) > 2 else None
+    return parts[1] if parts[0] == "studio" and len(parts) > 1 and parts[1] in ALLOWED else None
 
 
 def test_stages_import_only_downward():
