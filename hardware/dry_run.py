@@ -16,7 +16,7 @@ from collections.abc import Callable
 from hardware.calibration import Calibration, load_calibration
 from hardware.errors import BusError
 from hardware.playback_log import PlaybackResult
-from hardware.player import Player, PlayerConfig
+from hardware.player import Player, PlayerConfig, SampleHook
 from hardware.serial_bus import BusConfig, SerialServoBus
 from studio.motion.show import Show
 from studio.sim.hand import Hand, load_hand
@@ -29,11 +29,13 @@ def play_on_emulator(
     hand: Hand | None = None,
     progress: Callable[[int, int], None] | None = None,
     cancel: threading.Event | None = None,
+    on_sample: SampleHook | None = None,
 ) -> PlaybackResult:
     """Start the emulator with the calibration's servo IDs, play ``show`` through real pyserial, stop it again.
 
-    ``calibration`` defaults to the shipped one. Never raises for a stop condition (the result says why); raises
-    ``BusError`` where the emulator cannot run (no pseudo-terminals on this system).
+    ``calibration`` defaults to the shipped one; ``on_sample`` is the player's per-tick hook (review's commanded vs
+    measured series). Never raises for a stop condition (the result says why); raises ``BusError`` where the
+    emulator cannot run (no pseudo-terminals on this system).
     """
     try:
         from hardware.emulator import ServoEmulator  # POSIX only (pty): imported when used
@@ -41,6 +43,6 @@ def play_on_emulator(
         raise BusError(f"the servo emulator needs POSIX pseudo-terminals, which this system lacks ({e})") from None
     cal = calibration or load_calibration(None, hand or load_hand())
     with ServoEmulator(cal.ids) as emu, SerialServoBus(BusConfig(emu.port)) as bus:
-        return Player(bus, cal, config or PlayerConfig()).play(
+        return Player(bus, cal, config or PlayerConfig(), on_sample=on_sample).play(
             show.times, show.positions, show.joint_names, cancel=cancel, progress=progress
         )

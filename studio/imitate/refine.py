@@ -114,8 +114,10 @@ class Refiner:
         progress: Callable[[int, int, float], None] | None = None,
         cancel: threading.Event | None = None,
         theta_prev: np.ndarray | None = None,
+        best_pose: Callable[[np.ndarray], None] | None = None,
     ) -> RefineResult:
-        """Hill-climb from ``theta_start (21,)`` rad (module doc); ``progress(step, total, best_loss)``.
+        """Hill-climb from ``theta_start (21,)`` rad (module doc); ``progress(step, total, best_loss)``, just after
+        ``best_pose(θ (21,) rad)`` with the best collision-free pose so far (none yet: not called).
 
         ``theta_prev (21,)`` rad (a sequence's previous keyframe optimum) adds the temporal term to every score,
         so a proposal that drifts away from the previous pose must pay for it with a better shadow; None scores
@@ -164,6 +166,8 @@ class Refiner:
             sigma = max(cfg.sigma_min, sigma * cfg.decay)
             if step % cfg.log_every == 0 or step == cfg.steps:
                 curve.append((step, best_loss))
+                if best_pose and np.isfinite(best_loss):
+                    best_pose(best_theta.copy())
                 if progress:
                     progress(step, cfg.steps, best_loss)
         found = bool(np.isfinite(best_loss))

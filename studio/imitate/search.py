@@ -79,11 +79,12 @@ def gradient_search(
     theta_prev: np.ndarray | None = None,
     progress: Callable[[int, int, float], None] | None = None,
     cancel: threading.Event | None = None,
+    best_pose: Callable[[np.ndarray], None] | None = None,
 ) -> SearchResult:
     """Minimise ``loss_fn(model(θ))`` (+ the temporal term against ``theta_prev``) over a batch of θ.
 
-    ``progress(step, total, best_loss)`` is called every ``log_every`` steps; ``cancel`` stops early and the
-    best pose so far is returned.
+    ``progress(step, total, best_loss)`` is called every ``log_every`` steps, just after ``best_pose(θ (21,) rad)``
+    with the pose of that best loss (for live previews); ``cancel`` stops early and the best pose so far is returned.
     """
     cfg = cfg or SearchConfig()
     hand = model.hand
@@ -109,6 +110,8 @@ def gradient_search(
         if step % cfg.log_every == 0 or step == cfg.iterations:
             best = float(total.detach().min())
             curve.append((step, best, float(total.detach().mean())))
+            if best_pose:
+                best_pose(theta[int(torch.argmin(total.detach()))].detach().double().cpu().numpy())
             if progress:
                 progress(step, cfg.iterations, best)
     with torch.no_grad():

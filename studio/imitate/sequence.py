@@ -171,6 +171,7 @@ class SequenceImitator:
         progress: Progress | None = None,
         cancel: threading.Event | None = None,
         cfg: SequenceConfig | None = None,
+        best_pose: Callable[[np.ndarray], None] | None = None,
     ) -> SequenceResult:
         """Keyframe targets ``masks (K, S, S)`` uint8 (1 = shadow) in first-appearance order (all N frames work too:
         each is then its own keyframe), their expressive masks ``(K, S, S)`` or None → :class:`SequenceResult`.
@@ -178,7 +179,7 @@ class SequenceImitator:
         ``progress(stage, step, total, best)`` with stages "keyframe k/K: search" and "keyframe k/K: refine".
         Setting ``cancel`` returns within a search or refinement step, with the keyframes finished before it and
         ``cancelled=True`` (a keyframe interrupted half-way is left out). ``cfg`` overrides this object's config
-        for this call.
+        for this call. ``best_pose(θ (21,) rad)`` gets the pose of each reported best loss (live previews).
         """
         if self.refiner.closed:
             raise ClosedError("this SequenceImitator was closed; make a new one (or imitate inside its `with` block)")
@@ -201,7 +202,7 @@ class SequenceImitator:
                 break
             prev = done[-1].theta if done else None
             exp_k = None if expressive is None else expressive[k]
-            r = self._keyframe(cfg, k, n, masks[k], exp_k, prev, progress, cancel)
+            r = self._keyframe(cfg, k, n, masks[k], exp_k, prev, progress, cancel, best_pose)
             if r is None:  # cancelled half-way
                 break
             done.append(r)
@@ -217,7 +218,7 @@ class SequenceImitator:
         cancelled = len(done) < n
         return SequenceResult(done, cfg, n, time.perf_counter() - t0, cancelled)
 
-    def _keyframe(self, cfg, k, n, target, expressive, prev, progress, cancel) -> KeyframeResult | None:
+    def _keyframe(self, cfg, k, n, target, expressive, prev, progress, cancel, best_pose=None) -> KeyframeResult | None:
         t0 = time.perf_counter()
         loss_fn = ImageLoss(target, self.loss_cfg, self.imitator.clip, expressive if cfg.expressive else None)
         prev_t = prev if (cfg.temporal and prev is not None) else None  # the temporal term's θ*_{k−1}
@@ -226,7 +227,7 @@ class SequenceImitator:
         name = f"keyframe {k + 1}/{n}"
         stage = (lambda s: lambda i, m, b: progress(f"{name}: {s}", i, m, b)) if progress else (lambda s: None)
         search = gradient_search(
-            self.model, loss_fn, search_cfg, prev if inherit else None, prev_t, stage("search"), cancel
+            self.model, loss_fn, search_cfg, prev if inherit else None, prev_t, stage("search"), cancel, best_pose
         )
         t1 = time.perf_counter()
         if search.cancelled:
@@ -235,7 +236,9 @@ class SequenceImitator:
         if cfg.refine_enabled:
             best = None
             for start in distinct_best(search.batch_theta, search.batch_loss, cfg.candidates):
-                r = self.refiner.refine(loss_fn, start, cfg.refine, stage("refine"), cancel, theta_prev=prev_t)
+                r = self.refiner.refine(
+                    loss_fn, start, cfg.refine, stage("refine"), cancel, theta_prev=prev_t, best_pose=best_pose
+                )
                 if r.cancelled:
                     return None
                 if r.collision_free and (best is None or r.loss < best.loss):

@@ -127,8 +127,10 @@ class Imitator:
         refine: bool = True,
         progress: Callable[[str, int, int, float], None] | None = None,
         cancel: threading.Event | None = None,
+        best_pose: Callable[[np.ndarray], None] | None = None,
     ) -> ImitationResult:
-        """Search then (optionally) refine. ``progress(stage, step, total, best_loss)``.
+        """Search then (optionally) refine. ``progress(stage, step, total, best_loss)``; ``best_pose(θ (21,) rad)``
+        gets the pose of each reported best loss (search, then refinement) for live previews.
 
         Setting ``cancel`` stops early: the result is then flagged ``cancelled`` and holds the best pose found so
         far (the searched pose when refinement had not started or found no collision-free pose).
@@ -138,7 +140,9 @@ class Imitator:
         t0 = time.perf_counter()
         loss_fn = self.loss_fn(target, expressive)
         stage = (lambda name: lambda s, n, b: progress(name, s, n, b)) if progress else (lambda name: None)
-        search = gradient_search(self.model, loss_fn, self.search_cfg, progress=stage("search"), cancel=cancel)
+        search = gradient_search(
+            self.model, loss_fn, self.search_cfg, progress=stage("search"), cancel=cancel, best_pose=best_pose
+        )
         t1 = time.perf_counter()
         with torch.no_grad():
             device = next(self.model.parameters()).device
@@ -153,7 +157,7 @@ class Imitator:
             for start in distinct_best(search.batch_theta, search.batch_loss, self.candidates):
                 if cancel is not None and cancel.is_set():
                     break
-                r = self.refiner.refine(loss_fn, start, self.refine_cfg, stage("refine"), cancel)
+                r = self.refiner.refine(loss_fn, start, self.refine_cfg, stage("refine"), cancel, best_pose=best_pose)
                 if result is None or r.loss < result.loss:
                     result = r
             if result is not None and result.collision_free:
