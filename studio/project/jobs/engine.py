@@ -1,0 +1,160 @@
+"""Jobs that run the engine: imitate one keyframe, imitate a whole video, plan a show (play: :mod:`.play`).
+
+Each factory returns a :class:`~studio.project.jobs.queue.Job` whose ``run`` is a ``functools.partial`` of a
+module-level function (so it runs in a thread or a spawned process alike) and whose ``apply`` is the caller's
+callback (the Project's ``set_result``/``set_show``, or anything else), called only when the job completes. The
+engine's progress callbacks become events: ``progress(stage, step, total, best)`` as they are, with a ≤ 64² preview
+of the current best pose's shadow (from the engine's ``best_pose`` hook) at most ~10 times a second;
+``plan_show``'s ``progress(stage, fraction)`` as steps of 100. Engine modules are imported inside the workers, so
+importing this module stays light.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from studio.project.jobs.events import PosePreview, Reporter
+from studio.project.jobs.queue import Job
+
+if TYPE_CHECKING:
+    from studio.imitate.losses import LossConfig
+    from studio.imitate.refine import RefineConfig
+    from studio.imitate.search import SearchConfig
+    from studio.imitate.sequence import SequenceConfig
+    from studio.imitate.targets import TargetConfig
+    from studio.motion.plan import Keyframes, PlanConfig
+    from studio.motion.show import Show
+
+Apply = Callable[[Any], None] | None
+HOLES = "holes"  # expressive region of a still: the target's holes (DESIGN §4), none when it has none
+
+
+def imitate_keyframe_job(
+    target: np.ndarray | str | Path,
+    expressive: np.ndarray | str | None = HOLES,
+    *,
+    search: SearchConfig | None = None,
+    refine: RefineConfig | None = None,
+    refine_enabled: bool = True,
+    candidates: int = 4,
+    loss_cfg: LossConfig | None = None,
+    model_path: Path | None = None,
+    target_cfg: TargetConfig | None = None,
+    preview: int = 64,
+    apply: Apply = None,
+    title: str = "",
+) -> Job:
+    """Search + refine one target (:meth:`studio.imitate.still.Imitator.imitate`) → ``ImitationResult``.
+
+    ``target``: an image path (loaded with ``target_cfg``; a bad file fails the job with its ``TargetError``) or a
+    mask ``(R, R)`` uint8 framed at the model's resolution. ``expressive``: a mask ``(R, R)``, ``"holes"`` (the
+    target's holes) or None. ``search``/``refine``/``candidates`` default to the CPU presets (``CPU_SEARCH``);
+    ``preview``: side of the live shadow previews (8–64; 0: none).
+    """
+    run = functools.partial(
+        _imitate_keyframe, target=target, expressive=expressive, search=search, refine=refine,
+        refine_enabled=refine_enabled, candidates=candidates, loss_cfg=loss_cfg, model_path=model_path,
+        target_cfg=target_cfg, preview=preview,
+    )  # fmt: skip
+    name = title or (Path(target).name if isinstance(target, (str, Path)) else "keyframe")
+    return Job("imitate-keyframe", run, apply, name)
+
+
+def _imitate_keyframe(report: Reporter, cancel, *, target, expressive, search, refine, refine_enabled, candidates,
+                      loss_cfg, model_path, target_cfg, preview):  # fmt: skip
+    from studio.imitate.still import Imitator, still_expressive
+
+    with Imitator(model_path=model_path, loss_cfg=loss_cfg, search=search, refine=refine, candidates=candidates) as im:
+        if isinstance(target, (str, Path)):
+            mask = im.load(Path(target), target_cfg)
+        else:
+            mask = np.asarray(target, dtype=np.uint8)
+            r = im.resolution
+            if mask.shape != (r, r):
+                raise ValueError(
+                    f"target mask is {mask.shape}; this model works at ({r}, {r}): load_target(..., size={r})"
+                )
+        exp = still_expressive(mask) if isinstance(expressive, str) and expressive == HOLES else expressive
+        pv = PosePreview(im.hand, preview) if preview else None
+        return im.imitate(
+            mask, exp, refine=refine_enabled, progress=report.engine_progress(pv), cancel=cancel,
+            best_pose=pv.pose if pv else None,
+        )  # fmt: skip
+
+
+def imitate_video_job(
+    masks: np.ndarray,
+    expressive: np.ndarray | None = None,
+    *,
+    cfg: SequenceConfig | None = None,
+    loss_cfg: LossConfig | None = None,
+    model_path: Path | None = None,
+    preview: int = 64,
+    apply: Apply = None,
+    title: str = "video",
+) -> Job:
+    """Every keyframe of a video in first-appearance order (:class:`studio.imitate.sequence.SequenceImitator`) →
+    ``SequenceResult``. ``masks (K, S, S)`` uint8 keyframe targets and their expressive masks (``keyframe_targets``
+    picks them from a video's frames); ``cfg`` defaults to ``CPU_SEQUENCE`` (its ``expressive`` term needs masks).
+    Stages are "keyframe k/K: search" and "keyframe k/K: refine"."""
+    run = functools.partial(
+        _imitate_video, masks=np.asarray(masks), expressive=None if expressive is None else np.asarray(expressive),
+        cfg=cfg, loss_cfg=loss_cfg, model_path=model_path, preview=preview,
+    )  # fmt: skip
+    return Job("imitate-video", run, apply, title)
+
+
+def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg, model_path, preview):
+    from dataclasses import replace
+
+    from studio.imitate.sequence import CPU_SEQUENCE, SequenceImitator
+    from studio.imitate.still import Imitator
+
+    cfg = cfg or CPU_SEQUENCE
+    if expressive is None and cfg.expressive:
+        cfg = replace(cfg, expressive=False)  # no masks given: the base loss alone
+    with Imitator(model_path=model_path, loss_cfg=loss_cfg) as im, SequenceImitator(cfg=cfg, imitator=im) as seq:
+        pv = PosePreview(im.hand, preview) if preview else None
+        return seq.imitate(masks, expressive, report.engine_progress(pv), cancel, best_pose=pv.pose if pv else None)
+
+
+@dataclass
+class PlannedShow:
+    """What a plan job returns: the show and the planner's checks (plain data; the Ruckig trajectory stays in the
+    worker, since it does not pickle)."""
+
+    show: Show  # the timed, validated show
+    home_added: bool  # a rest pose was prepended at t = 0
+    collision_checks: int  # poses checked along the timed trajectory
+    max_jerk_ratio: float  # worst |jerk| / limit over the show (≤ 1)
+
+
+def plan_job(
+    keyframes: Keyframes, *, cfg: PlanConfig | None = None, show_title: str | None = None, apply: Apply = None,
+    title: str = "plan",
+) -> Job:  # fmt: skip
+    """Plan a show through ``keyframes`` (:func:`studio.motion.plan.plan_show`) → :class:`PlannedShow`.
+
+    ``plan_show`` takes no cancel event: a cancel stops it at its next stage (path → timing), and the job is
+    reported cancelled within a second either way (module doc of :mod:`.queue`). A keyframe in collision or a
+    segment too fast fails the job with the planner's typed error."""
+    return Job("plan", functools.partial(_plan, keyframes=keyframes, cfg=cfg, show_title=show_title), apply, title)
+
+
+def _plan(report: Reporter, cancel, *, keyframes, cfg, show_title) -> PlannedShow:
+    from studio.motion.plan import plan_show
+    from studio.sim.hand import load_hand
+
+    def progress(stage: str, fraction: float) -> None:
+        report.check()
+        report(stage, int(round(fraction * 100)), 100)
+
+    report.check()
+    r = plan_show(load_hand(), keyframes, cfg, progress=progress, title=show_title)
+    return PlannedShow(r.show, r.home_added, r.collision_checks, r.max_jerk_ratio)
