@@ -29,6 +29,7 @@ VERB_MODULES = (
     "studio.cli.imitate_video",
     "studio.cli.servos",
     "studio.cli.plan",
+    "studio.cli.project",
 )
 
 

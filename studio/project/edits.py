@@ -1,0 +1,160 @@
+"""Keyframe edits as pure functions: clustering a project's frames, and the artist's changes to the clusters.
+
+Frames are clustered per source (:func:`~studio.imitate.keyframes.cluster_keyframes` on the expressive masks the
+artist sees: automatic ∪ additions minus erasures), keyframes numbered in order of first appearance across the
+sources. A keyframe keeps its id while it exists; a re-clustering gives a cluster with the same frames (by frame
+key) and the same representative as before that keyframe's old id (and its time and hold), so its result is kept.
+
+The artist's edits keep every frame in exactly one keyframe of its own source. When a keyframe's members change,
+its representative stays if it is still a member; otherwise the member nearest the members' mean expressive mask
+(L2) is chosen, the rule clustering uses.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from studio.imitate.expressive import combine
+from studio.imitate.keyframes import KeyframeConfig, cluster_keyframes
+from studio.project.state import Frame, Keyframe, ProjectError, ProjectState
+
+
+def combined_masks(state: ProjectState) -> np.ndarray:
+    """The expressive masks the artist sees, ``(N, S, S)`` uint8: ``combine(auto, additions, erasures)`` per frame."""
+    out = np.empty_like(state.auto)
+    for i, f in enumerate(state.frames):
+        out[i] = combine(state.auto[i], state.additions.get(f.key), state.erasures.get(f.key))
+    return out
+
+
+def nearest_mean(members: Sequence[int], masks: np.ndarray) -> int:
+    """The member whose mask ``masks[i] (S, S)`` is nearest (L2) the members' mean mask; the first on a tie."""
+    m = np.asarray(masks, np.float32)[list(members)].reshape(len(members), -1)
+    d = ((m - m.mean(axis=0)) ** 2).sum(axis=1)
+    return int(list(members)[int(np.argmin(d))])
+
+
+def _ordered(keyframes: list[Keyframe]) -> tuple[Keyframe, ...]:
+    return tuple(sorted(keyframes, key=lambda kf: kf.members[0]))
+
+
+def cluster(
+    frames: Sequence[Frame],
+    masks: np.ndarray,
+    cfg: KeyframeConfig,
+    old: Sequence[Keyframe] = (),
+    old_frames: Sequence[Frame] = (),
+    next_id: int = 0,
+) -> tuple[tuple[Keyframe, ...], int]:
+    """Keyframes of ``frames`` from their expressive ``masks (N, S, S)``, clustered per source, and the next free id.
+
+    ``old`` keyframes (over ``old_frames``) lend their id, time and hold to a cluster with the same frame keys and
+    representative; every other cluster gets a new id from ``next_id`` on."""
+    keys = [f.key for f in frames]
+    by_content = {(tuple(old_frames[m].key for m in kf.members), old_frames[kf.representative].key): kf for kf in old}
+    used = {kf.id for kf in old}
+    found: list[Keyframe] = []
+    for s in sorted({f.source for f in frames}):
+        idx = np.array([i for i, f in enumerate(frames) if f.source == s])
+        c = cluster_keyframes(masks[idx], cfg)
+        for group, rep in zip(c.members, c.representatives, strict=True):
+            members = tuple(int(idx[m]) for m in group)
+            rep = int(idx[rep])
+            was = by_content.get((tuple(keys[m] for m in members), keys[rep]))
+            if was is not None:
+                found.append(Keyframe(was.id, rep, members, was.time_s, was.hold))
+            else:
+                while next_id in used:
+                    next_id += 1
+                found.append(Keyframe(next_id, rep, members))
+                used.add(next_id)
+    return _ordered(found), max(next_id, max(used, default=-1) + 1)
+
+
+def _owner(keyframes: Sequence[Keyframe], frame: int) -> Keyframe:
+    for kf in keyframes:
+        if frame in kf.members:
+            return kf
+    raise ProjectError(f"no frame {frame} in this project's keyframes")
+
+
+def _check_frame(frames: Sequence[Frame], frame: int) -> None:
+    if not 0 <= frame < len(frames):
+        raise ProjectError(f"no frame {frame}: this project has frames 0 to {len(frames) - 1}")
+
+
+def _without(kf: Keyframe, frame: int, masks: np.ndarray) -> Keyframe | None:
+    """``kf`` with ``frame`` taken out (None when nothing is left), the representative re-chosen when it left."""
+    members = tuple(m for m in kf.members if m != frame)
+    if not members:
+        return None
+    rep = kf.representative if kf.representative in members else nearest_mean(members, masks)
+    return replace(kf, representative=rep, members=members, edited=True)
+
+
+def add_keyframe(
+    keyframes: Sequence[Keyframe], frames: Sequence[Frame], frame: int, masks: np.ndarray, next_id: int
+) -> tuple[tuple[Keyframe, ...], int]:
+    """``frame`` becomes a keyframe of its own (taken out of its cluster); returns the keyframes and the next id."""
+    _check_frame(frames, frame)
+    owner = _owner(keyframes, frame)
+    if owner.members == (frame,):
+        raise ProjectError(f"frame {frame} is already keyframe {owner.id} on its own")
+    rest = _without(owner, frame, masks)
+    new = Keyframe(next_id, frame, (frame,), edited=True)
+    out = [kf for kf in keyframes if kf.id != owner.id] + [rest, new]
+    return _ordered(out), next_id + 1
+
+
+def remove_keyframe(
+    keyframes: Sequence[Keyframe], frames: Sequence[Frame], k: int, masks: np.ndarray
+) -> tuple[Keyframe, ...]:
+    """Keyframe ``k`` removed: each of its frames joins the keyframe of the same source whose representative's
+    expressive mask is nearest its own (L2)."""
+    gone = next((kf for kf in keyframes if kf.id == k), None)
+    if gone is None:
+        raise ProjectError(f"no keyframe {k}; the keyframes are {[kf.id for kf in keyframes]}")
+    source = frames[gone.representative].source
+    others = [kf for kf in keyframes if kf.id != k and frames[kf.representative].source == source]
+    if not others:
+        raise ProjectError(f"keyframe {k} is the only keyframe of source {source}: every source needs one")
+    flat = np.asarray(masks, np.float32).reshape(len(masks), -1)
+    reps = np.stack([flat[kf.representative] for kf in others])
+    joined: dict[int, list[int]] = {kf.id: list(kf.members) for kf in others}
+    for m in gone.members:
+        best = others[int(np.argmin(((reps - flat[m]) ** 2).sum(axis=1)))]
+        joined[best.id].append(m)
+    out = [kf for kf in keyframes if kf.id != k and kf.id not in joined]
+    for kf in others:
+        members = tuple(sorted(joined[kf.id]))
+        out.append(kf if members == kf.members else replace(kf, members=members, edited=True))
+    return _ordered(out)
+
+
+def move_frame(
+    keyframes: Sequence[Keyframe], frames: Sequence[Frame], frame: int, k: int, masks: np.ndarray
+) -> tuple[Keyframe, ...]:
+    """``frame`` moved into keyframe ``k``'s cluster (of the same source); a keyframe left empty disappears."""
+    _check_frame(frames, frame)
+    owner, target = _owner(keyframes, frame), next((kf for kf in keyframes if kf.id == k), None)
+    if target is None:
+        raise ProjectError(f"no keyframe {k}; the keyframes are {[kf.id for kf in keyframes]}")
+    if owner.id == k:
+        raise ProjectError(f"frame {frame} is already in keyframe {k}")
+    if frames[target.representative].source != frames[frame].source:
+        raise ProjectError(f"frame {frame} is from source {frames[frame].source}, keyframe {k} from another source")
+    rest = _without(owner, frame, masks)
+    moved = replace(target, members=tuple(sorted((*target.members, frame))), edited=True)
+    out = [kf for kf in keyframes if kf.id not in (owner.id, k)] + [moved] + ([rest] if rest else [])
+    return _ordered(out)
+
+
+def assignment(keyframes: Sequence[Keyframe], n_frames: int) -> np.ndarray:
+    """``(N,)`` int: the position (first-appearance number) of each frame's keyframe in ``keyframes``."""
+    out = np.full(n_frames, -1, np.int64)
+    for pos, kf in enumerate(keyframes):
+        out[list(kf.members)] = pos
+    return out

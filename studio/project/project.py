@@ -1,0 +1,307 @@
+"""An artist's work as a project folder ``NAME.shadow/`` with a small typed API (DESIGN §4 "The studio's state").
+
+    project = Project.create("horse.shadow", sources=["horse.gif"])   # frames, expressive masks, keyframes
+    project.move_frame(5, k=0)                                         # every edit is saved atomically …
+    project.undo()                                                     # … and can be undone / redone
+    for k in project.pending_keyframes():                             # missing or stale results (what `run` does)
+        target, expressive = project.keyframe_masks(k)
+        inputs = project.keyframe_inputs(k)                            # captured before the (long) work
+        ...
+        project.set_result(k, pose, loss, shadow, inputs=inputs)
+    project.set_show(show, inputs=...)
+
+Every edit makes a new :class:`~studio.project.project_format.ProjectState` (plain data, arrays read-only), saves
+it (:func:`~studio.project.project_format.save_state`: a save killed midway leaves the previous project readable)
+and records the change, so :meth:`Project.undo` and :meth:`Project.redo` walk the list of changes (results and
+shows that jobs apply are edits too). An edit that raises, or changes nothing, records nothing. The history lives
+as long as the ``Project`` object. One ``Project`` object per folder at a time; its methods may be called from
+several threads (a lock serialises them).
+
+Opening never fails for a moved or deleted source: it is listed in :attr:`Project.missing_sources` with its old
+path (and a warning); edits that must re-read it ask for :meth:`Project.relink_source`. A source whose content
+changed since it was read is listed in :attr:`Project.changed_sources`, and the results from it are stale until
+:meth:`Project.reload_sources`. Results (and the show) computed from inputs that differ from the current ones are
+stale (:meth:`Project.is_stale`, :meth:`Project.stale_keyframes`), never reported as current.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from studio.imitate.keyframes import KeyframeConfig
+from studio.imitate.losses import LossConfig
+from studio.imitate.targets import TargetConfig
+from studio.imitate.video import VideoConfig
+from studio.motion.show import Show, save_show
+from studio.project import edits
+from studio.project.editing import KEEP, Editing, _mask_arg
+from studio.project.inputs import keyframe_inputs, show_inputs
+from studio.project.project_format import DOC, SUFFIX, load_state, save_state
+from studio.project.sources import Progress, hash_source, load_sources, locate, make_source
+from studio.project.state import Frame, Keyframe, PoseResult, ProjectError, ProjectState, Source, frozen
+from studio.project.summary import summarise
+
+__all__ = ["KEEP", "Change", "MissingSource", "Project", "ProjectError"]
+
+log = logging.getLogger(__name__)
+
+MAX_UNDO = 200  # changes kept for undo
+
+
+@dataclass(frozen=True)
+class MissingSource:
+    """A source that is not where the project last read it."""
+
+    index: int  # source number
+    path: str  # the path as given
+    absolute: str  # where it was last read
+
+
+@dataclass(frozen=True)
+class Change:
+    """One recorded edit: the states before and after it."""
+
+    label: str  # what the edit was ("move frame 5 to keyframe 0")
+    before: ProjectState
+    after: ProjectState
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+class Project(Editing):
+    """An open project folder (module doc). Make one with :meth:`create` or :meth:`open`."""
+
+    _now = staticmethod(_now)
+
+    def __init__(self, path: Path, state: ProjectState):
+        self.path = Path(path)
+        self._state = state
+        self._undo: list[Change] = []
+        self._redo: list[Change] = []
+        self._lock = threading.RLock()
+        self.missing_sources: list[MissingSource] = []
+        self.changed_sources: list[int] = []
+        self._check_sources()
+
+    # ---------------------------------------------------------------- opening
+    @classmethod
+    def create(
+        cls,
+        path: str | Path,
+        sources: Sequence[str | Path],
+        title: str | None = None,
+        video: VideoConfig | None = None,
+        still: TargetConfig | None = None,
+        clustering: KeyframeConfig | None = None,
+        weights: LossConfig | None = None,
+        box: tuple[int, int, int, int] | None = None,
+        first_mask: np.ndarray | str | Path | None = None,
+        progress: Progress | None = None,
+    ) -> Project:
+        """A new project at ``path`` (a folder named ``*.shadow``, not yet a project) from ``sources`` (stills,
+        videos, frame folders): frames, expressive masks and keyframes at the given settings (defaults: the
+        configs'). ``box``/``first_mask`` segment colour footage (every video source's first frame)."""
+        path = Path(path)
+        if path.suffix != SUFFIX:
+            raise ProjectError(f"a project folder's name ends in {SUFFIX}: {path} (try {path.name}{SUFFIX})")
+        if (path / DOC).exists():
+            raise ProjectError(f"a project already exists at {path}: open it, or choose another name")
+        if not sources:
+            raise ProjectError("a project needs at least one source (a still, a video or a folder of frames)")
+        srcs = [make_source(s) for s in sources]
+        mask = None if first_mask is None else _mask_arg(first_mask, None, "the first mask")
+        path_text = str(first_mask) if isinstance(first_mask, (str, Path)) else None
+        seg = {"box": box, "first_mask": mask, "first_mask_path": path_text}
+        srcs = [s if s.kind == "still" else replace(s, **seg) for s in srcs]
+        video, still = video or VideoConfig(), still or TargetConfig()
+        clustering, weights = clustering or KeyframeConfig(), weights or LossConfig()
+        loaded, frames, targets, auto = load_sources(srcs, [Path(s.absolute) for s in srcs], video, still, progress)
+        state = ProjectState(
+            title=title or path.stem, created=_now(), sources=loaded, video=video, still=still,
+            clustering=clustering, weights=weights, frames=frames, targets=frozen(targets), auto=frozen(auto),
+            additions={}, erasures={}, keyframes=(), next_id=0, results={},
+        )  # fmt: skip
+        keyframes, next_id = edits.cluster(frames, edits.combined_masks(state), clustering)
+        state = replace(state, keyframes=keyframes, next_id=next_id)
+        path.mkdir(parents=True, exist_ok=True)
+        save_state(path, state, state.created)
+        log.info("project %s: %d sources, %d frames, %d keyframes", path, len(loaded), len(frames), len(keyframes))
+        return cls(path, state)
+
+    @classmethod
+    def open(cls, path: str | Path) -> Project:
+        """Open the project at ``path``; a ProjectError for a damaged folder or a newer format version."""
+        path = Path(path)
+        state, _ = load_state(path)
+        return cls(path, state)
+
+    def _check_sources(self) -> None:
+        self.missing_sources, self.changed_sources = [], []
+        for i, src in enumerate(self._state.sources):
+            where = locate(src, self.path)
+            if where is None:
+                self.missing_sources.append(MissingSource(i, src.path, src.absolute))
+                log.warning(
+                    "%s: source %d is missing: it was at %s (given as %s); results from it are kept, but "
+                    "re-reading it needs Project.relink_source(%d, NEW_PATH)", self.path, i, src.absolute, src.path, i
+                )  # fmt: skip
+            elif hash_source(where) != src.sha256:
+                self.changed_sources.append(i)
+                log.warning("%s: source %d changed since it was read (%s): its results are stale", self.path, i, where)
+
+    # ---------------------------------------------------------------- reading
+    @property
+    def state(self) -> ProjectState:
+        """The current state (plain data; read-only arrays)."""
+        return self._state
+
+    @property
+    def sources(self) -> tuple[Source, ...]:
+        return self._state.sources
+
+    @property
+    def frames(self) -> tuple[Frame, ...]:
+        return self._state.frames
+
+    @property
+    def keyframes(self) -> tuple[Keyframe, ...]:
+        """In order of first appearance."""
+        return self._state.keyframes
+
+    @property
+    def weights(self) -> LossConfig:
+        return self._state.weights
+
+    @property
+    def results(self) -> dict[int, PoseResult]:
+        """Keyframe id → its result (current or stale: :meth:`is_stale`)."""
+        return dict(self._state.results)
+
+    @property
+    def show(self) -> Show | None:
+        """The planned show, if any (current or stale: :meth:`is_show_stale`)."""
+        return self._state.show
+
+    def combined_masks(self) -> np.ndarray:
+        """The expressive masks the artist sees ``(N, S, S)`` uint8: automatic ∪ additions minus erasures."""
+        return edits.combined_masks(self._state)
+
+    def assignment(self) -> np.ndarray:
+        """``(N,)`` int: each frame's keyframe as its position in :attr:`keyframes` (first-appearance order)."""
+        return edits.assignment(self._state.keyframes, len(self._state.frames))
+
+    def keyframe_masks(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Keyframe ``k``'s optimisation targets: its representative's mask and expressive mask, ``(S, S)`` each."""
+        rep = self._state.keyframe(k).representative
+        return self._state.targets[rep], self.combined_masks()[rep]
+
+    def keyframe_inputs(self, k: int) -> str:
+        """The fingerprint of keyframe ``k``'s inputs now (capture it before computing a result)."""
+        return keyframe_inputs(self._state, k)
+
+    def show_inputs(self) -> str:
+        """The fingerprint of what a show would be planned from now."""
+        return show_inputs(self._state)
+
+    def _changed(self, k: int) -> bool:
+        kf = self._state.keyframe(k)
+        return self._state.frames[kf.representative].source in self.changed_sources
+
+    def is_stale(self, k: int) -> bool:
+        """Whether keyframe ``k`` has a result computed from inputs that have changed since (False: none or current)."""
+        r = self._state.results.get(k)
+        return r is not None and (self._changed(k) or r.inputs != self.keyframe_inputs(k))
+
+    def stale_keyframes(self) -> list[int]:
+        """Ids of the keyframes whose result is stale, in first-appearance order."""
+        return [kf.id for kf in self._state.keyframes if self.is_stale(kf.id)]
+
+    def missing_keyframes(self) -> list[int]:
+        """Ids of the keyframes with no result yet."""
+        return [kf.id for kf in self._state.keyframes if kf.id not in self._state.results]
+
+    def pending_keyframes(self) -> list[int]:
+        """Ids of the keyframes whose result is missing or stale (what a run computes), first-appearance order."""
+        return [kf.id for kf in self._state.keyframes if kf.id not in self._state.results or self.is_stale(kf.id)]
+
+    def is_show_stale(self) -> bool:
+        """Whether the planned show was planned from inputs that have changed since (False when there is none)."""
+        s = self._state
+        return s.show is not None and (bool(self.changed_sources) or s.show_inputs != self.show_inputs())
+
+    # ---------------------------------------------------------------- saving and undo
+    def _commit(self, label: str, new: ProjectState) -> None:
+        old = self._state
+        if new.doc() == old.doc():
+            log.debug("%s: %s changes nothing", self.path, label)
+            return
+        save_state(self.path, new, _now())
+        self._state = new
+        self._undo = (self._undo + [Change(label, old, new)])[-MAX_UNDO:]
+        self._redo = []
+        log.debug("%s: %s", self.path, label)
+
+    @property
+    def can_undo(self) -> bool:
+        return bool(self._undo)
+
+    @property
+    def can_redo(self) -> bool:
+        return bool(self._redo)
+
+    @property
+    def history(self) -> list[str]:
+        """Labels of the edits that :meth:`undo` would undo, oldest first."""
+        return [c.label for c in self._undo]
+
+    def undo(self) -> str | None:
+        """Undo the last edit (saved like an edit); its label, or None when there is nothing to undo."""
+        with self._lock:
+            if not self._undo:
+                return None
+            change = self._undo[-1]
+            save_state(self.path, change.before, _now())
+            self._undo.pop()
+            self._redo.append(change)
+            self._state = change.before
+            if change.before.sources != change.after.sources:
+                self._check_sources()
+            return change.label
+
+    def redo(self) -> str | None:
+        """Redo the last undone edit; its label, or None when there is nothing to redo."""
+        with self._lock:
+            if not self._redo:
+                return None
+            change = self._redo[-1]
+            save_state(self.path, change.after, _now())
+            self._redo.pop()
+            self._undo.append(change)
+            self._state = change.after
+            if change.before.sources != change.after.sources:
+                self._check_sources()
+            return change.label
+
+    def export_show(self, out: str | Path) -> Path:
+        """Write the planned show to ``out`` (a show file); a ProjectError when none is planned or it is stale."""
+        if self._state.show is None:
+            raise ProjectError(f"{self.path} has no planned show yet: run `shadow-studio project run {self.path}`")
+        if self.is_show_stale():
+            raise ProjectError(
+                f"{self.path}'s planned show is stale (its sources, settings, keyframes or results changed since it "
+                f"was planned): re-plan it with `shadow-studio project run {self.path}`"
+            )
+        return save_show(self._state.show, out)
+
+    def summary(self) -> dict:
+        """Plain data for ``project info`` and the widgets (:func:`studio.project.summary.summarise`)."""
+        return summarise(self)

@@ -1,0 +1,149 @@
+"""A project's state as plain data: sources, frames, keyframes, masks, results and the show (DESIGN §4).
+
+A :class:`ProjectState` is never changed in place: an edit makes a new one (``dataclasses.replace``) and the arrays
+it holds are read-only (:func:`frozen`), so states can share arrays and the undo history can keep old states
+cheaply. :mod:`studio.project.project_format` writes and reads them as a project folder.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from studio.errors import StudioError
+from studio.imitate.keyframes import KeyframeConfig
+from studio.imitate.losses import LossConfig
+from studio.imitate.targets import TargetConfig
+from studio.imitate.video import VideoConfig
+from studio.motion.show import Show
+
+
+class ProjectError(StudioError):
+    """A project folder is missing, damaged, of a newer format, or an edit cannot be made (the message says why)."""
+
+
+@dataclass(frozen=True)
+class Source:
+    """One source of a project (a still, a video file or a frame folder) and what loading it found."""
+
+    path: str  # the path as the artist gave it
+    absolute: str  # its absolute path when it was (last) read
+    sha256: str  # content hash when it was read (a folder: its sorted file names and contents)
+    kind: str  # "still" | "video" (a video file or an animated GIF) | "folder" (a folder of frames)
+    footage: str = ""  # what the frames were: "still", "mask", "shadow" or "segmented"
+    fps: float = 0.0  # source frame rate (0 for a still)
+    duration_s: float = 0.0  # the source's clock, s (0 for a still)
+    n_source: int = 1  # frames in the source
+    frame_box: tuple[int, int, int, int] | None = None  # the shared square frame in source pixels (x, y, w, h)
+    box: tuple[int, int, int, int] | None = None  # segmentation of colour footage: first-frame box (x, y, w, h)
+    first_mask: np.ndarray | None = field(default=None, compare=False)  # … or first-frame mask (H, W) uint8 {0, 1}
+    first_mask_path: str | None = None  # where that mask was read from, for the artist
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One sampled frame: where it comes from in its source."""
+
+    source: int  # index into the project's sources
+    source_frame: int  # frame index in the source
+    time_s: float  # source time of that frame, s
+
+    @property
+    def key(self) -> str:
+        """``"S:F"``: names the frame across re-samplings (painted strokes are kept by it)."""
+        return f"{self.source}:{self.source_frame}"
+
+
+@dataclass(frozen=True)
+class Keyframe:
+    """A cluster of frames that play one pose; ``id`` stays the same while the keyframe exists."""
+
+    id: int  # stable number (results are kept by it)
+    representative: int  # frame index whose target the pose imitates
+    members: tuple[int, ...]  # ascending frame indices that play this keyframe's pose
+    time_s: float | None = None  # the artist's show time for it (None: the video's clock)
+    hold: bool = False  # the hand comes to rest at this pose
+    edited: bool = False  # changed by hand since clustering
+
+    def __post_init__(self) -> None:
+        if self.representative not in self.members:
+            raise ValueError(f"keyframe {self.id}: representative {self.representative} is not one of its members")
+
+
+@dataclass(frozen=True, eq=False)
+class PoseResult:
+    """An optimisation result of one keyframe and the inputs it was computed from."""
+
+    pose: dict[str, float]  # joint name → rad
+    loss: dict[str, float]  # loss components (studio.imitate.losses.COMPONENTS; NaN = not computed)
+    shadow: np.ndarray  # (R, R) uint8 {0, 1}, the rendered shadow of the pose
+    inputs: str  # fingerprint of the inputs (studio.project.inputs.keyframe_inputs) it was computed from
+    evaluation: dict[str, float] = field(default_factory=dict)  # components under the common measure, if any
+    collision_free: bool = True  # the pose does not penetrate itself
+    seconds: float = 0.0  # wall time it took
+
+    def theta(self, joint_names: list[str]) -> np.ndarray:
+        """The pose as ``(J,)`` rad in ``joint_names``' order."""
+        return np.array([self.pose[n] for n in joint_names], dtype=np.float64)
+
+
+@dataclass(frozen=True, eq=False)
+class ProjectState:
+    """Everything a project holds, as plain data; never changed in place (an edit makes a new state)."""
+
+    title: str  # the artist's name for it
+    created: str  # ISO 8601 UTC
+    sources: tuple[Source, ...]  # what the frames come from
+    video: VideoConfig  # sampling, threshold and framing of videos (``size`` frames stills too)
+    still: TargetConfig  # threshold and framing of stills
+    clustering: KeyframeConfig  # keyframe clustering (tau)
+    weights: LossConfig  # loss weights
+    frames: tuple[Frame, ...]  # N sampled frames, sources in order
+    targets: np.ndarray  # (N, S, S) uint8 {0, 1}, the frames' shadow masks
+    auto: np.ndarray  # (N, S, S) uint8 {0, 1}, automatic expressive masks
+    additions: Mapping[str, np.ndarray]  # frame key → (S, S) uint8 {0, 1}, painted additions
+    erasures: Mapping[str, np.ndarray]  # frame key → (S, S) uint8 {0, 1}, painted erasures
+    keyframes: tuple[Keyframe, ...]  # in order of first appearance
+    next_id: int  # the id the next new keyframe gets
+    results: Mapping[int, PoseResult]  # keyframe id → its result
+    show: Show | None = None  # the planned show
+    show_inputs: str | None = None  # fingerprint (studio.project.inputs.show_inputs) the show was planned from
+
+    def keyframe(self, k: int) -> Keyframe:
+        """The keyframe with id ``k``; a ProjectError naming the ids there are otherwise."""
+        for kf in self.keyframes:
+            if kf.id == k:
+                return kf
+        raise ProjectError(f"no keyframe {k}; the keyframes are {[kf.id for kf in self.keyframes]}")
+
+    def doc(self) -> dict[str, Any]:
+        """The ``project.json`` document of this state (without ``modified``), naming files by content; two states
+        are the same exactly when their documents are equal."""
+        from studio.project.project_format import state_doc
+
+        return state_doc(self)
+
+
+def frozen(a: np.ndarray) -> np.ndarray:
+    """A read-only uint8 {0, 1} copy of mask ``a`` (states share arrays, so none may change in place)."""
+    out = (np.asarray(a) != 0).astype(np.uint8)
+    out.flags.writeable = False
+    return out
+
+
+def mask_hash(mask: np.ndarray) -> str:
+    """sha256 (hex) of a mask's shape and {0, 1} pixels."""
+    m = np.ascontiguousarray(np.asarray(mask) != 0, dtype=np.uint8)
+    h = hashlib.sha256(repr(m.shape).encode())
+    h.update(m.tobytes())
+    return h.hexdigest()
+
+
+def text_hash(obj: Any) -> str:
+    """sha256 (hex) of ``obj`` as canonical JSON."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, allow_nan=True).encode()).hexdigest()

@@ -1,0 +1,61 @@
+"""A project in plain data, for ``shadow-studio project info`` and the widgets."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from studio.project.state import PoseResult
+
+if TYPE_CHECKING:
+    from studio.project.project import Project
+
+
+def _total(result: PoseResult | None) -> float | None:
+    total = None if result is None else result.loss.get("total")
+    return None if total is None or not math.isfinite(total) else float(total)
+
+
+def summarise(project: Project) -> dict:
+    """Plain data for ``project info`` and the widgets: sources (missing? changed?), frames, keyframes with
+    their result's state ("current", "stale" or "missing"), counts, the show (stale?), undo/redo."""
+    s = project.state
+    missing = {m.index for m in project.missing_sources}
+    keyframes = []
+    for kf in s.keyframes:
+        state = "missing" if kf.id not in s.results else "stale" if project.is_stale(kf.id) else "current"
+        keyframes.append({
+            "id": kf.id, "representative": kf.representative, "members": list(kf.members),
+            "time_s": kf.time_s, "hold": kf.hold, "edited": kf.edited, "result": state,
+            "loss": _total(s.results.get(kf.id)),
+        })  # fmt: skip
+    counts = {c: sum(k["result"] == c for k in keyframes) for c in ("current", "stale", "missing")}
+    show = None
+    if s.show is not None:
+        show = {"duration_s": s.show.duration, "samples": len(s.show.times), "stale": project.is_show_stale()}
+    return {
+        "project": str(project.path),
+        "title": s.title,
+        "sources": [
+            {
+                "path": src.path,
+                "absolute": src.absolute,
+                "kind": src.kind,
+                "footage": src.footage,
+                "missing": i in missing,
+                "changed": i in project.changed_sources,
+                "frames": sum(f.source == i for f in s.frames),
+            }
+            for i, src in enumerate(s.sources)
+        ],
+        "frames": len(s.frames),
+        "size": s.video.size,
+        "hz": s.video.hz,
+        "tau": s.clustering.tau,
+        "keyframes": keyframes,
+        "results": counts,
+        "painted_frames": sorted(set(s.additions) | set(s.erasures)),
+        "show": show,
+        "can_undo": project.can_undo,
+        "can_redo": project.can_redo,
+    }
