@@ -43,7 +43,9 @@ class TqdmBars:
                 file=self.file, disable=self.disable, mininterval=self.mininterval, leave=False,
             )  # fmt: skip
             self._bars[jid], self._stage[jid] = bar, event.stage
-        if event.total and bar.total != event.total:
+        if event.step < bar.n:  # the stage starts over (refinement of the next candidate)
+            bar.reset(total=event.total or None)
+        elif event.total and bar.total != event.total:
             bar.total = event.total
         if event.step > bar.n:
             if not math.isnan(event.best):

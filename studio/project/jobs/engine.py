@@ -44,6 +44,7 @@ def imitate_keyframe_job(
     refine_enabled: bool = True,
     candidates: int = 4,
     loss_cfg: LossConfig | None = None,
+    clip: Any = None,
     model_path: Path | None = None,
     target_cfg: TargetConfig | None = None,
     preview: int = 64,
@@ -55,11 +56,12 @@ def imitate_keyframe_job(
     ``target``: an image path (loaded with ``target_cfg``; a bad file fails the job with its ``TargetError``) or a
     mask ``(R, R)`` uint8 framed at the model's resolution. ``expressive``: a mask ``(R, R)``, ``"holes"`` (the
     target's holes) or None. ``search``/``refine``/``candidates`` default to the CPU presets (``CPU_SEARCH``);
+    ``clip``: a CLIP encoder for the CLIP terms (None: off; an encoder object suits the thread worker);
     ``preview``: side of the live shadow previews (8–64; 0: none).
     """
     run = functools.partial(
         _imitate_keyframe, target=target, expressive=expressive, search=search, refine=refine,
-        refine_enabled=refine_enabled, candidates=candidates, loss_cfg=loss_cfg, model_path=model_path,
+        refine_enabled=refine_enabled, candidates=candidates, loss_cfg=loss_cfg, clip=clip, model_path=model_path,
         target_cfg=target_cfg, preview=preview,
     )  # fmt: skip
     name = title or (Path(target).name if isinstance(target, (str, Path)) else "keyframe")
@@ -67,10 +69,10 @@ def imitate_keyframe_job(
 
 
 def _imitate_keyframe(report: Reporter, cancel, *, target, expressive, search, refine, refine_enabled, candidates,
-                      loss_cfg, model_path, target_cfg, preview):  # fmt: skip
+                      loss_cfg, clip, model_path, target_cfg, preview):  # fmt: skip
     from studio.imitate.still import Imitator, still_expressive
 
-    with Imitator(model_path=model_path, loss_cfg=loss_cfg, search=search, refine=refine, candidates=candidates) as im:
+    with Imitator(None, model_path, loss_cfg, clip, search, refine, candidates=candidates) as im:
         if isinstance(target, (str, Path)):
             mask = im.load(Path(target), target_cfg)
         else:
@@ -94,6 +96,7 @@ def imitate_video_job(
     *,
     cfg: SequenceConfig | None = None,
     loss_cfg: LossConfig | None = None,
+    clip: Any = None,
     model_path: Path | None = None,
     preview: int = 64,
     apply: Apply = None,
@@ -102,15 +105,15 @@ def imitate_video_job(
     """Every keyframe of a video in first-appearance order (:class:`studio.imitate.sequence.SequenceImitator`) →
     ``SequenceResult``. ``masks (K, S, S)`` uint8 keyframe targets and their expressive masks (``keyframe_targets``
     picks them from a video's frames); ``cfg`` defaults to ``CPU_SEQUENCE`` (its ``expressive`` term needs masks).
-    Stages are "keyframe k/K: search" and "keyframe k/K: refine"."""
+    Stages are "keyframe k/K: search" and "keyframe k/K: refine". ``clip`` as for :func:`imitate_keyframe_job`."""
     run = functools.partial(
         _imitate_video, masks=np.asarray(masks), expressive=None if expressive is None else np.asarray(expressive),
-        cfg=cfg, loss_cfg=loss_cfg, model_path=model_path, preview=preview,
+        cfg=cfg, loss_cfg=loss_cfg, clip=clip, model_path=model_path, preview=preview,
     )  # fmt: skip
     return Job("imitate-video", run, apply, title)
 
 
-def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg, model_path, preview):
+def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg, clip, model_path, preview):
     from dataclasses import replace
 
     from studio.imitate.sequence import CPU_SEQUENCE, SequenceImitator
@@ -119,7 +122,7 @@ def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg
     cfg = cfg or CPU_SEQUENCE
     if expressive is None and cfg.expressive:
         cfg = replace(cfg, expressive=False)  # no masks given: the base loss alone
-    with Imitator(model_path=model_path, loss_cfg=loss_cfg) as im, SequenceImitator(cfg=cfg, imitator=im) as seq:
+    with Imitator(None, model_path, loss_cfg, clip) as im, SequenceImitator(cfg=cfg, imitator=im) as seq:
         pv = PosePreview(im.hand, preview) if preview else None
         return seq.imitate(masks, expressive, report.engine_progress(pv), cancel, best_pose=pv.pose if pv else None)
 
