@@ -9,7 +9,9 @@ A job's ``run(report, cancel)`` is called in the worker with a :class:`~studio.p
 cancel event (``threading.Event``, or a ``multiprocessing`` event in a process: the same ``is_set()``). For a process
 worker ``run`` must pickle (a module-level function, or a ``functools.partial`` of one with picklable arguments) and its
 result must pickle; the process is spawned once (fresh interpreter: torch, the model and numba's caches load on its
-first job) and reused, and killed when a cancelled job does not return within the grace time.
+first job) and reused, and killed when a cancelled job does not return within the grace time. Spawning re-imports a
+script's main module in the worker: a script using it keeps its work under ``if __name__ == "__main__":``
+(notebooks need nothing).
 
 ``threads`` sets torch's CPU threads where the engine runs (DESIGN §6: 1 on shared cores); a thread worker sets it
 for the job's duration only (torch's setting is per process) and restores it.
