@@ -66,6 +66,9 @@ _API: dict[str, str] = {
     "save_show": "studio.motion.show",
     "load_show": "studio.motion.show",
     "export_csv": "studio.motion.show",
+    # projects
+    "Project": "studio.project.project",
+    "ProjectError": "studio.project.state",
     # errors
     "StudioError": "studio.errors",
 }

@@ -448,3 +448,29 @@ def test_still_threshold_and_otsu_flags_reach_the_configs(tmp_path, sources):
     assert p.state.still == TargetConfig(threshold=60.0)
     assert p.state.video.threshold is None and p.state.video.size == 32
     assert os.path.isabs(p.sources[0].absolute)
+
+
+def test_colour_footage_needs_and_uses_a_first_frame_box(tmp_path):
+    folder = tmp_path / "colour"
+    folder.mkdir()
+    rng = np.random.default_rng(3)
+    ground = (rng.integers(0, 40, (64, 80, 3)) + np.array([40, 140, 60])).astype(np.uint8)  # green, textured
+    for i in range(4):
+        frame = ground.copy()
+        frame[20:44, 10 + 6 * i : 34 + 6 * i] = (220, 40, 40)  # a red square moving right
+        Image.fromarray(frame).save(folder / f"{i:05d}.png")
+    with pytest.raises(ProjectError, match="colour footage.*--box"):
+        Project.create(tmp_path / "c.shadow", sources=[str(folder)], video=VIDEO)
+    assert not (tmp_path / "c.shadow").exists()  # nothing made for a project that could not be
+    p = Project.create(tmp_path / "c.shadow", sources=[str(folder)], video=VIDEO, box=(8, 18, 28, 28))
+    assert p.sources[0].footage == "segmented" and p.sources[0].box == (8, 18, 28, 28) and len(p.frames) == 4
+    assert p.state.targets.any(axis=(1, 2)).all()
+    with pytest.raises(ProjectError, match="colour footage"):
+        p.set_segmentation(0)  # no box, no mask: it cannot be read any more, and nothing changes
+    assert p.sources[0].box == (8, 18, 28, 28) and not p.can_undo
+    first = np.zeros((64, 80), np.uint8)
+    first[20:44, 10:34] = 1
+    p.set_segmentation(0, first_mask=first)
+    q = Project.open(p.path)
+    assert q.sources[0].box is None and np.array_equal(q.sources[0].first_mask, first)
+    assert q.state.doc() == p.state.doc()
