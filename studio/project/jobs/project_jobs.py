@@ -1,0 +1,122 @@
+"""Jobs bound to a :class:`~studio.project.project.Project`: inputs read when the job is made, results applied
+through the Project API when it completes.
+
+    queue = queue_for(project)                         # the project's one queue
+    for k in project.pending_keyframes():
+        queue.submit(keyframe_job(project, k))         # on completion: project.set_result(k, ...)
+    queue.submit(show_job(project, keyframes))         # on completion: project.set_show(show, ...)
+
+Each job captures the project's input fingerprint (``keyframe_inputs``/``show_inputs``) when it is made, so a
+result whose inputs the artist changed while it ran is applied marked stale, never as current (the Project's rule).
+A failed or cancelled job calls nothing on the project: it stays exactly as it was (same ``project.json``, same
+undo list). A result is one edit (one undo step) per keyframe.
+"""
+
+from __future__ import annotations
+
+import weakref
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from studio.project.jobs.engine import imitate_keyframe_job, imitate_video_job, plan_job
+from studio.project.jobs.queue import DEFAULT_WORKER, Job, JobQueue
+
+if TYPE_CHECKING:
+    from studio.imitate.losses import LossConfig
+    from studio.imitate.refine import RefineConfig
+    from studio.imitate.search import SearchConfig
+    from studio.imitate.sequence import SequenceConfig
+    from studio.motion.plan import Keyframes, PlanConfig
+    from studio.project.project import Project
+
+_QUEUES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def queue_for(project: Project, worker: str = DEFAULT_WORKER) -> JobQueue:
+    """The project's job queue (made on first use; one per ``Project`` object; a closed one is replaced)."""
+    queue = _QUEUES.get(project)
+    if queue is None or queue._closed:
+        queue = _QUEUES[project] = JobQueue(worker)
+    return queue
+
+
+def project_loss(project: Project, side: int, clip: Any = None) -> LossConfig:
+    """The project's loss weights for crops of ``side`` pixels; the CLIP terms only with an encoder."""
+    w = project.weights
+    return replace(w, use_clip=bool(w.use_clip and clip is not None), crop_size=side)
+
+
+def keyframe_job(
+    project: Project,
+    k: int,
+    *,
+    search: SearchConfig | None = None,
+    refine: RefineConfig | None = None,
+    candidates: int = 4,
+    clip: Any = None,
+    model_path: Path | None = None,
+    preview: int = 64,
+) -> Job:
+    """Imitate keyframe ``k`` (its representative's target and expressive mask, the project's weights) →
+    ``project.set_result(k, pose, loss, shadow, ...)`` on completion (:func:`.engine.imitate_keyframe_job`)."""
+    target, expressive = (np.array(a) for a in project.keyframe_masks(k))
+    inputs = project.keyframe_inputs(k)
+
+    def apply(r) -> None:
+        project.set_result(k, r.theta, r.loss, r.shadow, inputs=inputs, collision_free=r.collision_free,
+                           seconds=r.seconds)  # fmt: skip
+
+    return imitate_keyframe_job(
+        target, expressive if expressive.any() else None, search=search, refine=refine, candidates=candidates,
+        loss_cfg=project_loss(project, target.shape[-1], clip), clip=clip, model_path=model_path, preview=preview,
+        apply=apply, title=f"keyframe {k}",
+    )  # fmt: skip
+
+
+def video_job(
+    project: Project,
+    keyframes: list[int] | None = None,
+    *,
+    cfg: SequenceConfig | None = None,
+    clip: Any = None,
+    model_path: Path | None = None,
+    preview: int = 64,
+) -> Job:
+    """Imitate the project's keyframes as one sequence, in first-appearance order (``keyframes``: ids, default
+    all) → ``project.set_result`` for each on completion (:func:`.engine.imitate_video_job`)."""
+    project_ids = [kf.id for kf in project.keyframes]
+    chosen = set(project_ids if keyframes is None else keyframes)
+    unknown = chosen - set(project_ids)
+    if unknown:
+        raise KeyError(f"no keyframe {sorted(unknown)} in {project.path} (it has {project_ids})")
+    ids = [k for k in project_ids if k in chosen]
+    if not ids:
+        raise ValueError(f"no keyframes to imitate in {project.path}")
+    pairs = [project.keyframe_masks(k) for k in ids]
+    inputs = {k: project.keyframe_inputs(k) for k in ids}
+    masks = np.stack([np.array(t) for t, _ in pairs])
+
+    def apply(r) -> None:
+        for k, kr in zip(ids, r.keyframes, strict=True):
+            project.set_result(k, kr.theta, kr.loss, kr.shadow, inputs=inputs[k], evaluation=kr.evaluation,
+                               collision_free=kr.collision_free, seconds=kr.seconds)  # fmt: skip
+
+    return imitate_video_job(
+        masks, np.stack([np.array(e) for _, e in pairs]), cfg=cfg,
+        loss_cfg=project_loss(project, masks.shape[-1], clip), clip=clip, model_path=model_path, preview=preview,
+        apply=apply, title=f"{len(ids)} keyframes",
+    )  # fmt: skip
+
+
+def show_job(project: Project, keyframes: Keyframes, *, cfg: PlanConfig | None = None) -> Job:
+    """Plan a show through ``keyframes`` (the project's poses on their times) → ``project.set_show`` on
+    completion (:func:`.engine.plan_job`)."""
+    inputs = project.show_inputs()
+
+    def apply(r) -> None:
+        project.set_show(r.show, inputs=inputs)
+
+    return plan_job(keyframes, cfg=cfg, show_title=project.state.title, apply=apply, title="show")
