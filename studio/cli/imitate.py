@@ -11,20 +11,18 @@ once.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
-import signal
 import sys
-import threading
-from collections.abc import Iterator
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
 from studio.atomic import write_bytes, write_json
+from studio.cli.device_flags import add_device_flags, torch_threads
 from studio.cli.flags import add_config_flags, config_from_args, given, ranged
+from studio.cli.progress import StageBars, add_quiet_flag, ctrl_c_cancels
 from studio.imitate.refine import RefineConfig
 from studio.imitate.search import CPU_SEARCH, SearchConfig
 from studio.imitate.still import ImitateConfig
@@ -67,29 +65,12 @@ def target_config_from_args(args: argparse.Namespace) -> TargetConfig:
     return config_from_args(args, TargetConfig, auto_otsu=not given(args, "threshold"))
 
 
-@contextlib.contextmanager
-def ctrl_c_cancels() -> Iterator[threading.Event]:
-    """An event that the first Ctrl-C sets (a second one raises ``KeyboardInterrupt`` as usual)."""
-    cancel = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        yield cancel
-        return
-
-    def on_sigint(signum, frame) -> None:
-        cancel.set()
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-
-    previous = signal.signal(signal.SIGINT, on_sigint)
-    try:
-        yield cancel
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def _imitate(args: argparse.Namespace) -> int:
-    import torch
-    from tqdm import tqdm
+    with torch_threads(args.threads):
+        return _run(args)
 
+
+def _run(args: argparse.Namespace) -> int:
     from studio.cli.hand import write_shadow_png
     from studio.imitate.clip_loss import clip_from_args
     from studio.imitate.losses import LossConfig
@@ -98,7 +79,6 @@ def _imitate(args: argparse.Namespace) -> int:
     from studio.learn.selfmodel import load_selfmodel
     from studio.review.rerun import log_imitation
 
-    torch.set_num_threads(args.threads)  # one thread is far faster when the cores are shared, and close otherwise
     target_path = Path(args.target)
     target_cfg = target_config_from_args(args)
     model, info = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
@@ -112,19 +92,8 @@ def _imitate(args: argparse.Namespace) -> int:
     expressive = still_expressive(target)  # a still target's openings (as `evaluate` does)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    bars: dict[str, tqdm] = {}
-
-    def progress(stage: str, step: int, total: int, best: float) -> None:
-        if args.quiet:
-            return
-        bar = bars.get(stage) or bars.setdefault(stage, tqdm(total=total, desc=stage, unit="step"))
-        bar.update(step - bar.n)
-        bar.set_postfix(best=f"{best:.4f}", refresh=False)
-
-    with imitator, ctrl_c_cancels() as cancel:
-        result = imitator.imitate(target, expressive, refine=not args.no_refine, progress=progress, cancel=cancel)
-    for bar in bars.values():
-        bar.close()
+    with imitator, StageBars(args.quiet) as bars, ctrl_c_cancels() as cancel:
+        result = imitator.imitate(target, expressive, refine=not args.no_refine, progress=bars, cancel=cancel)
     hand = imitator.hand
     provenance = {
         "target": str(target_path), "target_config": asdict(target_cfg),
@@ -178,9 +147,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="time of this pose in a show, s (the pose.json keyframe; default: 2.0; ≥ 0)")  # fmt: skip
     p.add_argument("--seed", type=ranged(int, "[0, ∞)"), default=SearchConfig.seed, metavar="N",
                    help=f"seed of the search and the refinement (default: {SearchConfig.seed}; ≥ 0)")  # fmt: skip
-    p.add_argument("--threads", type=ranged(int, "[1, ∞)"), default=1, metavar="N",
-                   help="torch CPU threads (default: 1, fastest on shared cores; ≥ 1)")  # fmt: skip
-    p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_device_flags(p)
+    add_quiet_flag(p)
     add_clip_arguments(p)
     p.set_defaults(func=_imitate)
