@@ -14,8 +14,11 @@ from dataclasses import asdict
 from pathlib import Path
 
 from studio.assets import asset
+from studio.cli.device_flags import add_device_flags, torch_threads
 from studio.cli.flags import add_config_flags, config_from_args, ranged
 from studio.cli.imitate import add_target_flags, target_config_from_args
+from studio.cli.progress import CountBar, StageBars, add_quiet_flag, ctrl_c_cancels
+from studio.cli.sequence_flags import add_sequence_flags, sequence_config_from_args
 from studio.imitate.refine import RefineConfig
 from studio.imitate.search import CPU_SEARCH, SearchConfig
 
@@ -33,20 +36,11 @@ def _train_inverse(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    import torch
-
-    threads = torch.get_num_threads()
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    try:
+    with torch_threads(args.threads):
         return _run_evaluation(args)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _run_evaluation(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from studio.evaluate.table1 import EvalConfig, Evaluator, gather_targets, write_table
     from studio.imitate.clip_loss import clip_from_args
     from studio.imitate.still import DEFAULT_MODEL, Imitator
@@ -63,10 +57,8 @@ def _run_evaluation(args: argparse.Namespace) -> int:
     clip = clip_from_args(args, device=next(model.parameters()).device)  # CLIP sits with the self-model
     imitator = Imitator(model, clip=clip, search=search, refine=refine)
     with imitator, Evaluator(imitator, Path(args.inverse), Path(args.nn_data), EvalConfig(seed=args.seed)) as evaluator:
-        with tqdm(total=len(targets), unit="target", desc="evaluate", disable=args.quiet) as bar:
-            result = evaluator.run(
-                targets, progress=lambda done, total, name: (bar.update(1), bar.set_postfix_str(name))
-            )
+        with CountBar(len(targets), "evaluate", "target", args.quiet) as bar:
+            result = evaluator.run(targets, progress=bar)
     paths = write_table(result, Path(args.out))
     if not args.quiet:
         print(Path(paths["markdown"]).read_text())
@@ -75,51 +67,9 @@ def _run_evaluation(args: argparse.Namespace) -> int:
     return 0
 
 
-PRESETS = ("cpu", "paper")  # evaluate-video --preset: CPU_SEQUENCE (default) or PAPER_SEQUENCE (GPU sizes)
-
-
-def add_sequence_flags(p: argparse.ArgumentParser) -> None:
-    """``--preset cpu|paper`` and the sequence budgets (first/next search, refinement, candidates) over it."""
-    from studio.imitate.sequence import CPU_SEQUENCE, SequenceConfig
-
-    p.add_argument("--preset", choices=PRESETS, default="cpu",
-                   help="budgets: cpu = CPU_SEQUENCE (minutes a sequence on 2 cores), paper = PAPER_SEQUENCE "
-                        "(the paper's sizes, for a GPU); the flags below override single fields "
-                        "(default: cpu)")  # fmt: skip
-    for prefix, base in (("first-", CPU_SEQUENCE.first), ("next-", CPU_SEQUENCE.next)):
-        add_config_flags(p, SearchConfig, ("batch", "iterations"), prefix=prefix, base=base,
-                         base_name=f"CPU_SEQUENCE.{prefix[:-1]}", aliases={"iterations": "iters"})  # fmt: skip
-    add_config_flags(p, RefineConfig, ("steps", "restarts"), prefix="refine-", base=CPU_SEQUENCE.refine,
-                     base_name="CPU_SEQUENCE.refine")  # fmt: skip
-    add_config_flags(p, SequenceConfig, ("candidates",), base=CPU_SEQUENCE, base_name="CPU_SEQUENCE")
-
-
-def sequence_config_from_args(args: argparse.Namespace):
-    """The preset with the budget flags that were given (a default shown in --help is the CPU preset's)."""
-    from dataclasses import fields, replace
-
-    from studio.cli.flags import dest_of, given
-    from studio.imitate.sequence import CPU_SEQUENCE, PAPER_SEQUENCE
-
-    def over(base, prefix: str = "", **extra):
-        dests = {f.name: dest_of(prefix, f.name) for f in fields(base)}
-        return replace(base, **{k: getattr(args, d) for k, d in dests.items() if given(args, d)} | extra)
-
-    preset, seed = (PAPER_SEQUENCE if args.preset == "paper" else CPU_SEQUENCE), args.seed
-    first, next_ = over(preset.first, "first-", seed=seed), over(preset.next, "next-", seed=seed)
-    return over(preset, first=first, next=next_, refine=over(preset.refine, "refine-", seed=seed))
-
-
 def _evaluate_video(args: argparse.Namespace) -> int:
-    import torch
-
-    threads = torch.get_num_threads()
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    try:
+    with torch_threads(args.threads):
         return _run_video_evaluation(args)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _run_video_evaluation(args: argparse.Namespace) -> int:
@@ -127,9 +77,7 @@ def _run_video_evaluation(args: argparse.Namespace) -> int:
     import time
 
     import torch
-    from tqdm import tqdm
 
-    from studio.cli.imitate import ctrl_c_cancels
     from studio.evaluate.table2 import ROWS, VideoEvaluator, gather_sequences, json_rows, prepare_sequence, write_table
     from studio.imitate.clip_loss import clip_from_args
     from studio.imitate.keyframes import KeyframeConfig
@@ -150,29 +98,19 @@ def _run_video_evaluation(args: argparse.Namespace) -> int:
     names = [p.name for p in sources]
     names = [n if names.count(n) == 1 else str(p) for n, p in zip(names, sources, strict=True)]
     sequences = []  # every sequence loads before the slow part
-    for p, name in zip(tqdm(sources, desc="load", unit="sequence", disable=args.quiet), names, strict=True):
-        sequences.append(prepare_sequence(p, video_cfg, keyframe_cfg, name))
+    with CountBar(len(sources), "load", "sequence", args.quiet) as loaded:
+        for i, (p, name) in enumerate(zip(sources, names, strict=True)):
+            sequences.append(prepare_sequence(p, video_cfg, keyframe_cfg, name))
+            loaded(i + 1, len(sources), name)
     clip = clip_from_args(args, device=next(model.parameters()).device)
     loss_cfg = LossConfig(use_clip=clip is not None, crop_size=model.cfg.resolution)
-    runs = tqdm(total=len(sequences) * len(ROWS), desc="evaluate-video", unit="run", disable=args.quiet)
-    step_bar: list[tqdm] = []
-
-    def progress(stage: str, step: int, total: int, best: float) -> None:
-        if args.quiet:
-            return
-        if not step_bar or step_bar[0].desc != stage:
-            if step_bar:
-                step_bar.pop().close()
-            step_bar.append(tqdm(total=total, desc=stage, unit="step", leave=False))
-        step_bar[0].update(step - step_bar[0].n)
-        step_bar[0].set_postfix(best=f"{best:.4f}", refresh=False)
-
-    with SequenceImitator(model, cfg, loss_cfg=loss_cfg, clip=clip) as seq, ctrl_c_cancels() as cancel:
-        result = VideoEvaluator(seq, cfg, transition).run(
-            sequences, progress, lambda done, total, name: (runs.update(1), runs.set_postfix_str(name)), cancel
-        )
-    for bar in [*step_bar, runs]:
-        bar.close()
+    with (
+        CountBar(len(sequences) * len(ROWS), "evaluate-video", "run", args.quiet) as runs,
+        StageBars(args.quiet, leave=False) as steps,
+        SequenceImitator(model, cfg, loss_cfg=loss_cfg, clip=clip) as seq,
+        ctrl_c_cancels() as cancel,
+    ):
+        result = VideoEvaluator(seq, cfg, transition).run(sequences, steps, runs, cancel)
     result.settings |= {"model": str(args.model or DEFAULT_MODEL), "preset": args.preset, "video": asdict(video_cfg),
                         "keyframes": asdict(keyframe_cfg), "threads": torch.get_num_threads()}  # fmt: skip
     paths = write_table(result, Path(args.out))
@@ -210,10 +148,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help=f"seed of the search, refinement and Random baseline (default: {SearchConfig.seed})",
     )
-    p.add_argument("--threads", type=ranged(int, "[0, ∞)"), default=1, metavar="N",
-                   help="torch CPU threads (default: 1, fastest on shared cores; 0 = torch's default)")  # fmt: skip
-    p.add_argument("--device", default=None, help="cpu or cuda, for the self-model and CLIP (default: cuda if present)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar and no table on stdout (JSON only)")
+    add_device_flags(p, zero_threads=True)
+    add_quiet_flag(p, "no progress bar and no table on stdout (JSON only)")
     add_clip_arguments(p)
     p.set_defaults(func=_evaluate)
 
@@ -229,14 +165,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--model", default=None, help="self-model checkpoint (default assets/models/selfmodel_cpu128.pt)")
     add_config_flags(v, VideoConfig, ("hz", "fps"))
     add_config_flags(v, KeyframeConfig, ("tau",))
-    add_sequence_flags(v)
+    add_sequence_flags(v, ("candidates",))
     add_config_flags(v, TransitionConfig, ("total",), prefix="transition-")
-    v.add_argument("--seed", type=ranged(int, "[0, ∞)"), default=SearchConfig.seed, metavar="N",
-                   help=f"seed of the searches and refinements (default: {SearchConfig.seed})")  # fmt: skip
-    v.add_argument("--threads", type=ranged(int, "[0, ∞)"), default=1, metavar="N",
-                   help="torch CPU threads (default: 1, fastest on shared cores; 0 = torch's default)")  # fmt: skip
-    v.add_argument("--device", default=None, help="cpu or cuda, for the self-model and CLIP (default: cuda if present)")
-    v.add_argument("--quiet", action="store_true", help="no progress bars and no table on stdout (JSON only)")
+    add_device_flags(v, zero_threads=True)
+    add_quiet_flag(v, "no progress bars and no table on stdout (JSON only)")
     add_clip_arguments(v)
     v.set_defaults(func=_evaluate_video)
 
