@@ -172,6 +172,7 @@ class SequenceImitator:
         cancel: threading.Event | None = None,
         cfg: SequenceConfig | None = None,
         best_pose: Callable[[np.ndarray], None] | None = None,
+        previous: np.ndarray | None = None,
     ) -> SequenceResult:
         """Keyframe targets ``masks (K, S, S)`` uint8 (1 = shadow) in first-appearance order (all N frames work too:
         each is then its own keyframe), their expressive masks ``(K, S, S)`` or None → :class:`SequenceResult`.
@@ -180,6 +181,8 @@ class SequenceImitator:
         Setting ``cancel`` returns within a search or refinement step, with the keyframes finished before it and
         ``cancelled=True`` (a keyframe interrupted half-way is left out). ``cfg`` overrides this object's config
         for this call. ``best_pose(θ (21,) rad)`` gets the pose of each reported best loss (live previews).
+        ``previous (21,) rad``: the pose of the keyframe before ``masks[0]`` (continuing a sequence: the first one
+        is then searched from it when sequential and held to it by the temporal term); None: from scratch.
         """
         if self.refiner.closed:
             raise ClosedError("this SequenceImitator was closed; make a new one (or imitate inside its `with` block)")
@@ -200,7 +203,7 @@ class SequenceImitator:
         for k in range(n):
             if cancel is not None and cancel.is_set():
                 break
-            prev = done[-1].theta if done else None
+            prev = done[-1].theta if done else previous
             exp_k = None if expressive is None else expressive[k]
             r = self._keyframe(cfg, k, n, masks[k], exp_k, prev, progress, cancel, best_pose)
             if r is None:  # cancelled half-way

@@ -99,21 +99,25 @@ def imitate_video_job(
     clip: Any = None,
     model_path: Path | None = None,
     preview: int = 64,
+    previous: np.ndarray | None = None,
     apply: Apply = None,
     title: str = "video",
 ) -> Job:
     """Every keyframe of a video in first-appearance order (:class:`studio.imitate.sequence.SequenceImitator`) →
     ``SequenceResult``. ``masks (K, S, S)`` uint8 keyframe targets and their expressive masks (``keyframe_targets``
     picks them from a video's frames); ``cfg`` defaults to ``CPU_SEQUENCE`` (its ``expressive`` term needs masks).
-    Stages are "keyframe k/K: search" and "keyframe k/K: refine". ``clip`` as for :func:`imitate_keyframe_job`."""
+    Stages are "keyframe k/K: search" and "keyframe k/K: refine". ``clip`` as for :func:`imitate_keyframe_job`;
+    ``previous (21,) rad``: the pose before the first of these keyframes (continuing a sequence), None: none."""
     run = functools.partial(
         _imitate_video, masks=np.asarray(masks), expressive=None if expressive is None else np.asarray(expressive),
         cfg=cfg, loss_cfg=loss_cfg, clip=clip, model_path=model_path, preview=preview,
+        previous=None if previous is None else np.asarray(previous, dtype=np.float64),
     )  # fmt: skip
     return Job("imitate-video", run, apply, title)
 
 
-def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg, clip, model_path, preview):
+def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg, clip, model_path, preview,
+                   previous=None):  # fmt: skip
     from dataclasses import replace
 
     from studio.imitate.sequence import CPU_SEQUENCE, SequenceImitator
@@ -124,7 +128,8 @@ def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg
         cfg = replace(cfg, expressive=False)  # no masks given: the base loss alone
     with Imitator(None, model_path, loss_cfg, clip) as im, SequenceImitator(cfg=cfg, imitator=im) as seq:
         pv = PosePreview(im.hand, preview) if preview else None
-        return seq.imitate(masks, expressive, report.engine_progress(pv), cancel, best_pose=pv.pose if pv else None)
+        return seq.imitate(masks, expressive, report.engine_progress(pv), cancel, best_pose=pv.pose if pv else None,
+                           previous=previous)  # fmt: skip
 
 
 @dataclass

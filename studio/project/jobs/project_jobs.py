@@ -84,9 +84,11 @@ def video_job(
     clip: Any = None,
     model_path: Path | None = None,
     preview: int = 64,
+    previous: np.ndarray | None = None,
 ) -> Job:
     """Imitate the project's keyframes as one sequence, in first-appearance order (``keyframes``: ids, default
-    all) → ``project.set_result`` for each on completion (:func:`.engine.imitate_video_job`)."""
+    all) → ``project.set_result`` for each on completion (:func:`.engine.imitate_video_job`). ``previous (21,)
+    rad``: the pose of the keyframe before the first of them, when continuing a sequence."""
     project_ids = [kf.id for kf in project.keyframes]
     chosen = set(project_ids if keyframes is None else keyframes)
     unknown = chosen - set(project_ids)
@@ -107,7 +109,7 @@ def video_job(
     return imitate_video_job(
         masks, np.stack([np.array(e) for _, e in pairs]), cfg=cfg,
         loss_cfg=project_loss(project, masks.shape[-1], clip), clip=clip, model_path=model_path, preview=preview,
-        apply=apply, title=f"{len(ids)} keyframes",
+        previous=previous, apply=apply, title=f"keyframe {ids[0]}" if len(ids) == 1 else f"{len(ids)} keyframes",
     )  # fmt: skip
 
 
