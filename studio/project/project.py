@@ -8,6 +8,7 @@
         inputs = project.keyframe_inputs(k)                            # captured before the (long) work
         ...
         project.set_result(k, pose, loss, shadow, inputs=inputs)
+    keyframes = project.show_timing().keyframes                        # the planner's, on the show clock
     project.set_show(show, inputs=...)
 
 Every edit makes a new :class:`~studio.project.project_format.ProjectState` (plain data, arrays read-only), saves
@@ -40,15 +41,17 @@ from studio.imitate.losses import LossConfig
 from studio.imitate.targets import TargetConfig
 from studio.imitate.video import VideoConfig
 from studio.motion.show import Show, save_show
+from studio.motion.video_timing import VideoTiming
 from studio.project import edits
 from studio.project.editing import KEEP, Editing, _mask_arg
 from studio.project.inputs import keyframe_inputs, show_inputs
 from studio.project.project_format import DOC, SUFFIX, load_state, save_state
+from studio.project.show_timing import ShowLayout, project_timing
 from studio.project.sources import Progress, hash_source, load_sources, locate, make_source
 from studio.project.state import Frame, Keyframe, PoseResult, ProjectError, ProjectState, Source, frozen
 from studio.project.summary import summarise
 
-__all__ = ["KEEP", "Change", "MissingSource", "Project", "ProjectError"]
+__all__ = ["KEEP", "Change", "MissingSource", "Project", "ProjectError", "ShowLayout"]
 
 log = logging.getLogger(__name__)
 
@@ -237,6 +240,14 @@ class Project(Editing):
         """Whether the planned show was planned from inputs that have changed since (False when there is none)."""
         s = self._state
         return s.show is not None and (bool(self.changed_sources) or s.show_inputs != self.show_inputs())
+
+    def show_timing(self, layout: ShowLayout | None = None) -> VideoTiming:
+        """The planner's keyframes of this project on the show clock (``.keyframes``; :mod:`.show_timing`): each
+        video at its own clock, a still held, sources one after another; a ProjectError when a keyframe has no
+        current result yet."""
+        from studio.sim.hand import load_hand
+
+        return project_timing(self, load_hand().joint_names, layout)
 
     # ---------------------------------------------------------------- saving and undo
     def _commit(self, label: str, new: ProjectState) -> None:

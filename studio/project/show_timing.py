@@ -1,0 +1,142 @@
+"""A project's keyframes on the show clock: the planner's :class:`~studio.motion.plan.Keyframes` of a project.
+
+Sources play one after another, in the project's order, each in its own span of the show clock:
+
+- **A video** (a video file, a GIF, a frame folder) plays at its own clock (:mod:`studio.motion.video_timing`): its
+  sampled frames at their source times plus the span's start, every frame playing its keyframe's pose, the span
+  ending one sample period after the last frame (or at the source's end).
+- **A still** is one keyframe, reached at the span's start and held for :attr:`ShowLayout.still_hold_s`.
+- **Between sources** the hand has :attr:`ShowLayout.gap_s` to move from one source's last pose to the next one's
+  first. The first source starts at t = 0: its first pose is the show's first pose (the player brings the hand
+  there before show time 0), as for a single video.
+
+The artist's keyframe settings (:meth:`~studio.project.project.Project.set_keyframe_time`, ``set_hold``):
+
+- ``time_s`` is a show time. A still's keyframe is then reached at ``time_s`` (its span starts there, and the
+  following sources follow it); a video keyframe's first appearance (its first run's start) moves to ``time_s``,
+  the rest of the video staying on its clock. A time that falls before the previous planner keyframe or after the
+  next is a :class:`~studio.project.state.ProjectError` naming the keyframe.
+- ``hold`` makes the hand come to rest at every appearance of that keyframe's pose.
+
+Every keyframe needs a current result (its pose): a missing or stale one is a ProjectError that says to run
+``shadow-studio project run``. The returned :class:`~studio.motion.video_timing.VideoTiming` names, for each
+planner keyframe, the project frame it stands at and the keyframe *id* it plays, so ``late_transitions`` names
+the frames and keyframes of a transition too fast for the servos.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from studio.motion.plan import Keyframes
+from studio.motion.video_timing import VideoTiming, runs_of, video_end, video_keyframes
+from studio.project.state import ProjectError
+
+if TYPE_CHECKING:
+    from studio.project.project import Project
+
+
+@dataclass(frozen=True)
+class ShowLayout:
+    """How a project's sources share the show clock (module doc)."""
+
+    still_hold_s: float = 2.0  # seconds a still's pose is held on the show clock (0, ∞)
+    gap_s: float = 1.5  # seconds between one source's end and the next source's start: the move between them [0, ∞)
+
+    def __post_init__(self) -> None:
+        if not self.still_hold_s > 0 or not self.gap_s >= 0:
+            raise ValueError(f"a still is held > 0 s and sources are ≥ 0 s apart, not {self}")
+
+
+def _finite(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _poses(project: Project, joint_names: list[str]) -> dict[int, np.ndarray]:
+    """Keyframe id → its result's pose ``(21,)`` rad; a ProjectError naming missing or stale results."""
+    missing, stale = project.missing_keyframes(), project.stale_keyframes()
+    if missing or stale:
+        parts = ([f"no result for keyframe(s) {missing}"] if missing else []) + (
+            [f"stale result(s) for keyframe(s) {stale}"] if stale else []
+        )
+        raise ProjectError(
+            f"{project.path}: cannot time a show: {' and '.join(parts)}; run `shadow-studio project run "
+            f"{project.path}` to optimise them first"
+        )
+    return {k: r.theta(joint_names) for k, r in project.state.results.items()}
+
+
+def project_timing(project: Project, joint_names: list[str], layout: ShowLayout | None = None) -> VideoTiming:
+    """The planner keyframes of ``project`` on the show clock (module doc), poses in ``joint_names``' order.
+
+    ``frame`` of the result is a project frame index, ``cluster`` a keyframe id; ``runs`` are project frame
+    indices; ``end_s`` is the show's end (the last source's end)."""
+    layout = layout or ShowLayout()
+    s = project.state
+    poses = _poses(project, joint_names)
+    owner = {m: kf for kf in s.keyframes for m in kf.members}
+    hz = s.video.hz
+    times: list[float] = []
+    frame: list[int] = []
+    cluster: list[int] = []
+    hold: list[bool] = []
+    source_frame: list[int | None] = []
+    target: list[str | None] = []
+    losses: list[float | None] = []
+    runs: list[tuple[int, int]] = []
+    start = 0.0  # the next source's span starts here
+    for i, src in enumerate(s.sources):
+        idx = np.array([n for n, f in enumerate(s.frames) if f.source == i])
+        if len(idx) == 0:
+            continue
+        ids = [owner[int(n)].id for n in idx]
+        order = list(dict.fromkeys(ids))  # this source's keyframe ids, first appearance first
+        local = np.array([order.index(k) for k in ids])
+        t_src = np.array([s.frames[int(n)].time_s for n in idx])
+        if src.kind == "still":
+            kf = owner[int(idx[0])]
+            start = start if kf.time_s is None else float(kf.time_s)
+            t_src, end = t_src[:1] - t_src[0], layout.still_hold_s
+        else:
+            end = video_end(t_src, hz, src.duration_s or None)
+        vt = video_keyframes(
+            t_src + start, local, np.stack([poses[k] for k in order]), end + start,
+            source_frames=np.array([s.frames[int(n)].source_frame for n in idx]),
+            targets=[f"{Path(src.path).name}#{s.frames[s.keyframe(k).representative].source_frame}" for k in order],
+            losses=[_finite(s.results[k].loss.get("total")) for k in order],
+        )  # fmt: skip
+        k_times = vt.keyframes.times.copy()
+        k_hold = vt.keyframes.hold.copy()
+        for c, k in enumerate(order):
+            kf = s.keyframe(k)
+            mine = vt.cluster == c
+            if kf.hold:
+                k_hold[mine] = True
+            if kf.time_s is not None and src.kind != "still":
+                first = int(np.flatnonzero(mine)[0])  # the first run's start: where the pose is reached
+                k_times[first] = float(kf.time_s)
+        times += k_times.tolist()
+        frame += idx[vt.frame].tolist()
+        cluster += [order[c] for c in vt.cluster]
+        hold += k_hold.tolist()
+        source_frame += list(vt.keyframes.source_frame)
+        target += list(vt.keyframes.target)
+        losses += list(vt.keyframes.extra["keyframe_losses"])
+        runs += [(int(idx[a]), int(idx[b])) for a, b in runs_of(local)]
+        start = float(k_times[-1]) + layout.gap_s
+    t = np.array(times)
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if bad.size:
+        j = int(bad[0]) + 1
+        raise ProjectError(
+            f"{project.path}: keyframe {cluster[j]} would be at {t[j]:.3f} s, not after keyframe {cluster[j - 1]} at "
+            f"{t[j - 1]:.3f} s: change or clear its time (Project.set_keyframe_time({cluster[j]}, None))"
+        )
+    planner = Keyframes(t, np.stack([poses[k] for k in cluster]), np.array(hold), source_frame, target,
+                        {"title": s.title, "loss_weights": s.weights.to_dict(), "keyframe_losses": losses})  # fmt: skip
+    return VideoTiming(planner, np.array(frame), np.array(cluster), runs, float(t[-1]))
