@@ -10,7 +10,8 @@ only on completion (DESIGN §4 "The studio's state", §5.11).
 Pieces: :mod:`.events` (JobEvent, JobState, JobError, Reporter, PosePreview, EventPoller), :mod:`.queue` (Job,
 JobQueue), :mod:`.workers` (thread and spawned-process workers), :mod:`.engine` (imitate a keyframe, imitate a
 video, plan), :mod:`.play` (play a show), :mod:`.project_jobs` (the same bound to a Project: ``keyframe_job``,
-``video_job``, ``show_job`` apply through ``set_result``/``set_show``; ``queue_for(project)``), :mod:`.bars` (tqdm).
+``video_job``, ``show_job`` apply through ``set_result``/``set_show``; ``queue_for(project)``), :mod:`.project_run`
+(``run_project``: every missing or stale keyframe, then the show; what ``project run`` does), :mod:`.bars` (tqdm).
 
 **Thread or process?** ``benchmarks/bench_jobs.py`` on this 2-core machine (shared with other work), the main
 thread's asyncio loop ticking every 20 ms for 10 s while a job runs (lateness p50 / p99, ms):
@@ -44,10 +45,12 @@ from studio.project.jobs.events import (
 )  # fmt: skip
 from studio.project.jobs.play import PlaybackStopped, play_job
 from studio.project.jobs.project_jobs import keyframe_job, queue_for, show_job, video_job
+from studio.project.jobs.project_run import RunConfig, RunReport, run_project
 from studio.project.jobs.queue import DEFAULT_WORKER, Job, JobQueue
 
 __all__ = [
     "DEFAULT_WORKER", "EventPoller", "Job", "JobCancelled", "JobError", "JobEvent", "JobQueue", "JobState",
-    "PlannedShow", "PlaybackStopped", "PosePreview", "Reporter", "TqdmBars", "WorkerDied", "imitate_keyframe_job",
-    "imitate_video_job", "keyframe_job", "play_job", "plan_job", "queue_for", "show_job", "video_job",
+    "PlannedShow", "PlaybackStopped", "PosePreview", "Reporter", "RunConfig", "RunReport", "TqdmBars", "WorkerDied",
+    "imitate_keyframe_job", "imitate_video_job", "keyframe_job", "play_job", "plan_job", "queue_for", "run_project",
+    "show_job", "video_job",
 ]  # fmt: skip

@@ -1,0 +1,278 @@
+"""Bring a project up to date: optimise every keyframe whose result is missing or stale, then plan its show.
+
+    report = run_project(project, RunConfig(allow_late=True), cancel=event)   # what ``project run`` does
+    report.optimised, report.skipped, report.show, report.late, report.transitions
+
+Keyframes run one job each on the project's queue (:func:`~.project_jobs.queue_for`), in first-appearance order,
+so a finished keyframe is saved the moment it completes (one edit each) and its progress shows as its own job. In
+``sequential`` mode a keyframe continues from the keyframe before it in its source (its current result's pose: the
+search starts there and the temporal term holds to it), exactly as one sequence imitation would; the first
+keyframe of a source (a still's only one) is searched from scratch. A keyframe whose result is current is skipped,
+never recomputed; the show is re-planned only when it is missing or stale (:meth:`Project.is_show_stale`), at the
+show clock of :meth:`Project.show_timing`.
+
+Nothing is applied from a job that fails or is cancelled: a cancel (``cancel`` set, Ctrl-C in the CLI) stops within
+a second and leaves the project as it was except for the keyframes that completed before it. A run refuses to start
+when a source is missing (moved or deleted) or changed on disk since it was read, since the keyframes' inputs would
+no longer be what the project shows: the :class:`~studio.project.state.ProjectError` says what to do.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from studio.imitate.sequence import CPU_SEQUENCE, SequenceConfig
+from studio.imitate.transitions import TransitionConfig, transition_success
+from studio.motion.plan import PlanConfig
+from studio.project.jobs.engine import _plan
+from studio.project.jobs.events import JobError, JobState, Reporter
+from studio.project.jobs.project_jobs import queue_for, video_job
+from studio.project.jobs.queue import Job, JobQueue
+from studio.project.show_timing import ShowLayout
+from studio.project.state import ProjectError
+
+if TYPE_CHECKING:
+    from studio.motion.plan import Keyframes
+    from studio.project.project import Project
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """What a project run does (``shadow-studio project run``'s flags)."""
+
+    sequence: SequenceConfig = CPU_SEQUENCE  # search/refine budgets and mode of every keyframe (CPU preset)
+    plan: PlanConfig = field(default_factory=PlanConfig)  # the show's planner (timing.allow_late: see allow_late)
+    allow_late: bool = False  # stretch transitions too fast for the servos (later keyframes shift) instead of no show
+    layout: ShowLayout = field(default_factory=ShowLayout)  # how the sources share the show clock
+    transitions: TransitionConfig = field(default_factory=TransitionConfig)  # the transition-success test
+
+
+@dataclass
+class TooFast:
+    """What the plan step returns when a transition is too fast for the servos and ``allow_late`` is off."""
+
+    segments: list  # studio.motion.errors.SegmentTiming of every late segment
+    home_added: bool  # the planner prepended home at t = 0
+    message: str  # the planner's message
+
+
+@dataclass
+class RunReport:
+    """What a run did (plain data; :meth:`summary` is the CLI's JSON)."""
+
+    project: str  # the project folder
+    optimised: list[int] = field(default_factory=list)  # keyframe ids computed and saved by this run, in order
+    skipped: list[int] = field(default_factory=list)  # keyframe ids already current (not recomputed)
+    show: str | None = None  # "planned" (by this run), "current" (kept), or None (no show: see message)
+    show_seconds: float | None = None  # the show's duration, s
+    late: list[dict] = field(default_factory=list)  # transitions too fast for the servos (frames, needed vs given s)
+    transitions: dict = field(default_factory=dict)  # success, transitions, rate (per source, summed)
+    cancelled: bool = False  # the cancel event stopped the run
+    error: JobError | None = None  # why a job failed (nothing of it was applied)
+    message: str = ""  # one line: what happened
+    seconds: float = 0.0  # wall time of the run
+
+    @property
+    def ok(self) -> bool:
+        """Every keyframe current and a show planned (or kept)."""
+        return not self.cancelled and self.error is None and self.show is not None
+
+    def summary(self) -> dict:
+        rate = self.transitions.get("rate")
+        return {
+            "project": self.project, "keyframes_optimised": self.optimised, "keyframes_skipped": self.skipped,
+            "show": self.show, "show_seconds": self.show_seconds, "late_transitions": self.late,
+            "transition_success": rate, "transitions_ok": self.transitions.get("success", 0),
+            "transitions": self.transitions.get("transitions", 0), "cancelled": self.cancelled,
+            "error": None if self.error is None else str(self.error), "message": self.message,
+            "seconds": round(self.seconds, 2),
+        }  # fmt: skip
+
+
+def check_sources(project: Project) -> None:
+    """A ProjectError when a source is missing or changed on disk (module doc), saying what to do."""
+    if project.missing_sources:
+        m = project.missing_sources[0]
+        raise ProjectError(
+            f"{project.path}: source {m.index} is missing: it was at {m.absolute} (given as {m.path}); put it back, "
+            f"or relink it (Project.relink_source({m.index}, NEW_PATH)), then run again. Nothing was changed"
+        )
+    if project.changed_sources:
+        i = project.changed_sources[0]
+        raise ProjectError(
+            f"{project.path}: source {i} ({project.sources[i].path}) changed on disk since it was read; re-read it "
+            "(project run --reload-sources, or Project.reload_sources()) and run again. Nothing was changed"
+        )
+
+
+def _previous(project: Project, k: int) -> tuple[int, int | None]:
+    """``(position of keyframe k within its source, id of the keyframe before it there or None)``."""
+    s = project.state
+    src = s.frames[s.keyframe(k).representative].source
+    same = [kf.id for kf in s.keyframes if s.frames[kf.representative].source == src]
+    pos = same.index(k)
+    return pos, (same[pos - 1] if pos else None)
+
+
+def keyframe_config(cfg: SequenceConfig, position: int) -> SequenceConfig:
+    """``cfg`` with its seeds moved on by ``position`` (a keyframe's place in its source), as a whole sequence
+    seeds its k-th keyframe."""
+    return replace(cfg, first=replace(cfg.first, seed=cfg.first.seed + position),
+                   next=replace(cfg.next, seed=cfg.next.seed + position))  # fmt: skip
+
+
+def _wait(job: Job, cancel: threading.Event | None) -> JobState:
+    while not job.finished:
+        if cancel is not None and cancel.is_set():
+            job.cancel()
+            return job.wait(2.0)
+        job.wait(0.1)
+    return job.state
+
+
+def _plan_or_late(report: Reporter, cancel, *, keyframes, cfg, show_title):
+    from studio.motion.errors import SegmentTooFastError
+
+    home = bool(keyframes.times[0] > 0)
+    try:
+        return _plan(report, cancel, keyframes=keyframes, cfg=cfg, show_title=show_title)
+    except SegmentTooFastError as e:
+        return TooFast(e.segments, home, str(e))
+
+
+def plan_project_job(project: Project, keyframes: Keyframes, cfg: PlanConfig) -> Job:
+    """Plan the project's show (``project.set_show`` on completion); a transition too fast without
+    ``allow_late`` ends the job ``done`` with a :class:`TooFast` result, nothing applied."""
+    inputs = project.show_inputs()
+
+    def apply(r: Any) -> None:
+        if not isinstance(r, TooFast):
+            project.set_show(r.show, inputs=inputs)
+
+    run = functools.partial(_plan_or_late, keyframes=keyframes, cfg=cfg, show_title=project.state.title)
+    return Job("plan", run, apply, "show")
+
+
+def project_transitions(project: Project, cfg: TransitionConfig | None = None) -> dict:
+    """Transition success between consecutive keyframes of each source (first-appearance order), summed over the
+    sources: ``{"success", "transitions", "rate"}`` (rate None with no transition). Endpoint totals as ``cfg.total``
+    reads them from each result's evaluation (its losses where it has none)."""
+    cfg = cfg or TransitionConfig()
+    from studio.sim.hand import load_hand
+
+    names = load_hand().joint_names
+    s = project.state
+    ok = n = 0
+    for i in range(len(s.sources)):
+        ids = [kf.id for kf in s.keyframes if s.frames[kf.representative].source == i and kf.id in s.results]
+        if len(ids) < 2:
+            continue
+        results = [s.results[k] for k in ids]
+        parts = {"base": ("base",), "image": ("base", "expr"), "full": ("base", "expr", "temporal")}[cfg.total]
+        totals = []
+        for r in results:
+            e = r.evaluation or r.loss
+            vals = [e.get(p, math.nan) for p in parts]
+            totals.append(vals[0] + sum(0.0 if math.isnan(v) else v for v in vals[1:]))
+        good, _ = transition_success(np.stack([r.theta(names) for r in results]), np.array(totals), cfg)
+        ok, n = ok + int(good.sum()), n + len(good)
+    return {"success": ok, "transitions": n, "rate": (ok / n) if n else None}
+
+
+def run_project(
+    project: Project,
+    cfg: RunConfig | None = None,
+    clip: Any = None,
+    queue: JobQueue | None = None,
+    cancel: threading.Event | None = None,
+    model_path: Any = None,
+    on_job: Callable[[Job, str], None] | None = None,
+) -> RunReport:
+    """Optimise every missing or stale keyframe of ``project``, then plan its show when missing or stale (module
+    doc) → :class:`RunReport`. ``clip``: a CLIP encoder for the CLIP terms (None: off); ``queue``: where the jobs
+    run (default the project's, :func:`queue_for`; subscribe bars to it); ``cancel``: stops the run (within 1 s);
+    ``on_job(job, what)``: told of each job as it is submitted (``what``: one line, "keyframe 3 (2 of 5)").
+    Raises ProjectError before any work when a source is missing or changed."""
+    t0 = time.perf_counter()
+    cfg = cfg or RunConfig()
+    check_sources(project)
+    queue = queue or queue_for(project)
+    report = RunReport(str(project.path))
+    pending = project.pending_keyframes()
+    report.skipped = [kf.id for kf in project.keyframes if kf.id not in pending]
+    seq = cfg.sequence
+    for n, k in enumerate(pending):
+        pos, before = _previous(project, k)
+        previous = None
+        if seq.mode == "sequential" and before is not None:
+            previous = project.results[before].theta(_joint_names())
+        job = queue.submit(video_job(project, [k], cfg=keyframe_config(seq, pos), clip=clip, previous=previous,
+                                     model_path=model_path))  # fmt: skip
+        if on_job is not None:
+            on_job(job, f"keyframe {k} ({n + 1} of {len(pending)})")
+        state = _wait(job, cancel)
+        if state == JobState.DONE:
+            report.optimised.append(k)
+            continue
+        report.cancelled, report.error = state == JobState.CANCELLED, job.error
+        what = "cancelled" if report.cancelled else f"failed ({job.error})"
+        report.message = f"keyframe {k} {what}; {len(report.optimised)} keyframe(s) finished and saved before it"
+        return _finish(report, project, cfg, t0)
+    if project.show is not None and not project.is_show_stale():
+        report.show, report.message = "current", _nothing(report)
+        return _finish(report, project, cfg, t0)
+    timing = project.show_timing(cfg.layout)
+    plan = replace(cfg.plan, timing=replace(cfg.plan.timing, allow_late=cfg.allow_late))
+    job = queue.submit(plan_project_job(project, timing.keyframes, plan))
+    if on_job is not None:
+        on_job(job, f"the show ({len(timing.keyframes.times)} planner keyframes, {timing.end_s:.2f} s)")
+    state = _wait(job, cancel)
+    if state != JobState.DONE:
+        report.cancelled, report.error = state == JobState.CANCELLED, job.error
+        report.message = "planning the show " + ("cancelled" if report.cancelled else f"failed: {job.error}")
+        return _finish(report, project, cfg, t0)
+    if isinstance(job.result, TooFast):
+        report.late = timing.late_transitions(job.result.segments, job.result.home_added)
+        report.message = (
+            f"no show: {len(report.late)} transition(s) too fast for the servos at the show's clock; pass "
+            "--allow-late to stretch them (the show then runs longer), or give those keyframes more time"
+        )
+        return _finish(report, project, cfg, t0)
+    from studio.motion.errors import SegmentTiming
+
+    planned = job.result
+    late = [SegmentTiming(**d) for d in planned.show.provenance.get("late_segments", [])]
+    report.late = timing.late_transitions(late, planned.home_added)
+    report.show = "planned"
+    stretched = f", {len(report.late)} late transition(s) stretched" if report.late else ""
+    report.message = (f"optimised {len(report.optimised)} keyframe(s), skipped {len(report.skipped)} current; "
+                      f"planned a {planned.show.duration:.2f} s show{stretched}")  # fmt: skip
+    return _finish(report, project, cfg, t0)
+
+
+def _nothing(report: RunReport) -> str:
+    if report.optimised:
+        return f"optimised {len(report.optimised)} keyframe(s); the show is current"
+    return f"nothing to do: all {len(report.skipped)} keyframe(s) and the show are current"
+
+
+def _joint_names() -> list[str]:
+    from studio.sim.hand import load_hand
+
+    return load_hand().joint_names
+
+
+def _finish(report: RunReport, project: Project, cfg: RunConfig, t0: float) -> RunReport:
+    if project.show is not None and report.show is not None:
+        report.show_seconds = round(project.show.duration, 4)
+    report.transitions = project_transitions(project, cfg.transitions)
+    report.seconds = time.perf_counter() - t0
+    return report

@@ -1,0 +1,178 @@
+"""``shadow-studio project run`` and what it stands on: a project's keyframes on the show clock
+(studio.project.show_timing) and run_project (studio.project.jobs.project_run): missing or stale keyframes
+optimised, current ones never recomputed, the show planned, failures and cancels leaving the project as it was."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+from studio.assets import asset
+
+from studio.cli.main import main
+from studio.imitate.refine import RefineConfig
+from studio.imitate.search import SearchConfig
+from studio.imitate.sequence import SequenceConfig
+from studio.imitate.video import DEFAULT_VIDEO
+from studio.motion.show import load_show
+from studio.project.jobs import RunConfig, run_project
+from studio.project.project import Project, ProjectError
+from studio.project.show_timing import ShowLayout
+
+STILL = asset("targets/asl_o.jpeg")
+TINY = ["--first-batch", "8", "--first-iters", "20", "--next-batch", "8", "--next-iters", "10",
+        "--refine-steps", "30", "--refine-restarts", "2", "--candidates", "1"]  # fmt: skip
+TINY_SEQUENCE = SequenceConfig(
+    first=SearchConfig(batch=8, iterations=20), next=SearchConfig(batch=8, iterations=10, lr=0.08),
+    refine=RefineConfig(steps=30, restarts=2), candidates=1,
+)  # fmt: skip
+
+
+def run_cli(capsys, *argv: str) -> tuple[int, dict, str]:
+    """``shadow-studio ARGV`` in this process: exit code, the JSON summary (last stdout line), stdout + stderr."""
+    rc = main(list(argv))
+    out = capsys.readouterr()
+    lines = out.out.strip().splitlines()
+    summary = json.loads(lines[-1]) if lines and lines[-1].startswith("{") else {}
+    return rc, summary, out.out + out.err
+
+
+def snapshot(folder: Path) -> dict[str, bytes]:
+    """Every file of a project folder → its bytes."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def fake_results(project: Project, hand) -> None:
+    """Every keyframe gets the rest pose as its (current) result: enough to time a show."""
+    for kf in project.keyframes:
+        project.set_result(kf.id, hand.rest_pose(), {"total": 0.5, "base": 0.2}, np.zeros((8, 8), np.uint8))
+
+
+# ------------------------------------------------------------------------------------------ the show clock
+def test_show_timing_plays_sources_one_after_another(tmp_path, hand):
+    project = Project.create(tmp_path / "two.shadow", sources=[STILL, DEFAULT_VIDEO])
+    with pytest.raises(ProjectError, match="no result for keyframe"):
+        project.show_timing()
+    fake_results(project, hand)
+    layout = ShowLayout(still_hold_s=2.0, gap_s=1.5)
+    timing = project.show_timing(layout)
+    kf = timing.keyframes
+    video_times = [f.time_s for f in project.frames if f.source == 1]
+    video_ids = [k.id for k in project.keyframes if project.frames[k.representative].source == 1]
+    # the still: reached at 0 and held for 2 s; then the horse at its own clock from 3.5 s to its end
+    assert kf.times[:2].tolist() == [0.0, 2.0] and kf.hold[:2].all()
+    start = 2.0 + 1.5
+    assert kf.times[2:-1] == pytest.approx(start + np.array(video_times))
+    end = min(video_times[-1] + 1 / project.state.video.hz, project.sources[1].duration_s)  # the GIF ends at 1.1 s
+    assert kf.times[-1] == pytest.approx(start + end)
+    assert timing.cluster.tolist() == [0, 0, *video_ids, video_ids[-1]]
+    assert timing.frame[2:].tolist() == [*range(1, len(project.frames)), len(project.frames) - 1]
+    assert kf.target[0] == "asl_o.jpeg#0" and kf.extra["title"] == "two"
+    # the artist's time for the still moves it (the video follows it), a hold holds every appearance
+    project.set_keyframe_time(0, 1.0)
+    project.set_hold(video_ids[1], True)
+    moved = project.show_timing(layout).keyframes
+    assert moved.times[:3].tolist() == pytest.approx([1.0, 3.0, 4.5]) and moved.hold[3]
+    # a video keyframe moved before the keyframe ahead of it is refused, naming it
+    project.set_keyframe_time(video_ids[2], 0.5)
+    with pytest.raises(ProjectError, match=f"keyframe {video_ids[2]} would be at 0.500 s"):
+        project.show_timing(layout)
+    # a stale result cannot be timed either
+    project.set_keyframe_time(video_ids[2], None)
+    project.set_weights(w_iou=0.5)
+    with pytest.raises(ProjectError, match="stale result"):
+        project.show_timing(layout)
+
+
+# ------------------------------------------------------------------------------------------ project run
+def test_run_sets_results_and_a_show_and_a_second_run_does_nothing(tmp_path, capsys):
+    path = tmp_path / "o.shadow"
+    Project.create(path, sources=[STILL])
+    rc, summary, text = run_cli(capsys, "project", "run", str(path), *TINY)
+    assert rc == 0, text
+    assert summary["keyframes_optimised"] == [0] and summary["keyframes_skipped"] == []
+    assert summary["show"] == "planned" and summary["show_seconds"] == pytest.approx(2.0)
+    assert summary["clip"] is False and summary["seconds"] > 0
+    project = Project.open(path)
+    assert project.pending_keyframes() == [] and not project.is_show_stale()
+    result = project.results[0]
+    assert result.collision_free and 0 <= result.loss["iou_loss"] < 1 and result.seconds > 0
+    out = project.export_show(tmp_path / "show.json")
+    load_show(out)  # validates
+    before = snapshot(path)
+    rc, again, text = run_cli(capsys, "project", "run", str(path), *TINY)
+    assert rc == 0, text
+    assert again["keyframes_optimised"] == [] and again["keyframes_skipped"] == [0] and again["show"] == "current"
+    assert "nothing to do" in again["message"]
+    assert snapshot(path) == before  # not one byte rewritten
+
+
+def test_a_stale_keyframe_is_recomputed_and_the_show_replanned(tmp_path, capsys):
+    path = tmp_path / "o.shadow"
+    Project.create(path, sources=[STILL])
+    assert run_cli(capsys, "project", "run", str(path), *TINY)[0] == 0
+    project = Project.open(path)
+    old = project.results[0]
+    project.set_weights(w_iou=0.5)
+    assert project.stale_keyframes() == [0] and project.is_show_stale()
+    rc, summary, text = run_cli(capsys, "project", "run", str(path), *TINY)
+    assert rc == 0, text
+    assert summary["keyframes_optimised"] == [0] and summary["show"] == "planned"
+    project = Project.open(path)
+    assert project.stale_keyframes() == [] and not project.is_show_stale()
+    assert project.results[0].inputs != old.inputs
+
+
+def test_a_missing_source_fails_the_run_and_changes_nothing(tmp_path, capsys):
+    src = tmp_path / "o.jpeg"
+    shutil.copy(STILL, src)
+    path = tmp_path / "o.shadow"
+    Project.create(path, sources=[src])
+    src.unlink()
+    before = snapshot(path)
+    rc, summary, text = run_cli(capsys, "project", "run", str(path), *TINY)
+    assert rc == 2 and summary == {}
+    assert f"source 0 is missing: it was at {src}" in text and "relink" in text and "Traceback" not in text
+    assert snapshot(path) == before
+
+
+def test_too_fast_without_allow_late_keeps_the_keyframes_and_lists_the_transitions(tmp_path, capsys):
+    path = tmp_path / "horse.shadow"
+    project = Project.create(path, sources=[DEFAULT_VIDEO])
+    ids = [kf.id for kf in project.keyframes]
+    rc, summary, text = run_cli(capsys, "project", "run", str(path), *TINY)
+    assert rc == 1, text
+    assert summary["keyframes_optimised"] == ids and summary["show"] is None and summary["late_transitions"]
+    assert "too fast:" in text and "--allow-late" in summary["message"]
+    assert summary["transitions"] == len(ids) - 1
+    project = Project.open(path)
+    assert project.pending_keyframes() == [] and project.show is None
+    rc, summary, text = run_cli(capsys, "project", "run", str(path), *TINY, "--allow-late")
+    assert rc == 0, text
+    assert summary["keyframes_optimised"] == [] and summary["keyframes_skipped"] == ids
+    assert summary["show"] == "planned" and summary["late_transitions"]
+    late = summary["late_transitions"][0]
+    assert late["needed_s"] > late["given_s"] and "late:" in text
+    assert Project.open(path).show.duration > project.show_timing().end_s  # stretched: longer than the video
+
+
+def test_a_cancel_keeps_only_the_keyframes_finished_before_it(tmp_path):
+    project = Project.create(tmp_path / "two.shadow", sources=[STILL, DEFAULT_VIDEO])
+    cancel = threading.Event()
+    submitted = []
+
+    def on_job(job, what):
+        submitted.append(what)
+        if len(submitted) == 2:  # the first keyframe is done and saved; cancel the second as it starts
+            cancel.set()
+
+    report = run_project(project, RunConfig(sequence=TINY_SEQUENCE), cancel=cancel, on_job=on_job)
+    assert report.cancelled and not report.ok and report.show is None
+    assert report.optimised == [0] and "keyframe 1 cancelled" in report.message
+    reopened = Project.open(project.path)
+    assert set(reopened.results) == {0} and reopened.show is None
+    assert reopened.pending_keyframes() == [kf.id for kf in reopened.keyframes[1:]]
