@@ -228,6 +228,7 @@ def run_project(
         return _finish(report, project, cfg, t0)
     if project.show is not None and not project.is_show_stale():
         report.show, report.message = "current", _nothing(report)
+        report.late = _late(project.show_timing(cfg.layout), project.show)
         return _finish(report, project, cfg, t0)
     timing = project.show_timing(cfg.layout)
     plan = replace(cfg.plan, timing=replace(cfg.plan.timing, allow_late=cfg.allow_late))
@@ -246,16 +247,21 @@ def run_project(
             "--allow-late to stretch them (the show then runs longer), or give those keyframes more time"
         )
         return _finish(report, project, cfg, t0)
-    from studio.motion.errors import SegmentTiming
-
     planned = job.result
-    late = [SegmentTiming(**d) for d in planned.show.provenance.get("late_segments", [])]
-    report.late = timing.late_transitions(late, planned.home_added)
+    report.late = _late(timing, planned.show)
     report.show = "planned"
     stretched = f", {len(report.late)} late transition(s) stretched" if report.late else ""
     report.message = (f"optimised {len(report.optimised)} keyframe(s), skipped {len(report.skipped)} current; "
                       f"planned a {planned.show.duration:.2f} s show{stretched}")  # fmt: skip
     return _finish(report, project, cfg, t0)
+
+
+def _late(timing, show) -> list[dict]:
+    """The late transitions a planned show was stretched by (its planner provenance), named by frame."""
+    from studio.motion.errors import SegmentTiming
+
+    late = [SegmentTiming(**d) for d in show.provenance.get("late_segments", [])]
+    return timing.late_transitions(late, bool(show.provenance.get("home_added", False)))
 
 
 def _nothing(report: RunReport) -> str:
