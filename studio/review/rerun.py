@@ -244,10 +244,19 @@ def read_recording(path: Path) -> dict[str, dict]:
 
     For tests and tools that check what a recording holds (reads Rerun's own file format).
     """
+    import warnings
+
     from rerun.chunk import RrdReader
 
+    with warnings.catch_warnings():  # a stream saved by `rerun --save` has no footer: read it whole (below)
+        warnings.filterwarnings("ignore", message=".*no footer.*")
+        reader = RrdReader(str(path))
+    try:
+        chunks = reader.store().stream()
+    except RuntimeError:  # no footer/manifest (a live stream's file): scan the whole file
+        chunks = reader.stream()
     out: dict[str, dict] = {}
-    for chunk in RrdReader(str(path)).store().stream():
+    for chunk in chunks:
         batch = chunk.to_record_batch()
         entry = out.setdefault(
             chunk.entity_path, {"static": chunk.is_static, "rows": 0, "columns": set(), "timelines": set()}
@@ -259,11 +268,19 @@ def read_recording(path: Path) -> dict[str, dict]:
     return out
 
 
-def scalar_series(recording: dict[str, dict], entity: str, timeline: str = "opt_step") -> list[tuple[int, float]]:
-    """``(time, value)`` pairs of a ``Scalars`` entity read by :func:`read_recording`."""
-    values: list[tuple[int, float]] = []
+def scalar_series(recording: dict[str, dict], entity: str, timeline: str = "opt_step") -> list[tuple[float, float]]:
+    """``(time, value)`` pairs of a ``Scalars`` entity read by :func:`read_recording`: steps (int) on sequence
+    timelines, seconds (float) on duration timelines; rows without ``timeline`` are left out."""
+    import pyarrow as pa
+
+    values: list[tuple[float, float]] = []
     for batch in recording.get(entity, {}).get("batches", []):
-        times = batch.column(timeline).to_pylist()
+        if timeline not in batch.schema.names or "Scalars:scalars" not in batch.schema.names:
+            continue
+        column = batch.column(timeline)
+        seconds = pa.types.is_duration(column.type)
+        times = column.cast(pa.int64()).to_pylist()  # steps, or nanoseconds on a duration timeline
         for t, v in zip(times, batch.column("Scalars:scalars").to_pylist()):
-            values.append((int(t), float(v[0])))
+            if t is not None and v is not None:
+                values.append((t / 1e9 if seconds else int(t), float(v[0])))
     return sorted(values)
