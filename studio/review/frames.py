@@ -1,0 +1,195 @@
+"""A project's frames and keyframes on the ``frame`` timeline, and a job's progress on ``opt_step`` (plain data in).
+
+:func:`log_frames` takes arrays and :class:`KeyframeReview` s (no Project needed): at frame k the target, its
+expressive mask, which keyframe it plays and that keyframe's self-model and rendered shadows, losses, and (given the
+hand and rig) the hand at that keyframe's pose with the backdrop carrying its shadow. A keyframe's images and pose
+are logged only where the frame's keyframe changes (Rerun shows the latest row at or before the time), so a long
+clip of few keyframes stays small; where the new keyframe has none yet, the old ones are cleared (the hand rests).
+:class:`JobProgressLog` subscribes to a job queue and draws every job's best loss on ``opt_step`` (its stages one
+after another) with its live best shadow.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import rerun as rr
+
+from studio.review.blueprint import (
+    BACKDROP,
+    EXPRESSIVE,
+    FRAME,
+    FRAME_LOSS,
+    JOBS_LOG,
+    KEYFRAME_OF_FRAME,
+    KEYFRAMES_LOG,
+    LOSS,
+    RENDERED,
+    SELF_MODEL,
+    SOURCE,
+    TARGET,
+    part,
+    set_time,
+)
+from studio.review.rerun import display
+from studio.review.rig3d import RigReview, backdrop, log_poses, urdf_tree
+from studio.review.sheets import tint
+from studio.sim.hand import Hand
+from studio.sim.shadow import Rig, ShadowRenderer
+
+
+@dataclass(frozen=True, eq=False)
+class KeyframeReview:
+    """One keyframe as a review shows it (plain data; a Project's keyframe with its result)."""
+
+    id: int  # the keyframe's stable id
+    representative: int  # the frame whose target its pose imitates
+    members: tuple[int, ...]  # the frames that play its pose
+    theta: np.ndarray | None = None  # (21,) rad, its optimised pose (None: not optimised yet)
+    shadow: np.ndarray | None = None  # (R, R) uint8 {0, 1}, the rendered shadow of that pose (rig window)
+    self_model: np.ndarray | None = None  # (R, R) float in [0, 1], the self-model's shadow of that pose
+    loss: Mapping[str, float] = field(default_factory=dict)  # loss components (NaN: not computed)
+    stale: bool = False  # the result was computed from inputs that have changed since
+
+
+def assignment(keyframes: Sequence[KeyframeReview], n: int) -> np.ndarray:
+    """``(n,)`` int: each frame's keyframe as its position in ``keyframes`` (-1 for a frame in none)."""
+    out = np.full(n, -1, dtype=np.int64)
+    for i, kf in enumerate(keyframes):
+        out[list(kf.members)] = i
+    return out
+
+
+def _changes(a: np.ndarray) -> np.ndarray:
+    """Indices where ``a (N,)`` differs from its previous entry (0 always)."""
+    return np.flatnonzero(np.r_[True, a[1:] != a[:-1]]) if len(a) else np.zeros(0, dtype=np.int64)
+
+
+def _finite(loss: Mapping[str, float]) -> dict[str, float]:
+    return {k: float(v) for k, v in loss.items() if v is not None and math.isfinite(float(v))}
+
+
+def log_frames(
+    rec: rr.RecordingStream,
+    targets: np.ndarray,
+    expressive: np.ndarray,
+    keyframes: Sequence[KeyframeReview],
+    sources: np.ndarray | None = None,
+    times: np.ndarray | None = None,
+    hand: Hand | None = None,
+    rig: Rig | None = None,
+    cfg: RigReview | None = None,
+) -> np.ndarray:
+    """Frames ``targets (N, S, S)`` (1 = shadow) with their ``expressive (N, S, S)`` masks, RGB ``sources (N, H, W,
+    3)`` when given, and their ``keyframes`` (first-appearance order), on ``frame`` (module doc). ``times (N,)`` s,
+    when given, go into the keyframes' log lines. With ``hand`` and ``rig`` the 3D rig shows each frame's keyframe
+    pose, the backdrop its shadow (rendered at ``cfg.texture`` when a keyframe has a pose but no shadow). Returns
+    the assignment ``(N,)`` (:func:`assignment`)."""
+    n = len(targets)
+    if expressive.shape != targets.shape:
+        raise ValueError(f"expressive masks {expressive.shape} must match the targets {targets.shape}")
+    which = assignment(keyframes, n)
+    changed = set(_changes(which).tolist())
+    for k in range(n):
+        set_time(rec, frame=k)
+        rec.log(TARGET, rr.Image(display(targets[k])))
+        rec.log(EXPRESSIVE, rr.Image(tint(targets[k], expressive[k])))
+        rec.log(KEYFRAME_OF_FRAME, rr.Scalars(float(which[k])))
+        if sources is not None:
+            rec.log(SOURCE, rr.Image(np.asarray(sources[k])))
+        kf = keyframes[which[k]] if which[k] >= 0 else None
+        if kf is None:
+            continue
+        for name, value in _finite(kf.loss).items():
+            rec.log(f"{FRAME_LOSS}/{part(name)}", rr.Scalars(value))
+        if k in changed:  # a keyframe without them clears the previous keyframe's images
+            rec.log(RENDERED, rr.Clear(recursive=False) if kf.shadow is None else rr.Image(display(kf.shadow)))
+            predicted = kf.self_model
+            rec.log(SELF_MODEL, rr.Clear(recursive=False) if predicted is None else rr.Image(display(predicted)))
+        if k == kf.representative:
+            rec.log(KEYFRAMES_LOG, rr.TextLog(_keyframe_line(which[k], kf, times)))
+    if hand is not None and rig is not None:
+        _log_frame_rig(rec, hand, rig, keyframes, which, cfg or RigReview())
+    rec.reset_time()
+    return which
+
+
+def _keyframe_line(pos: int, kf: KeyframeReview, times: np.ndarray | None) -> str:
+    at = "" if times is None else f" at {float(times[kf.representative]):.2f} s"
+    loss = _finite(kf.loss).get("total")
+    result = "no result yet" if kf.theta is None else f"loss {loss:.3f}" if loss is not None else "optimised"
+    stale = ", stale: its inputs changed since" if kf.stale else ""
+    plays = f"plays {len(kf.members)} frames"
+    return f"keyframe {pos} (id {kf.id}): frame {kf.representative}{at}, {plays}; {result}{stale}"
+
+
+def _log_frame_rig(rec, hand: Hand, rig: Rig, keyframes, which: np.ndarray, cfg: RigReview) -> None:
+    """The hand and the backdrop on ``frame`` where the frame's keyframe changes: its pose and shadow, or the rest
+    pose and a bare backdrop for a keyframe not optimised yet."""
+    at = _changes(which).tolist()
+    if not at:
+        return
+    chosen = [keyframes[which[k]] if which[k] >= 0 else None for k in at]
+    rest = hand.rest_pose()
+    theta = np.stack([rest if kf is None or kf.theta is None else np.asarray(kf.theta, np.float64) for kf in chosen])
+    log_poses(rec, hand, urdf_tree(hand), FRAME, np.array(at), theta)
+    renderer = None
+    for k, kf, th in zip(at, chosen, theta):
+        set_time(rec, frame=k)
+        if kf is None or kf.theta is None:
+            rec.log(BACKDROP, rr.Clear(recursive=False))
+            continue
+        shadow = kf.shadow
+        if shadow is None:
+            renderer = renderer or ShadowRenderer(hand, rig.with_resolution(cfg.texture))
+            shadow = renderer.render_one(th)
+        rec.log(BACKDROP, backdrop(rig, shadow))
+
+
+class JobProgressLog:
+    """A job queue subscriber (``queue.subscribe(JobProgressLog(rec))``) drawing every job's progress on ``opt_step``.
+
+    Takes any event with ``job_id, kind, state, stage, step, total, best, shadow, elapsed, error`` (a
+    ``studio.project.jobs.JobEvent``). A job's stages follow one another on ``opt_step`` (a stage starts where the
+    previous one ended); its best loss goes to ``loss/<job>/<stage>``, its preview shadow to ``images/rendered``,
+    its start and end to ``log/jobs``. ``names`` maps a job id to the name in its entity paths (default
+    ``job<id>_<kind>``). Thread-safe for one queue (events arrive on its dispatcher thread)."""
+
+    def __init__(self, rec: rr.RecordingStream, names: Mapping[int, str] | None = None):
+        self.rec = rec
+        self.names = dict(names or {})
+        self._at: dict[int, tuple[str, int, int]] = {}  # job id → (stage, offset, last step)
+
+    def name(self, event: Any) -> str:
+        return part(self.names.get(event.job_id) or f"job{event.job_id}_{event.kind}")
+
+    def __call__(self, event: Any) -> None:
+        state = getattr(event.state, "value", str(event.state))
+        stage, offset, last = self._at.get(event.job_id, (event.stage, 0, 0))
+        if event.stage != stage or event.step < last:  # a new stage (or a stage starting over) follows on
+            stage, offset = event.stage, offset + last
+        self._at[event.job_id] = (stage, offset, event.step)
+        set_time(self.rec, opt_step=offset + event.step)
+        if state == "running" and event.stage == "start" or state in ("done", "failed", "cancelled"):
+            self.rec.log(JOBS_LOG, _job_line(event, state))
+        elif state == "running":
+            if math.isfinite(event.best):
+                self.rec.log(f"{LOSS}/{self.name(event)}/{part(event.stage)}", rr.Scalars(float(event.best)))
+            if event.shadow is not None:
+                self.rec.log(RENDERED, rr.Image(display(event.shadow)))
+        self.rec.reset_time()
+
+
+def _job_line(event: Any, state: str) -> rr.TextLog:
+    what = f"job {event.job_id} {event.kind}"
+    if state == "failed":
+        return rr.TextLog(f"{what} failed after {event.elapsed:.1f} s: {event.error}", level="ERROR")
+    if state == "cancelled":
+        return rr.TextLog(f"{what} cancelled after {event.elapsed:.1f} s", level="WARN")
+    if state == "done":
+        return rr.TextLog(f"{what} done in {event.elapsed:.1f} s", level="INFO")
+    return rr.TextLog(f"{what} started", level="INFO")

@@ -1,0 +1,217 @@
+"""A project's review as one Rerun recording, live and/or saved (DESIGN §2 "review", §5.6).
+
+    with ProjectRecording(path="review.rrd", url=DEFAULT_VIEWER_URL) as review:   # a file and a running viewer
+        review.log_project(project)                    # frames, masks, keyframes, results, the show, at once
+        queue.subscribe(review.job_progress())         # a job's best loss and shadow on opt_step, as it runs
+        play_on_emulator(show, on_sample=review.playback_hook(joint_names))   # servo angles as the show plays
+        review.log_playback(result)                    # ... or afterwards, with show_time
+
+Sinks, chosen when it is made (each gets everything logged after): ``path`` writes an ``.rrd`` that opens in the
+standalone viewer (``rerun review.rrd``); ``url`` streams to a running viewer (``rerun`` listens on
+:data:`DEFAULT_VIEWER_URL`); ``serve`` hosts a gRPC server on this machine that viewers connect to
+(:attr:`ProjectRecording.server_url`, ``rerun --connect URL``), and ``notebook`` does the same for
+:meth:`ProjectRecording.show_notebook`, the viewer in a notebook cell (offline: ``studio.review`` sets
+``RERUN_NOTEBOOK_ASSET=inline`` before rerun is imported). The layout is :func:`~studio.review.blueprint
+.project_blueprint`. Everything here takes plain data (arrays, a Show, results); :meth:`ProjectRecording.log_project`
+reads a ``studio.project.Project`` by its public attributes (review never imports the project layer).
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlparse
+
+import numpy as np
+import rerun as rr
+
+from studio.errors import StudioError
+from studio.motion.show import Show
+from studio.review.blueprint import FRAME, project_blueprint
+from studio.review.frames import JobProgressLog, KeyframeReview, log_frames
+from studio.review.playback import PlaybackSampleLog, log_playback
+from studio.review.rig3d import RigReview, log_rig, log_show, urdf_tree
+from studio.sim.hand import Hand, load_hand
+from studio.sim.shadow import Rig
+
+log = logging.getLogger(__name__)
+
+APPLICATION = "shadow_studio"  # Rerun application id (the viewer keeps one layout per application)
+DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"  # where a viewer started with plain `rerun` listens
+
+SelfModel = Callable[[np.ndarray], np.ndarray]  # theta (K, 21) rad → predicted shadows (K, R, R) in [0, 1]
+
+
+class ReviewError(StudioError):
+    """A review cannot be recorded or shown as asked (the message says what to do)."""
+
+
+def _listening(url: str, timeout: float = 1.0) -> bool:
+    """Whether something accepts connections at a ``rerun+http://HOST:PORT/proxy`` URL's host and port."""
+    parsed = urlparse(url)
+    default = 443 if parsed.scheme.endswith("https") else 9876
+    try:
+        with socket.create_connection((parsed.hostname or "127.0.0.1", parsed.port or default), timeout=timeout):
+            return True
+    except OSError:
+        return False
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class ProjectRecording:
+    """One recording of a project's review (module doc). Close it (or use ``with``) to finish the file."""
+
+    def __init__(
+        self,
+        path: str | Path | None = None,
+        url: str | None = None,
+        serve: bool = False,
+        notebook: bool = False,
+        hand: Hand | None = None,
+        rig: Rig | None = None,
+        cfg: RigReview | None = None,
+        recording_id: str | None = None,
+        timeline: str = FRAME,
+        sources: bool = False,
+        server_memory_limit: str = "1GiB",
+        flush_timeout_s: float = 10.0,
+    ):
+        """``path``/``url``/``serve``/``notebook``: the sinks (at least one); ``hand``, ``rig``: what is drawn in 3D
+        (default: the shipped hand, ``Rig()``); ``timeline``: the one the viewer opens on; ``sources``: show a
+        view of the RGB source frames; ``server_memory_limit``: what a served stream keeps for late viewers;
+        ``flush_timeout_s``: how long :meth:`flush` and :meth:`close` wait for a slow or vanished viewer."""
+        self.hand = hand or load_hand()
+        self.rig = rig or Rig()
+        self.cfg = cfg or RigReview()
+        self.path = None if path is None else Path(path)
+        self.server_url: str | None = None
+        self.flush_timeout_s = flush_timeout_s
+        self.blueprint = project_blueprint(timeline, sources=sources)
+        sinks: list[Any] = []
+        if self.path is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            sinks.append(rr.FileSink(str(self.path)))
+        if url is not None:
+            if not _listening(url):  # rerun would wait 5 s to connect, then hang on every flush
+                raise ReviewError(f"no Rerun viewer is listening at {url}: start one (`rerun` listens at "
+                                  f"{DEFAULT_VIEWER_URL}), or record to a file only (path=...)")  # fmt: skip
+            sinks.append(rr.GrpcSink(url))
+        if serve or notebook:
+            server = rr.GrpcServerSink("127.0.0.1", _free_port(), server_memory_limit=server_memory_limit)
+            sinks.append(server)
+            self.server_url = server.uri
+        if not sinks:
+            raise ReviewError("a review needs somewhere to go: give path= (an .rrd file), url= (a running viewer), "
+                              "serve=True or notebook=True")  # fmt: skip
+        self.rec = rr.RecordingStream(APPLICATION, recording_id=recording_id)
+        self.rec.set_sinks(*sinks, default_blueprint=self.blueprint)
+        self._tree = urdf_tree(self.hand)
+        log_rig(self.rec, self.hand, self.rig, self.cfg)
+        self.closed = False
+
+    # ---------------------------------------------------------------- what is logged
+    def log_frames(
+        self,
+        targets: np.ndarray,
+        expressive: np.ndarray,
+        keyframes: Sequence[KeyframeReview],
+        sources: np.ndarray | None = None,
+        times: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Frames and keyframes on ``frame`` (:func:`studio.review.frames.log_frames`); returns the assignment."""
+        return log_frames(self.rec, targets, expressive, keyframes, sources, times, self.hand, self.rig, self.cfg)
+
+    def log_show(self, show: Show) -> np.ndarray:
+        """The planned show on ``show_time`` (:func:`studio.review.rig3d.log_show`); returns the backdrop shadows."""
+        return log_show(self.rec, self.hand, self.rig, show, self.cfg, self._tree)
+
+    def log_playback(self, result: Any, rate_hz: float | None = None) -> float:
+        """A finished playback's commanded vs measured angles (:func:`studio.review.playback.log_playback`)."""
+        return log_playback(self.rec, result, rate_hz)
+
+    def playback_hook(self, joint_names: Sequence[str] | None = None) -> PlaybackSampleLog:
+        """The player's ``on_sample(t, commanded, measured)`` hook streaming here; ``joint_names``: the player's
+        column order (its calibration's joint names; default the hand's)."""
+        return PlaybackSampleLog(self.rec, joint_names or self.hand.joint_names)
+
+    def job_progress(self, names: Mapping[int, str] | None = None) -> JobProgressLog:
+        """A job-queue subscriber drawing each job's progress on ``opt_step`` (``queue.subscribe(...)``)."""
+        return JobProgressLog(self.rec, names)
+
+    def log_project(self, project: Any, self_model: SelfModel | None = None) -> np.ndarray:
+        """A project's current state: every frame's target and expressive mask, its keyframes with their results
+        (pose, rendered shadow, losses, stale or not) and the planned show. ``project`` is a
+        ``studio.project.Project`` (read through ``state.targets``, ``combined_masks()``, ``frames``,
+        ``keyframes``, ``results``, ``is_stale(id)``, ``show``); ``self_model`` predicts the self-model's shadows of
+        the keyframes' poses. Returns the frames' assignment."""
+        names = self.hand.joint_names
+        results = project.results
+        theta = {k: r.theta(names) for k, r in results.items()}
+        predicted = {}
+        if self_model is not None and theta:
+            ids = list(theta)
+            predicted = dict(zip(ids, np.asarray(self_model(np.stack([theta[k] for k in ids])))))
+        keyframes = [
+            KeyframeReview(
+                id=kf.id, representative=kf.representative, members=tuple(kf.members), theta=theta.get(kf.id),
+                shadow=None if kf.id not in results else results[kf.id].shadow, self_model=predicted.get(kf.id),
+                loss=dict(results[kf.id].loss) if kf.id in results else {}, stale=project.is_stale(kf.id),
+            )
+            for kf in project.keyframes
+        ]  # fmt: skip
+        times = np.array([f.time_s for f in project.frames], dtype=float)
+        which = self.log_frames(project.state.targets, project.combined_masks(), keyframes, times=times)
+        if project.show is not None:
+            self.log_show(project.show)
+        return which
+
+    # ---------------------------------------------------------------- viewers and the end
+    def show_notebook(self, width: int | None = None, height: int | None = None):
+        """Show the live viewer in this notebook cell (made with ``notebook=True``) and return its widget."""
+        if self.server_url is None:
+            raise ReviewError("this recording serves no viewer: make it with ProjectRecording(..., notebook=True)")
+        try:
+            from rerun.notebook import Viewer
+        except ImportError as e:  # pragma: no cover - depends on the environment
+            raise ReviewError(f"the notebook viewer needs the rerun-notebook package ({e}): "
+                              "pip install 'rerun-sdk[notebook]'") from None  # fmt: skip
+        try:
+            viewer = Viewer(width=width, height=height, url=self.server_url)
+        except Exception as e:  # rerun raises its own missing-dependency error when rerun-notebook is absent
+            raise ReviewError(f"cannot open the notebook viewer ({e}): pip install 'rerun-sdk[notebook]'") from None
+        viewer.display()
+        return viewer
+
+    def flush(self) -> bool:
+        """Send everything logged so far to every sink, waiting at most ``flush_timeout_s``; False (and a warning)
+        when a sink did not take it all in time (a viewer that went away)."""
+        try:
+            self.rec.flush(timeout_sec=self.flush_timeout_s)
+            return True
+        except Exception as e:  # rerun raises when the timeout passes
+            log.warning("the review did not reach every sink within %.0f s: %s", self.flush_timeout_s, e)
+            return False
+
+    def close(self) -> None:
+        """Flush and finish every sink (the ``.rrd`` gets its footer; a served stream stops). Idempotent."""
+        if self.closed:
+            return
+        self.closed = True
+        self.flush()
+        self.rec.disconnect()
+        if self.path is not None:
+            log.info("review written to %s (open it with: rerun %s)", self.path, self.path)
+
+    def __enter__(self) -> ProjectRecording:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
