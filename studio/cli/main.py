@@ -30,6 +30,7 @@ VERB_MODULES = (
     "studio.cli.servos",
     "studio.cli.plan",
     "studio.cli.project",
+    "studio.cli.demo",
 )
 
 

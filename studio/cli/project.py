@@ -145,8 +145,9 @@ def run_config_from_args(args: argparse.Namespace):
     )  # fmt: skip
 
 
-def add_run_flags(p: argparse.ArgumentParser) -> None:
-    """The flags ``project run`` and ``demo`` share: sequence budgets, show layout and limits, CLIP, model."""
+def add_run_flags(p: argparse.ArgumentParser, allow_late: bool = False) -> None:
+    """The flags ``project run`` and ``demo`` share: sequence budgets, show layout and limits, CLIP, model;
+    ``allow_late``: the default of ``--allow-late/--no-allow-late``."""
     from studio.cli.progress import add_quiet_flag
     from studio.cli.sequence_flags import add_sequence_flags
     from studio.motion.limits import LimitsConfig
@@ -154,7 +155,7 @@ def add_run_flags(p: argparse.ArgumentParser) -> None:
     from studio.project.show_timing import ShowLayout
 
     add_sequence_flags(p, ("mode", "expressive", "temporal", "candidates", "refine_enabled"))
-    add_config_flags(p, TimingConfig, ("allow_late",))
+    add_config_flags(p, TimingConfig, ("allow_late",), base=TimingConfig(allow_late=allow_late))
     add_config_flags(p, ShowLayout)
     add_config_flags(p, LimitsConfig, ("velocity_scale",), ranges={"velocity_scale": "(0, 1]"})
     p.add_argument("--clip-weights", type=Path, default=None, metavar="PATH",

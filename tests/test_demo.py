@@ -1,0 +1,113 @@
+"""``shadow-studio demo --out DIR`` end to end in a subprocess (small budgets): the project, the show file, the show
+played on the emulator and the review recording read back; a second run reuses the project."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hardware.calibration import load_calibration
+from studio.cli.main import main
+from studio.motion.show import load_show
+from studio.project.project import Project
+from studio.review.rerun import read_recording, scalar_series
+from studio.sim.hand import load_hand
+
+CLI = [sys.executable, "-m", "studio.cli.main"]
+SMALL = ["--first-batch", "8", "--first-iters", "30", "--next-batch", "8", "--next-iters", "15",
+         "--refine-steps", "40", "--refine-restarts", "2", "--candidates", "1", "--quiet"]  # fmt: skip
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="the emulator needs POSIX pseudo-terminals")
+
+
+def demo(out: Path, *extra: str) -> tuple[dict, str]:
+    """Run the demo; its JSON summary (the last stdout line) and all it printed."""
+    done = subprocess.run([*CLI, "demo", "--out", str(out), *SMALL, *extra], capture_output=True, text=True,
+                          timeout=600)  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    return json.loads(done.stdout.strip().splitlines()[-1]), done.stdout + done.stderr
+
+
+def entity(recording: dict, path: str) -> dict:
+    return recording.get(path) or recording["/" + path]
+
+
+def series(recording: dict, path: str, timeline: str) -> np.ndarray:
+    """``(n, 2)`` (time, value) rows of a Scalars entity (:func:`scalar_series`: seconds on show_time)."""
+    key = path if path in recording else "/" + path
+    return np.array(scalar_series(recording, key, timeline), dtype=float)
+
+
+@pytest.fixture(scope="module")
+def first_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    summary, text = demo(out)
+    return out, summary, text
+
+
+def test_demo_writes_the_project_the_show_and_plays_it(first_run, capsys):
+    out, summary, text = first_run
+    assert {"project", "show", "review", "keyframes", "played", "seconds"} <= set(summary)
+    assert summary["played"] is True and summary["playback"]["reason"] == "completed"
+    assert summary["fresh_project"] is True and summary["no_clip"] is True and summary["seconds"] > 0
+    project = Project.open(summary["project"])
+    assert Path(summary["project"]) == out / "demo.shadow"
+    assert [s.kind for s in project.sources] == ["still", "video"]
+    assert summary["keyframes"] == len(project.keyframes) >= 2
+    assert summary["keyframes_optimised"] == [kf.id for kf in project.keyframes]
+    assert project.pending_keyframes() == [] and project.show is not None and not project.is_show_stale()
+    # the horse is faster than the servos: the late transitions were stretched, and said so
+    assert summary["late_transitions"] and "late:" in text
+    show = load_show(summary["show"])
+    assert Path(summary["show"]) == out / "show.json"
+    assert show.duration == pytest.approx(project.show.duration)
+    assert main(["validate", summary["show"]]) == 0
+    capsys.readouterr()
+
+
+def test_demo_review_holds_every_stage_and_the_played_show(first_run):
+    out, summary, _ = first_run
+    assert Path(summary["review"]) == out / "review.rrd"
+    rec = read_recording(out / "review.rrd")
+    project = Project.open(summary["project"])
+    show = load_show(summary["show"])
+    # optimisation: every keyframe job's best loss on opt_step
+    losses = [p for p in rec if p.lstrip("/").startswith("loss/job") and "opt_step" in rec[p]["timelines"]]
+    assert len({p.split("/")[2] for p in losses}) == len(project.keyframes)
+    # frames: every frame's target and expressive mask, and the keyframe it plays, on frame
+    for path in ("images/target", "images/expressive", "frames/keyframe"):
+        assert "frame" in entity(rec, path)["timelines"]
+    assert entity(rec, "images/target")["rows"] == len(project.frames)
+    # the show on show_time: the backdrop carrying its shadow (and the hand's pose)
+    assert "show_time" in entity(rec, "world/backdrop")["timelines"]
+    assert any(p.lstrip("/").startswith("world/pose") and "show_time" in rec[p]["timelines"] for p in rec)
+    # the played show: commanded vs measured per joint, the commanded angles being the show's within the servos'
+    # soft limits (the player clips to the calibration's, a margin inside the URDF's that the planner keeps)
+    cal = load_calibration(None, load_hand())
+    assert cal.joint_names == show.joint_names
+    for j, name in enumerate(show.joint_names):
+        commanded = series(rec, f"servo/{name}/commanded", "show_time")
+        measured = series(rec, f"servo/{name}/measured", "show_time")
+        assert len(commanded) == summary["playback"]["ticks"] and len(measured) > 10
+        t = commanded[:, 0]
+        during = (t >= 0) & (t <= show.duration)
+        planned = np.clip(show.sample(t[during])[:, j], cal.lower[j], cal.upper[j])
+        assert np.abs(commanded[during, 1] - planned).max() < 1e-6
+        # the emulated servos follow: each read-back lies within the commands of the quarter second before it
+        for tm, q in measured:
+            recent = commanded[(t >= tm - 0.25) & (t <= tm + 1e-6), 1]
+            assert recent.min() - 0.02 <= q <= recent.max() + 0.02, (name, tm, q, recent)
+
+
+def test_demo_again_reuses_the_project(first_run):
+    out, first, _ = first_run
+    summary, text = demo(out)
+    assert "reusing" in text and summary["fresh_project"] is False
+    assert summary["keyframes_optimised"] == [] and summary["keyframes_skipped"] == first["keyframes_optimised"]
+    assert summary["played"] is True and summary["late_transitions"] == first["late_transitions"]
+    assert load_show(summary["show"]).duration == pytest.approx(load_show(first["show"]).duration)
