@@ -6,13 +6,12 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-import numpy as np
-
 from studio.cli.flags import add_config_flags, config_from_args
 from studio.motion.limits import LimitsConfig
 from studio.motion.path import PathConfig
 from studio.motion.plan import PlanConfig, load_keyframes, plan_show
 from studio.motion.show import export_csv, load_show, save_show
+from studio.motion.show_info import show_info_lines
 from studio.motion.timing import TimingConfig
 from studio.sim.hand import load_hand
 
@@ -54,26 +53,7 @@ def _validate(args: argparse.Namespace) -> int:
 
 
 def _info(args: argparse.Namespace) -> int:
-    show = load_show(args.show, load_hand(args.urdf))
-    media = f"{show.media.kind} {show.media.path} (offset {show.media.offset_s:+.3f} s)" if show.media else "-"
-    speed = np.abs(np.diff(show.positions, axis=0)) / np.diff(show.times)[:, None] if len(show.times) > 1 else None
-    lines = [
-        f"title:        {show.title}",
-        f"format:       version {show.format_version}, created {show.created}",
-        f"hand:         {show.hand_hash} ({len(show.joint_names)} joints)",
-        f"calibration:  {show.calibration or '-'}",
-        f"duration:     {show.duration:.3f} s, {len(show.times)} samples at {show.rate_hz:g} Hz",
-        f"keyframes:    {len(show.keyframes)} at "
-        + ", ".join(f"{k.t:.3f}{' (hold)' if k.hold else ''}" for k in show.keyframes),
-        f"media:        {media}",
-    ]
-    if speed is not None:
-        j = int(np.argmax((speed / show.limits.velocity).max(axis=0)))
-        ratio = speed[:, j].max() / show.limits.velocity[j]
-        lines.append(f"peak speed:   {show.joint_names[j]} at {ratio:.0%} of its velocity limit")
-    late = show.provenance.get("late_segments") or []
-    lines.append(f"late:         {len(late)} segment(s) stretched" if late else "late:         none")
-    print("\n".join(lines))
+    print("\n".join(show_info_lines(load_show(args.show, load_hand(args.urdf)))))
     return 0
 
 

@@ -1,0 +1,31 @@
+"""A show described in a few lines of text: what ``shadow-studio show-info`` prints and the export panel shows."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from studio.motion.show import Show
+
+
+def show_info_lines(show: Show) -> list[str]:
+    """Title, format, hand, calibration, duration and samples, keyframe times, media, the peak joint speed as a
+    share of its velocity limit, and the late segments the planner stretched, one line each."""
+    media = f"{show.media.kind} {show.media.path} (offset {show.media.offset_s:+.3f} s)" if show.media else "-"
+    speed = np.abs(np.diff(show.positions, axis=0)) / np.diff(show.times)[:, None] if len(show.times) > 1 else None
+    lines = [
+        f"title:        {show.title}",
+        f"format:       version {show.format_version}, created {show.created}",
+        f"hand:         {show.hand_hash} ({len(show.joint_names)} joints)",
+        f"calibration:  {show.calibration or '-'}",
+        f"duration:     {show.duration:.3f} s, {len(show.times)} samples at {show.rate_hz:g} Hz",
+        f"keyframes:    {len(show.keyframes)} at "
+        + ", ".join(f"{k.t:.3f}{' (hold)' if k.hold else ''}" for k in show.keyframes),
+        f"media:        {media}",
+    ]
+    if speed is not None:
+        j = int(np.argmax((speed / show.limits.velocity).max(axis=0)))
+        ratio = speed[:, j].max() / show.limits.velocity[j]
+        lines.append(f"peak speed:   {show.joint_names[j]} at {ratio:.0%} of its velocity limit")
+    late = show.provenance.get("late_segments") or []
+    lines.append(f"late:         {len(late)} segment(s) stretched" if late else "late:         none")
+    return lines
