@@ -1,0 +1,79 @@
+"""The Weights panel (widgets.weights) driven in Python: sliders edit the project's weights (undoable), reset
+restores the paper's defaults, and the CLIP sliders are disabled with the reason while no CLIP weights are set."""
+
+from __future__ import annotations
+
+import pytest
+from studio.assets import asset
+
+from studio.imitate.losses import LossConfig
+from studio.project.project import Project
+from widgets.state import StudioState
+from widgets.weights import CLIP_FIELDS, SLIDERS, paper_weights, weights_panel
+
+
+@pytest.fixture
+def state(tmp_path):
+    project = Project.create(tmp_path / "still.shadow", sources=[asset("targets/asl_o.jpeg")])
+    s = StudioState(project, None)
+    yield s
+
+
+def test_paper_defaults_are_the_loss_configs():
+    assert paper_weights() == {"w_mae": 0.06, "w_iou": 0.4, "w_clip": 0.02, "w_exp_iou": 1.0, "w_exp_clip": 0.05,
+                               "w_temporal": 0.2}  # fmt: skip
+    assert [s.label for s in SLIDERS] == ["MAE", "IoU", "CLIP", "Exp. IoU", "Exp. CLIP", "temporal"]
+
+
+def test_sliders_edit_the_project_weights_and_undo_restores_them(state):
+    panel = weights_panel(state)
+    assert "Weights" in panel.widget.children[0].value
+    assert {n: s.value for n, s in panel.sliders.items()} == pytest.approx(paper_weights())
+    assert all(not s.continuous_update for s in panel.sliders.values())  # a drag is one edit, on release
+    panel.sliders["w_iou"].value = 0.8
+    assert state.project.weights.w_iou == pytest.approx(0.8)
+    assert state.project.history == ["loss weights"]
+    assert Project.open(state.project.path).weights.w_iou == pytest.approx(0.8)  # saved
+    panel.sliders["w_temporal"].value = 0.5
+    assert state.project.weights.w_temporal == pytest.approx(0.5) and len(state.project.history) == 2
+    assert state.undo()
+    assert state.project.weights.w_temporal == pytest.approx(0.2)
+    assert panel.sliders["w_temporal"].value == pytest.approx(0.2)  # the panel follows the undo
+    assert state.undo()
+    assert state.project.weights == LossConfig() and panel.sliders["w_iou"].value == pytest.approx(0.4)
+    assert not state.project.can_undo  # the panel's own redraw made no edit
+
+
+def test_reset_restores_the_paper_defaults_in_one_edit(state):
+    panel = weights_panel(state)
+    panel.sliders["w_mae"].value = 0.3
+    panel.sliders["w_exp_iou"].value = 2.5
+    panel.reset.click()
+    assert state.project.weights == LossConfig()
+    assert {n: s.value for n, s in panel.sliders.items()} == pytest.approx(paper_weights())
+    assert state.project.history == ["loss weights"] * 3
+    state.undo()
+    assert state.project.weights.w_mae == pytest.approx(0.3) and panel.sliders["w_exp_iou"].value == 2.5
+    before = list(state.project.history)
+    state.redo()
+    panel.reset.click()  # already the defaults: nothing recorded
+    assert state.project.history == [*before, "loss weights"]
+
+
+def test_clip_sliders_are_disabled_with_the_reason_until_weights_are_configured(state, tmp_path):
+    panel = weights_panel(state)
+    if panel.clip_disabled_reason is None:
+        pytest.skip("CLIP weights are in this machine's cache: the sliders are rightly enabled")
+    assert all(panel.sliders[n].disabled for n in CLIP_FIELDS)
+    assert not panel.sliders["w_iou"].disabled
+    assert "no local CLIP weights" in panel.clip_reason.value and "never downloaded" in panel.clip_reason.value
+    state.extras["clip_weights"] = str(tmp_path / "absent.safetensors")
+    panel.sync()
+    assert panel.sliders["w_clip"].disabled and "absent.safetensors does not exist" in panel.clip_reason.value
+    weights = tmp_path / "clip.safetensors"
+    weights.write_bytes(b"a local checkpoint")
+    state.extras["clip_weights"] = str(weights)
+    panel.sync()
+    assert not any(panel.sliders[n].disabled for n in CLIP_FIELDS) and panel.clip_reason.value == ""
+    panel.sliders["w_exp_clip"].value = 0.1
+    assert state.project.weights.w_exp_clip == pytest.approx(0.1)
