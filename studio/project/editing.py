@@ -56,10 +56,14 @@ class Editing:
             paths.append(where)
         return paths
 
-    def _reloaded(self, state: ProjectState, progress: Progress | None = None) -> ProjectState:
-        """``state`` with its sources re-read at its settings, re-clustered (ids kept for unchanged clusters),
-        results of keyframes that no longer exist dropped; painted strokes are kept by frame key."""
-        sources, frames, targets, auto = load_sources(state.sources, self._paths(), state.video, state.still, progress)
+    def _reloaded(
+        self, state: ProjectState, progress: Progress | None = None, paths: list[Path] | None = None
+    ) -> ProjectState:
+        """``state`` with its sources re-read (from ``paths``, default where the current sources are) at its
+        settings, re-clustered (ids kept for unchanged clusters), results of keyframes that no longer exist dropped;
+        painted strokes are kept by frame key."""
+        paths = self._paths() if paths is None else paths
+        sources, frames, targets, auto = load_sources(state.sources, paths, state.video, state.still, progress)
         new = replace(state, sources=sources, frames=frames, targets=frozen(targets), auto=frozen(auto))
         keyframes, next_id = edits.cluster(
             frames, edits.combined_masks(new), state.clustering, state.keyframes, state.frames, state.next_id
@@ -122,6 +126,28 @@ class Editing:
     def reload_sources(self, progress: Progress | None = None) -> None:
         """Re-read every source (after one changed on disk): frames, masks and keyframes recomputed."""
         self._edit_reloading("reload sources", progress)
+
+    def add_source(
+        self,
+        path: str | Path,
+        box: tuple[int, int, int, int] | None = None,
+        first_mask: np.ndarray | str | Path | None = None,
+        progress: Progress | None = None,
+    ) -> int:
+        """Add ``path`` (a still, a video or a folder of frames) as the last source; returns its index. ``box`` /
+        ``first_mask`` segment colour footage (as :meth:`set_segmentation`). Frames, masks and keyframes
+        recomputed (the other sources' keyframes keep their ids)."""
+        src = make_source(path)
+        if src.kind != "still" and (box is not None or first_mask is not None):
+            mask = None if first_mask is None else _mask_arg(first_mask, None, "the first mask")
+            src = replace(src, box=None if box is None else tuple(int(v) for v in box), first_mask=mask,
+                          first_mask_path=str(first_mask) if isinstance(first_mask, (str, Path)) else None)  # fmt: skip
+        with self._lock:
+            state = replace(self._state, sources=self._state.sources + (src,))
+            new = self._reloaded(state, progress, self._paths() + [Path(src.absolute)])
+            self._commit(f"add source {path}", new)
+            self._check_sources()
+            return len(self._state.sources) - 1
 
     def recluster(self, tau: float | None = None) -> None:
         """Cluster the frames into keyframes again (at ``tau``, default the current one), on the expressive masks
