@@ -1,0 +1,131 @@
+"""The Targets panel driven from Python: add sources (sample, path, upload), scrub, sample, threshold with its
+live preview, and segment raw colour footage as a job; every edit undoable."""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from studio.assets import asset
+
+from studio.imitate.targets import TargetConfig
+from studio.imitate.video import VideoConfig
+from studio.project.jobs import JobState, queue_for
+from studio.project.project import Project
+from widgets.state import StudioState
+from widgets.targets import TargetsPanel, targets_panel
+
+STILL = Path(asset("targets/asl_o.jpeg"))
+
+
+@pytest.fixture
+def state(tmp_path):
+    project = Project.create(tmp_path / "t.shadow", [STILL], video=VideoConfig(size=48, hz=2.0),
+                             still=TargetConfig())  # fmt: skip
+    s = StudioState(project, queue_for(project))
+    yield s
+    s.close()
+
+
+def labels(widget) -> str:
+    out, todo = [], [widget]
+    while todo:
+        x = todo.pop()
+        out.append(str(getattr(x, "value", "")) if hasattr(x, "value") else "")
+        todo.extend(getattr(x, "children", ()))
+    return " ".join(o for o in out if isinstance(o, str))
+
+
+def test_the_panel_has_its_title_and_adds_a_bundled_video(state):
+    assert "Targets" in labels(targets_panel(state))
+    panel = TargetsPanel(state)
+    assert panel.scrubber.max == 0 and panel.preview.value  # one still, previewed
+    panel.sample.value = "muybridge_horse.gif"
+    panel.add_sample.click()
+    assert panel.messages.text == ""
+    assert [s.kind for s in state.project.sources] == ["still", "video"]
+    n = len(state.project.frames)
+    assert n > 2 and panel.scrubber.max == n - 1
+    assert state.selection.frame == 1  # the new source's first frame is in view
+    panel.scrubber.value = n - 1
+    assert state.selection.frame == n - 1 and "source 1" in panel.frame_info.value
+    panel.hz.value = 1.0
+    panel.apply_hz.click()
+    assert state.project.state.video.hz == 1.0 and len(state.project.frames) < n
+    state.undo()
+    assert len(state.project.frames) == n and panel.hz.value == 2.0
+    state.undo()
+    assert len(state.project.sources) == 1 and panel.scrubber.max == 0
+
+
+def test_a_missing_path_is_a_message_not_a_traceback(state, tmp_path):
+    panel = TargetsPanel(state)
+    panel.path.value = str(tmp_path / "nowhere.png")
+    panel.add_path.click()
+    assert "no such file" in panel.messages.text and len(state.project.sources) == 1
+
+
+def test_an_upload_is_written_into_the_project_and_added(state):
+    panel = TargetsPanel(state)
+    data = Path(asset("targets/asl_v.jpeg")).read_bytes()
+    panel.upload.value = ({"name": "my_v.jpeg", "type": "image/jpeg", "size": len(data), "content": memoryview(data),
+                           "last_modified": datetime.now(timezone.utc)},)  # fmt: skip
+    assert panel.messages.text == ""
+    written = state.project.path / "uploads" / "my_v.jpeg"
+    assert written.read_bytes() == data
+    assert Path(state.project.sources[-1].absolute) == written.resolve() and len(state.project.frames) == 2
+
+
+def test_threshold_preview_follows_the_slider_and_otsu_then_applies(state):
+    panel = TargetsPanel(state)
+    panel.threshold.value = 5.0
+    panel.refresh_preview()  # the throttled redraw, now
+    low = panel.preview_mask.sum()
+    assert panel.preview_level == 5.0
+    panel.threshold.value = 200.0
+    panel.refresh_preview()
+    assert panel.preview_mask.sum() < low
+    panel.otsu.value = True
+    panel.refresh_preview()
+    assert 5.0 < panel.preview_level < 250.0 and panel.threshold.disabled
+    before = state.project.state.targets.copy()
+    panel.apply_threshold.click()
+    assert state.project.state.still.threshold is None and panel.messages.text == ""
+    panel.otsu.value = False
+    panel.threshold.value = 100.0
+    panel.apply_threshold.click()
+    assert state.project.state.still.threshold == 100.0, panel.messages.text
+    assert not np.array_equal(state.project.state.targets, before)
+    state.undo()
+    state.undo()
+    assert state.project.state.still.threshold == TargetConfig().threshold
+    assert np.array_equal(state.project.state.targets, before)
+
+
+def test_raw_colour_footage_waits_for_a_box_then_is_segmented_as_a_job(state, tmp_path):
+    folder = tmp_path / "colour"
+    folder.mkdir()
+    rng = np.random.default_rng(3)
+    ground = (rng.integers(0, 40, (64, 80, 3)) + np.array([40, 140, 60])).astype(np.uint8)
+    for i in range(4):
+        frame = ground.copy()
+        frame[20:44, 10 + 6 * i : 34 + 6 * i] = (220, 40, 40)  # a red square moving right
+        Image.fromarray(frame).save(folder / f"{i:05d}.png")
+    panel = TargetsPanel(state)
+    panel.path.value = str(folder)
+    panel.add_path.click()
+    assert panel.pending == folder and "colour footage" in panel.messages.text
+    assert len(state.project.sources) == 1
+    for t, v in zip(panel.box, (8, 18, 28, 28), strict=True):
+        t.value = v
+    panel.segment.click()
+    job = panel.segment_job
+    assert job is not None and job.wait(60) == JobState.DONE, job.error
+    src = state.project.sources[-1]
+    assert src.footage == "segmented" and src.box == (8, 18, 28, 28) and panel.pending is None
+    assert "segmented" in panel.sources.value
+    state.undo()
+    assert len(state.project.sources) == 1

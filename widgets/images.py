@@ -1,0 +1,131 @@
+"""Small helpers the panels share: masks and frames → PNG bytes for ``ipywidgets.Image``, overlays, a throttle, and
+an error line instead of a traceback (DESIGN §5.7, §6 "ipywidgets from a thread")."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import cv2
+import ipywidgets as w
+import numpy as np
+
+from studio.errors import StudioError
+
+log = logging.getLogger(__name__)
+
+ADD_RGB = (60, 200, 90)  # painted additions
+ERASE_RGB = (230, 60, 60)  # painted erasures
+MASK_RGB = (255, 170, 0)  # an automatic / binary mask over a frame
+
+
+def title(text: str) -> w.HTML:
+    """The panel's visible title label (the browser test looks for it)."""
+    return w.HTML(f"<b style='font-size:1.2em'>{text}</b>")
+
+
+def grey_rgb(image: np.ndarray) -> np.ndarray:
+    """``(H, W)`` grey or ``{0, 1}`` mask, or ``(H, W, 3)`` → ``(H, W, 3)`` uint8 RGB (a {0, 1} mask: black shape
+    on white)."""
+    a = np.asarray(image)
+    if a.ndim == 3:
+        return a.astype(np.uint8)
+    if a.max(initial=0) <= 1:
+        a = (1 - a.astype(np.uint8)) * 255
+    return np.repeat(a.astype(np.uint8)[..., None], 3, axis=2)
+
+
+def tint(rgb: np.ndarray, mask: np.ndarray, colour: tuple[int, int, int], alpha: float = 0.5) -> np.ndarray:
+    """``rgb (H, W, 3)`` with ``mask (H, W)`` (nonzero) blended towards ``colour``; a new array."""
+    out = rgb.astype(np.float32)
+    m = np.asarray(mask) != 0
+    out[m] = (1 - alpha) * out[m] + alpha * np.asarray(colour, np.float32)
+    return out.astype(np.uint8)
+
+
+def upscale(image: np.ndarray, side: int) -> np.ndarray:
+    """``image (H, W[, 3])`` resized to ``(side, side[, 3])``, nearest pixel (masks stay crisp)."""
+    return cv2.resize(np.ascontiguousarray(image), (side, side), interpolation=cv2.INTER_NEAREST)
+
+
+def png(image: np.ndarray) -> bytes:
+    """``(H, W)`` grey or ``(H, W, 3)`` RGB uint8 → PNG bytes for ``ipywidgets.Image``."""
+    a = np.ascontiguousarray(image, np.uint8)
+    if a.ndim == 3:
+        a = cv2.cvtColor(a, cv2.COLOR_RGB2BGR)
+    ok, buf = cv2.imencode(".png", a)
+    if not ok:
+        raise ValueError(f"could not encode an image of shape {a.shape} as PNG")
+    return buf.tobytes()
+
+
+def image_widget(side: int) -> w.Image:
+    """An empty square PNG image widget ``side`` px wide."""
+    return w.Image(format="png", width=side, height=side)
+
+
+class Messages:
+    """One line in a panel saying what went wrong (never a traceback in the output area)."""
+
+    def __init__(self) -> None:
+        self.widget = w.HTML("")
+
+    @property
+    def text(self) -> str:
+        return self.widget.value
+
+    def say(self, text: str, error: bool = False) -> None:
+        colour = "#b00" if error else "#555"
+        self.widget.value = f"<span style='color:{colour}'>{text}</span>" if text else ""
+
+    def run(self, fn: Callable[..., Any], *args: Any, clear: bool = True, **kwargs: Any) -> Any:
+        """``fn(*args, **kwargs)``; an error is shown here (and logged), never raised; returns fn's result or None.
+        ``clear``: the previous message goes first (a redraw keeps it)."""
+        if clear:
+            self.say("")
+        try:
+            return fn(*args, **kwargs)
+        except (StudioError, ValueError, KeyError, OSError) as e:
+            self.say(str(e).strip("'\""), error=True)
+            log.info("panel action failed: %s", e)
+            return None
+        except Exception as e:  # a panel must never leave a traceback in the notebook
+            self.say(f"unexpected error ({type(e).__name__}): {e}", error=True)
+            log.debug("panel action failed", exc_info=True)
+            return None
+
+
+class Throttle:
+    """Call a function at most ``hz`` times a second: at once when it is due, else once more at the end of the
+    interval with the latest arguments (a timer thread; DESIGN §6: 10–30 Hz)."""
+
+    def __init__(self, fn: Callable[[], None], hz: float = 15.0):
+        self.fn = fn  # what to call (no arguments)
+        self.interval = 1.0 / hz  # s between calls
+        self._last = -1e9
+        self._timer: threading.Timer | None = None
+        self._lock = threading.Lock()
+
+    def __call__(self) -> None:
+        with self._lock:
+            wait = self._last + self.interval - time.monotonic()
+            if wait > 0:
+                if self._timer is None:
+                    self._timer = threading.Timer(wait, self._late)
+                    self._timer.daemon = True
+                    self._timer.start()
+                return
+            self._last = time.monotonic()
+        self.fn()
+
+    def _late(self) -> None:
+        with self._lock:
+            self._timer = None
+            self._last = time.monotonic()
+        try:
+            self.fn()
+        except Exception:
+            log.debug("throttled redraw failed", exc_info=True)
