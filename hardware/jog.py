@@ -130,7 +130,12 @@ class Jog:
 
     def home(self) -> JogMove:
         """Move every joint to the home pose (clipped), batched, at jog speed."""
-        c = clip_command(self.home_pose, None, self.cal.lower, self.cal.upper, np.inf)
+        return self.go_pose(self.home_pose)
+
+    def go_pose(self, theta: np.ndarray) -> JogMove:
+        """Move every joint to ``theta (J,) rad`` (calibration order, clipped to the soft limits), batched, ramped
+        at jog speed: one move whose time is the largest joint's distance over ``speed_rad_s``."""
+        c = clip_command(np.asarray(theta, float), None, self.cal.lower, self.cal.upper, np.inf)
         delta = np.where(np.isnan(self.target), self.cal.upper - self.cal.lower, c.sent - self.target)  # unknown:
         dur = move_time(delta, self.cfg.speed_rad_s, self.cfg.min_move_s)  # pace as if from the far limit
         units = self.cal.to_units(c.sent)

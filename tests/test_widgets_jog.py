@@ -1,0 +1,160 @@
+"""The Jog panel driven without a browser, against the emulator through real pyserial: sliders move servos (read
+back from the emulator), stop at the soft limits, the e-stop latches until reset, a lost port disables the sliders
+with a message."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from studio.assets import asset
+
+from hardware.calibration import load_calibration
+from hardware.jog import JogConfig
+from studio.project.jobs import queue_for
+from studio.project.project import Project
+from widgets.jog import JogPanel, JogPanelConfig, jog_panel
+from widgets.state import StudioState
+
+STILL = asset("targets/asl_o.jpeg")
+FAST = JogPanelConfig(jog=JogConfig(speed_rad_s=20.0, min_move_s=0.0), refresh_hz=10.0, timeout_s=0.01)
+
+
+@pytest.fixture
+def state(tmp_path):
+    project = Project.create(tmp_path / "jog.shadow", sources=[STILL])
+    s = StudioState(project, queue_for(project))
+    yield s
+    s.close()
+
+
+@pytest.fixture
+def panel(state, hand):
+    p = JogPanel(state, config=FAST, hand=hand)
+    yield p
+    p.close()
+
+
+def settle() -> None:
+    time.sleep(0.4)  # the virtual servos' top speed is 1562 units/s
+
+
+def emulator_rad(p: JogPanel) -> np.ndarray:
+    """(J,) rad the emulator's encoders read now, calibration order."""
+    units = p.emulator.positions()
+    return p.cal.to_rad(np.array([units[i] for i in p.cal.ids], float))
+
+
+def measured_deg(p: JogPanel, j: int) -> float:
+    """The read-back label of joint ``j``, degrees."""
+    return float(p.measured[j].value.removeprefix("measured ").removesuffix("°"))
+
+
+def wait_until(test, timeout: float = 5.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while not test() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return test()
+
+
+def test_a_slider_moves_its_servo_and_stops_at_the_soft_limit(panel, hand):
+    assert "Jog" in panel.title.value and all(s.disabled for s in panel.sliders)
+    panel.connect_button.click()
+    assert panel.emulator is not None and not any(s.disabled for s in panel.sliders), panel.message.value
+    j = panel.cal.joint_names.index("index_pip")
+    lo, hi = panel.cal.lower[j], panel.cal.upper[j]
+    assert panel.sliders[j].min == pytest.approx(math.degrees(lo)) and panel.sliders[j].max == pytest.approx(
+        math.degrees(hi))  # fmt: skip
+    before = emulator_rad(panel)
+    panel.sliders[j].value = 20.0
+    settle()
+    now = emulator_rad(panel)
+    assert now[j] == pytest.approx(math.radians(20), abs=0.01)
+    others = np.arange(len(now)) != j
+    assert np.allclose(now[others], before[others], atol=0.01)  # only that servo moved
+    panel.read_button.click()
+    assert measured_deg(panel, j) == pytest.approx(20.0, abs=0.3)
+    panel.sliders[j].value = 10_000.0  # past the end: the slider stops at the soft limit, and so does the servo
+    assert panel.sliders[j].value == pytest.approx(math.degrees(hi))
+    assert wait_until(lambda: abs(emulator_rad(panel)[j] - hi) < 0.01), emulator_rad(panel)[j]
+    m = panel.move("index_pip", -10_000.0)  # asked in code: clipped, and said so
+    assert m.clipped and m.sent == pytest.approx(lo) and "clipped" in panel.message.value
+    assert panel.sliders[j].value == pytest.approx(math.degrees(lo))
+    assert wait_until(lambda: abs(emulator_rad(panel)[j] - lo) < 0.01), emulator_rad(panel)[j]
+
+
+def test_estop_latches_until_reset(panel):
+    assert panel.connect()
+    j = panel.cal.joint_names.index("wrist")
+    servo = panel.emulator.servo(panel.cal.ids[j])
+    panel.sliders[j].value = 15.0
+    panel.estop_button.click()
+    assert "E-STOP" in panel.message.value and all(s.disabled for s in panel.sliders)
+    assert panel.bus.estop_latched and not panel.reset_button.disabled
+    panel.bus.read_position(1)  # answered once everything before it was handled
+    seen, last = panel.emulator.packets_seen, servo.last_move
+    panel.sliders[j].value = -30.0  # a move while latched sends nothing
+    panel.home_button.click()
+    panel.bus.read_position(1)
+    assert panel.emulator.packets_seen == seen + 1 and servo.last_move == last
+    assert "latched" in panel.message.value
+    panel.reset_button.click()
+    assert not panel.bus.estop_latched and not any(s.disabled for s in panel.sliders), panel.message.value
+    panel.sliders[j].value = -30.0
+    settle()
+    assert emulator_rad(panel)[j] == pytest.approx(math.radians(-30), abs=0.01)
+
+
+def test_a_lost_port_disables_the_sliders_with_a_message(panel):
+    assert panel.connect()
+    panel.emulator.stop()  # the adapter is pulled
+    panel.sliders[0].value = 5.0
+    assert all(s.disabled for s in panel.sliders) and panel.jog is None and panel.emulator is None
+    assert "lost the servo bus" in panel.message.value and "Traceback" not in panel.message.value
+    assert not panel.connect_button.disabled
+    panel.read_button.click()  # nothing to read: still a message, never an exception
+    assert panel.connect() and not panel.sliders[0].disabled  # connecting again works
+    panel.auto.value = True  # the periodic read-back finds the lost port from its thread
+    assert wait_until(lambda: panel.measured[0].value.startswith("measured ") and "?" not in panel.measured[0].value)
+    panel.emulator.stop()
+    assert wait_until(lambda: panel.jog is None and all(s.disabled for s in panel.sliders))
+    assert "lost the servo bus" in panel.message.value and panel.auto.value is False
+
+
+def test_torque_home_and_the_selected_keyframes_pose(state, hand):
+    cal = load_calibration(None, hand)
+    k = state.project.keyframes[0].id
+    pose = hand.rest_pose().copy()
+    pose[cal.joint_names.index("index_pip")] = 0.6
+    pose[cal.joint_names.index("middle_pip")] = 0.4
+    state.edit("set_result", k, pose, {"total": 0.5}, state.project.keyframe_masks(k)[0])
+    widget = jog_panel(state, config=FAST)
+    p = state.extras["jog"]
+    assert p.widget is widget
+    p.go_keyframe()
+    assert "not connected" in p.message.value
+    assert p.connect()
+    state.select(keyframe=k)
+    assert p.keyframe_button.description == f"go to keyframe {k}"
+    p.keyframe_button.click()
+    assert f"keyframe {k}'s pose" in p.message.value, p.message.value
+    settle()
+    assert np.allclose(emulator_rad(p), np.clip(pose, cal.lower, cal.upper), atol=0.01)
+    assert p.sliders[cal.joint_names.index("index_pip")].value == pytest.approx(math.degrees(0.6))
+    p.home_button.click()
+    settle()
+    assert np.allclose(emulator_rad(p), np.clip(hand.rest_pose(), cal.lower, cal.upper), atol=0.01)
+    p.torque_off_button.click()
+    assert not p.bus.read_torque(cal.ids[0]) and "limp" in p.message.value
+    p.emulator.set_position(cal.ids[0], cal.to_units(np.full(21, 0.3))[0])  # the limp wrist moved by hand
+    p.read_button.click()
+    assert measured_deg(p, 0) == pytest.approx(math.degrees(0.3), abs=0.3)
+    p.torque_on_button.click()
+    assert p.bus.read_torque(cal.ids[0]) and p.sliders[0].value == pytest.approx(math.degrees(0.3), abs=0.3)
+    emulator = p.emulator
+    p.disconnect_button.click()
+    assert "servos stopped, torque held" in p.message.value and p.emulator is None and emulator._thread is None
+    p.close()
+    assert "jog" not in state.extras

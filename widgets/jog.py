@@ -1,0 +1,392 @@
+"""The Jog panel: move the hand (or the built-in emulator) one joint at a time, read it back, e-stop it.
+
+A face of :class:`hardware.jog.Jog` (DESIGN §5.7): connect to the emulator (21 virtual servos on a
+pseudo-terminal, started here with the calibration's IDs and stopped on disconnect) or to a serial port; a slider
+per joint spans that joint's soft limits (``hardware.calibration``) and moves its servo at jog speed; read back the
+measured angles on demand or periodically (a background thread that only sets label values, ≤ 10 Hz); torque
+on/off; home; the selected keyframe's pose, ramped; a large e-stop that latches the bus (a separate reset clears
+it). Failing safe (DESIGN §5.13): every error becomes a message in the panel, never a traceback; a lost port
+disables the sliders; anything unexpected sends a stop; a disconnect stops every servo and leaves torque held (or
+released, ``release_on_close``), as the message says.
+"""
+
+from __future__ import annotations
+
+import html
+import logging
+import math
+import threading
+from dataclasses import dataclass, field, replace
+
+import ipywidgets as W
+import numpy as np
+
+from hardware.calibration import Calibration, load_calibration
+from hardware.errors import BusError, EStopLatched
+from hardware.jog import Jog, JogConfig, JogMove
+from hardware.serial_bus import BusConfig, SerialServoBus
+from studio.errors import StudioError
+from studio.sim.hand import Hand, load_hand
+from widgets.state import StudioState
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class JogPanelConfig:
+    """How the jog panel talks to the servos."""
+
+    jog: JogConfig = field(default_factory=JogConfig)  # step size, jog speed, e-stop torque
+    refresh_hz: float = 4.0  # periodic read-back rate when "refresh" is ticked (capped at 10 Hz) (0, 10]
+    timeout_s: float = 0.02  # seconds to wait for one servo's answer (0, 10]
+    release_on_close: bool = False  # on disconnect: stop, then release torque (True) or hold the pose (False)
+
+
+def _deg(x: float) -> str:
+    return "?" if not math.isfinite(x) else f"{math.degrees(x):.1f}°"
+
+
+class JogPanel:
+    """The jog panel of one studio (``.widget``); ``state.extras["jog"]`` is this panel while it is open."""
+
+    def __init__(self, state: StudioState, calibration: Calibration | None = None, config: JogPanelConfig | None = None,
+                 hand: Hand | None = None):  # fmt: skip
+        self.state = state
+        self.hand = hand or load_hand()
+        self.cal = calibration or load_calibration(None, self.hand)
+        self.cfg = config or JogPanelConfig()
+        self.emulator = None  # hardware.emulator.ServoEmulator started by this panel (None: a serial port, or none)
+        self.bus: SerialServoBus | None = None
+        self.jog: Jog | None = None
+        self.torque_on: bool | None = None  # what this panel last set (None: as the servos came)
+        self._quiet = False  # set while the panel itself moves sliders (no move is sent)
+        self._refresh_stop = threading.Event()
+        self._refresh_thread: threading.Thread | None = None
+        self._build()
+        self._stop_listening = state.on_change(self._on_change)
+        state.extras["jog"] = self
+        self._set_enabled(False)
+        self._say("not connected: choose the emulator (virtual servos) or a serial port, then press connect")
+
+    # ------------------------------------------------------------------ widgets
+    def _build(self) -> None:
+        self.title = W.HTML("<h3 style='margin:4px 0'>Jog</h3>")
+        self.source = W.ToggleButtons(options=[("emulator", "emulator"), ("serial port", "port")], value="emulator")
+        self.port = W.Text(placeholder="/dev/ttyUSB0", description="port", layout=W.Layout(width="260px"))
+        self.connect_button = W.Button(description="connect", icon="plug")
+        self.disconnect_button = W.Button(description="disconnect")
+        self.message = W.HTML()
+        self.sliders: list[W.FloatSlider] = []
+        self.measured: list[W.Label] = []
+        rows = []
+        for k, j in enumerate(self.cal.joints):
+            lo, hi = math.degrees(j.lower), math.degrees(j.upper)
+            s = W.FloatSlider(value=min(max(0.0, lo), hi), min=lo, max=hi, step=0.5, description=j.name,
+                              continuous_update=False, readout_format=".1f", style={"description_width": "120px"},
+                              layout=W.Layout(width="420px"))  # fmt: skip
+            s.observe(lambda change, k=k: self._slid(k, change["new"]), names="value")
+            m = W.Label("measured ?", layout=W.Layout(width="110px"))
+            self.sliders.append(s)
+            self.measured.append(m)
+            rows.append(W.HBox([s, m]))
+        self.read_button = W.Button(description="read back")
+        self.auto = W.Checkbox(value=False, description="refresh", indent=False, layout=W.Layout(width="90px"))
+        self.torque_on_button = W.Button(description="torque on")
+        self.torque_off_button = W.Button(description="torque off")
+        self.home_button = W.Button(description="home")
+        self.keyframe_button = W.Button(description="go to keyframe", layout=W.Layout(width="160px"))
+        self.estop_button = W.Button(description="E-STOP", button_style="danger", icon="stop",
+                                     layout=W.Layout(width="220px", height="72px"))  # fmt: skip
+        self.estop_button.style.font_size = "24px"
+        self.estop_button.style.font_weight = "bold"
+        self.reset_button = W.Button(description="reset e-stop")
+        self.connect_button.on_click(lambda _: self.connect())
+        self.disconnect_button.on_click(lambda _: self.disconnect())
+        self.read_button.on_click(lambda _: self.read())
+        self.auto.observe(lambda c: self._auto_refresh(bool(c["new"])), names="value")
+        self.torque_on_button.on_click(lambda _: self.torque(True))
+        self.torque_off_button.on_click(lambda _: self.torque(False))
+        self.home_button.on_click(lambda _: self.home())
+        self.keyframe_button.on_click(lambda _: self.go_keyframe())
+        self.estop_button.on_click(lambda _: self.estop())
+        self.reset_button.on_click(lambda _: self.reset())
+        self.moves = [*self.sliders, self.torque_on_button, self.home_button, self.keyframe_button]
+        self.widget = W.VBox([
+            self.title,
+            W.HBox([self.source, self.port, self.connect_button, self.disconnect_button]),
+            self.message,
+            W.HBox([self.estop_button, W.VBox([self.reset_button, self.read_button, self.auto])]),
+            W.HBox([self.torque_on_button, self.torque_off_button, self.home_button, self.keyframe_button]),
+            W.VBox(rows),
+        ])  # fmt: skip
+
+    def _say(self, text: str, error: bool = False) -> None:
+        colour = "#b00020" if error else "inherit"
+        self.message.value = f"<span style='color:{colour}'>{html.escape(text, quote=False)}</span>"
+
+    def _set_enabled(self, connected: bool, latched: bool = False) -> None:
+        for w in self.moves:
+            w.disabled = not connected or latched
+        for w in (self.read_button, self.auto, self.torque_off_button, self.reset_button, self.disconnect_button):
+            w.disabled = not connected
+        self.connect_button.disabled = connected
+
+    def _show_target(self) -> None:
+        """Sliders to the pose last commanded (unknown angles left where they are); sends nothing."""
+        if self.jog is None:
+            return
+        self._quiet = True
+        try:
+            for s, x in zip(self.sliders, self.jog.target):
+                if math.isfinite(x):
+                    s.value = math.degrees(x)
+        finally:
+            self._quiet = False
+
+    def _show_measured(self, q: np.ndarray) -> None:
+        for label, x in zip(self.measured, q):
+            label.value = f"measured {_deg(x)}"
+
+    # ------------------------------------------------------------------ connecting
+    def connect(self) -> bool:
+        """Connect to the emulator (started now) or the port in the text box; returns whether it worked."""
+        if self.jog is not None:
+            self.disconnect()
+        try:
+            if self.source.value == "emulator":
+                from hardware.emulator import ServoEmulator  # POSIX only (pty): imported when used
+
+                self.emulator = ServoEmulator(self.cal.ids).start()
+                port = self.emulator.port
+            else:
+                port = self.port.value.strip()
+                if not port:
+                    self._say("type the serial port of the servo adapter (e.g. /dev/ttyUSB0) first", error=True)
+                    return False
+            self.bus = SerialServoBus(BusConfig(port, timeout_s=self.cfg.timeout_s))
+            self.bus.connect()
+            home = np.clip(self.hand.rest_pose(), self.cal.lower, self.cal.upper)
+            self.jog = Jog(self.bus, self.cal, config=replace(self.cfg.jog), home_pose=home)
+        except (StudioError, ImportError, OSError) as e:
+            self._close_hardware()
+            self._say(f"could not connect: {e}", error=True)
+            return False
+        self.torque_on = None
+        silent = [i for i, x in zip(self.cal.ids, self.jog.target) if not math.isfinite(x)]
+        self._show_target()
+        self._show_measured(self.jog.target)
+        self._set_enabled(True, self.bus.estop_latched)
+        what = "the emulator" if self.emulator is not None else port
+        note = f"; servos {silent} did not answer (check their cables)" if silent else ": every servo answered"
+        self._say(f"connected to {what} ({len(self.cal.ids)} servos){note}", error=bool(silent))
+        return True
+
+    def disconnect(self) -> None:
+        """Stop every servo, hold or release torque (``release_on_close``), close the port and the emulator."""
+        if self.jog is None:
+            return
+        stopped = True
+        try:
+            self.bus.stop()
+            if self.cfg.release_on_close:
+                self.bus.set_torque(False)
+        except StudioError as e:
+            stopped = False
+            log.info("stopping the servos on disconnect failed: %s", e)
+        self._close_hardware()
+        self._set_enabled(False)
+        torque = "released" if self.cfg.release_on_close else ("off" if self.torque_on is False else "held")
+        if stopped:
+            self._say(f"disconnected: servos stopped, torque {torque}")
+        else:
+            self._say("disconnected, but the stop did not reach the servos: cut their power if they still move", True)
+
+    def _close_hardware(self) -> None:
+        self._refresh_stop.set()
+        t, self._refresh_thread = self._refresh_thread, None
+        if t is not None and t is not threading.current_thread():
+            t.join(2.0)
+        bus, self.bus, self.jog = self.bus, None, None
+        if bus is not None:
+            try:
+                bus.disconnect()
+            except StudioError as e:
+                log.debug("closing the servo bus failed: %s", e)
+        emu, self.emulator = self.emulator, None
+        if emu is not None:
+            emu.stop()
+
+    def _lost(self, e: BusError) -> None:
+        """The port failed (unplugged, powered off, emulator gone): close it, disable the sliders, say so."""
+        self._close_hardware()
+        self._set_enabled(False)
+        self.auto.value = False
+        self._say(f"lost the servo bus: {e}. The sliders are off until you connect again.", error=True)
+
+    def close(self) -> None:
+        """Disconnect (servos stopped) and stop listening to the studio."""
+        self.disconnect()
+        self._stop_listening()
+        if self.state.extras.get("jog") is self:
+            del self.state.extras["jog"]
+
+    # ------------------------------------------------------------------ actions
+    def _do(self, what: str, action):
+        """Run ``action()`` on the connected jog; every error becomes a message (DESIGN §5.13)."""
+        if self.jog is None:
+            self._say(f"cannot {what}: not connected (press connect)", error=True)
+            return None
+        try:
+            return action()
+        except EStopLatched:
+            self._set_enabled(True, latched=True)
+            self._say(f"cannot {what}: the E-STOP is latched; nothing moves until you press reset", error=True)
+        except BusError as e:
+            self._lost(e)
+        except (StudioError, ValueError) as e:
+            self._say(f"cannot {what}: {e}", error=True)
+        except Exception as e:  # a bug: stop the servos, say so, never a traceback in the notebook
+            log.debug("jog panel: %s failed", what, exc_info=True)
+            try:
+                self.bus.stop()
+            except Exception:
+                pass
+            self._say(f"{what} failed unexpectedly ({type(e).__name__}: {e}); the servos were sent a stop", True)
+        return None
+
+    def _moved(self, m: JogMove) -> None:
+        self._show_target()
+        self._say(self.jog._say(m))
+
+    def _slid(self, k: int, deg: float) -> None:
+        if not self._quiet:
+            self.move(k, deg)
+
+    def move(self, joint: str | int, deg: float) -> JogMove | None:
+        """Move one joint to ``deg`` degrees (clipped to its soft limits, said so); the move as sent."""
+
+        def go() -> JogMove:
+            self.jog.select(joint)
+            m = self.jog.go(math.radians(deg))
+            self._moved(m)
+            return m
+
+        return self._do(f"move {joint}", go)
+
+    def read(self) -> np.ndarray | None:
+        """Measured angles ``(J,) rad`` (NaN: no answer), shown beside the sliders."""
+
+        def read() -> np.ndarray:
+            q = self.jog.read_array(strict=False)
+            self._show_measured(q)
+            silent = [i for i, x in zip(self.cal.ids, q) if not math.isfinite(x)]
+            self._say(f"read back; servos {silent} did not answer" if silent else "read back every servo")
+            return q
+
+        return self._do("read back", read)
+
+    def torque(self, on: bool) -> None:
+        """Torque on (holding the measured pose) or off (limp) for every servo."""
+
+        def torque() -> None:
+            self.jog.torque(on)
+            self.torque_on = on
+            self._show_target()
+            self._say("torque on: holding the measured pose" if on else "torque off: the hand is limp")
+
+        self._do("switch torque " + ("on" if on else "off"), torque)
+
+    def home(self) -> JogMove | None:
+        """Every joint to the rest pose, ramped at jog speed."""
+        return self._do("go home", lambda: self._moved(self.jog.home()))
+
+    def selected_keyframe(self) -> int | None:
+        """The keyframe in view: the selection's, else the keyframe of the selected frame."""
+        sel, project = self.state.selection, self.state.project
+        if sel.keyframe is not None:
+            return sel.keyframe
+        if not project.keyframes or not project.frames:
+            return None
+        return project.keyframes[int(project.assignment()[sel.frame])].id
+
+    def go_keyframe(self) -> JogMove | None:
+        """The selected keyframe's pose (its result), ramped at jog speed (clipped to the soft limits)."""
+        k = self.selected_keyframe()
+        result = None if k is None else self.state.project.results.get(k)
+        if result is None:
+            self._say("no keyframe selected" if k is None else f"keyframe {k} has no pose yet: optimise it first",
+                      error=True)  # fmt: skip
+            return None
+
+        def go() -> JogMove:
+            m = self.jog.go_pose(result.theta(self.cal.joint_names))
+            self._show_target()
+            stale = " (its result is stale)" if self.state.project.is_stale(k) else ""
+            clipped = ", clipped to the soft limits" if m.clipped else ""
+            self._say(f"keyframe {k}'s pose{stale} in {m.duration_s:.2f} s{clipped}")
+            return m
+
+        return self._do(f"go to keyframe {k}", go)
+
+    def estop(self) -> bool:
+        """Latch the e-stop: every servo halts now; nothing moves until :meth:`reset`. Returns whether the halt
+        reached the bus."""
+        if self.jog is None:
+            self._say("not connected: nothing to stop", error=True)
+            return False
+        reached = self.jog.estop()  # never raises
+        self._set_enabled(True, latched=True)
+        if reached:
+            self._say("E-STOP: servos halted and latched; press reset to move again", error=True)
+        else:
+            self._say("E-STOP latched, but the halt did not reach the bus: cut the servos' power", error=True)
+        return reached
+
+    def reset(self) -> None:
+        """Clear the e-stop; the sliders follow where it left the servos."""
+
+        def reset() -> None:
+            self.jog.reset()
+            self._set_enabled(True)
+            self._show_target()
+            self._say("e-stop reset: the sliders move the servos again")
+
+        self._do("reset the e-stop", reset)
+
+    # ------------------------------------------------------------------ periodic read-back and the studio
+    def _auto_refresh(self, on: bool) -> None:
+        self._refresh_stop.set()
+        t, self._refresh_thread = self._refresh_thread, None
+        if t is not None:
+            t.join(2.0)
+        if on and self.jog is not None:
+            self._refresh_stop = stop = threading.Event()
+            self._refresh_thread = threading.Thread(target=self._refresh, args=(stop,), name="jog-refresh",
+                                                    daemon=True)  # fmt: skip
+            self._refresh_thread.start()
+
+    def _refresh(self, stop: threading.Event) -> None:
+        """Read back every ``1/refresh_hz`` s until stopped; only sets label values (DESIGN §6)."""
+        period = 1.0 / min(max(self.cfg.refresh_hz, 0.1), 10.0)
+        while not stop.wait(period):
+            jog = self.jog
+            if jog is None:
+                return
+            try:
+                self._show_measured(jog.read_array(strict=False))
+            except BusError as e:
+                if not stop.is_set():
+                    self._lost(e)
+                return
+            except Exception as e:  # keep reading; say what went wrong
+                self._say(f"read back failed: {e}", error=True)
+
+    def _on_change(self, what: str) -> None:
+        if what in ("selection", "project"):
+            k = self.selected_keyframe()
+            self.keyframe_button.description = "go to keyframe" if k is None else f"go to keyframe {k}"
+
+
+def jog_panel(state: StudioState, calibration: Calibration | None = None, config: JogPanelConfig | None = None):
+    """The Jog panel's widget (its :class:`JogPanel` is ``state.extras["jog"]``)."""
+    return JogPanel(state, calibration, config).widget
