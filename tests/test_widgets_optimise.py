@@ -1,0 +1,111 @@
+"""The Optimise panel (widgets.optimise) driven in Python on a real project and its real job queue: progress shown
+as the job runs in the worker, a cancel within a second leaving the project as it was, a finished job's result
+applied and its shadow shown, a "stale" run (run_project) reported."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from studio.assets import asset
+
+from studio.imitate.refine import RefineConfig
+from studio.imitate.search import SearchConfig
+from studio.imitate.sequence import SequenceConfig
+from studio.project.jobs import JobState, queue_for
+from studio.project.project import Project
+from widgets.optimise import OptimiseConfig, mask_picture, optimise_panel
+from widgets.state import StudioState
+
+TINY = SequenceConfig(first=SearchConfig(batch=8, iterations=20), next=SearchConfig(batch=8, iterations=10, lr=0.08),
+                      refine=RefineConfig(steps=20, restarts=1), candidates=1)  # fmt: skip
+LONG = SequenceConfig(first=SearchConfig(batch=4, iterations=1_000_000, lr=0.08, log_every=1), candidates=1)
+
+
+@pytest.fixture
+def state(tmp_path):
+    project = Project.create(tmp_path / "still.shadow", sources=[asset("targets/asl_o.jpeg")])
+    s = StudioState(project, queue_for(project))
+    yield s
+    s.close()
+
+
+def snapshot(project: Project) -> tuple:
+    files = {p.relative_to(project.path): p.read_bytes() for p in sorted(project.path.rglob("*")) if p.is_file()}
+    return files, dict(project.results), project.history
+
+
+def until(condition, timeout: float, poll=None) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if poll is not None:
+            poll()
+        if condition():
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_progress_advances_and_a_cancel_within_a_second_leaves_the_project_unchanged(state):
+    panel = optimise_panel(state, OptimiseConfig(sequence=LONG))
+    try:
+        assert "Optimise" in panel.widget.children[0].value
+        before = snapshot(state.project)
+        t0 = time.monotonic()
+        (job,) = panel.start("keyframe")
+        assert time.monotonic() - t0 < 1.0  # the kernel is free: the job runs in the queue's worker
+        assert panel.buttons["keyframe"].disabled and not panel.cancel_button.disabled
+        assert until(lambda: panel.step > 0 and any(b.value > 0 for b in panel.bars.values()), 90, panel.refresh)
+        first = panel.step
+        assert until(lambda: panel.step > first, 30, panel.refresh)  # it keeps advancing
+        assert "search" in panel.bars and "best loss so far" in panel.loss.value
+        t0 = time.monotonic()
+        assert panel.cancel()
+        assert job.wait(1.0) == JobState.CANCELLED and time.monotonic() - t0 < 1.0
+        assert until(lambda: "cancelled" in panel.status.value, 5, panel.refresh)
+        assert not panel.busy and not panel.buttons["keyframe"].disabled and panel.cancel_button.disabled
+        assert snapshot(state.project) == before and not state.project.can_undo
+        assert "cancelled" in panel.job_list.value
+    finally:
+        panel.close()
+
+
+def test_a_finished_job_applies_its_result_and_the_panel_shows_its_shadow(state):
+    panel = optimise_panel(state, OptimiseConfig(sequence=TINY))
+    heard = []
+    state.on_change(heard.append)
+    try:
+        k = state.project.keyframes[0].id
+        (job,) = panel.start("keyframe")
+        assert job.wait(180) == JobState.DONE, job.error
+        result = state.project.results[k]
+        assert state.project.history[-1] == f"result of keyframe {k}" and state.project.pending_keyframes() == []
+        # the panel's own writer thread draws it (no refresh() here): the result's shadow beside the target
+        shown = lambda: panel.shown_shadow is not None and np.array_equal(panel.shown_shadow, result.shadow)  # noqa: E731
+        assert until(lambda: shown() and not panel.busy, 10)
+        assert panel.shadow_image.value == mask_picture(result.shadow, panel.cfg.image_px)
+        assert panel.target_image.value == mask_picture(state.project.keyframe_masks(k)[0], panel.cfg.image_px)
+        assert "project" in heard  # the other panels were told
+        assert "done" in panel.job_list.value and "done" in panel.status.value
+        state.undo()
+        assert k not in state.project.results
+    finally:
+        panel.close()
+
+
+def test_all_stale_runs_the_project_and_reports(state):
+    panel = optimise_panel(state, OptimiseConfig(sequence=TINY))
+    try:
+        assert panel.start("stale") == []
+        assert until(lambda: panel.report is not None, 240)
+        report = panel.report
+        assert report.optimised == [state.project.keyframes[0].id], report.message
+        assert until(lambda: report.message in panel.messages.text, 5)
+        assert until(lambda: not panel.busy, 5)
+        assert panel.start("stale") == [] and until(lambda: panel.report not in (None, report), 60)
+        assert panel.report.optimised == [] and panel.report.skipped == report.optimised  # nothing recomputed
+        with pytest.raises(ValueError, match="kind must be one of"):
+            panel.start("bogus")
+    finally:
+        panel.close()

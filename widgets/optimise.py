@@ -1,0 +1,364 @@
+"""The Optimise panel: start an optimisation (this keyframe, every missing or stale keyframe, or the whole video),
+cancel it, a progress bar per stage, the live best shadow beside the target, the loss so far, and the job list.
+
+    panel = OptimisePanel(state, OptimiseConfig(sequence=...))   # panel.widget goes in the notebook
+    panel.start("keyframe")          # or "stale" (what `project run` does) / "video"; panel.cancel()
+    panel.refresh()                  # draw every pending job event now (tests; the panel's writer does it itself)
+
+The work runs as the project's jobs (:mod:`studio.project.jobs`: ``keyframe_job``, ``run_project``, ``video_job``)
+on ``state.queue``'s worker thread, so the kernel stays free. Events reach the panel through a queue subscriber
+that only stores them; one writer thread per panel draws them at most ``redraw_hz`` times a second with widget
+trait sets alone (DESIGN §6: never ``print`` or ``with out:`` from a thread). A job that completes applies its
+result through the Project API (one undoable edit per keyframe); a cancelled or failed one leaves the project as
+it was.
+"""
+
+from __future__ import annotations
+
+import html
+import logging
+import math
+import re
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import ipywidgets as w
+import numpy as np
+
+from studio.imitate.sequence import CPU_SEQUENCE, SequenceConfig
+from studio.project.jobs import Job, JobEvent, JobState, RunConfig, RunReport, keyframe_job, run_project, video_job
+from widgets.images import Messages, grey_rgb, png, title, upscale
+from widgets.state import StudioState
+
+log = logging.getLogger(__name__)
+
+KINDS = ("keyframe", "stale", "video")  # what start() optimises: the keyframe in view, missing/stale ones, a video
+
+
+@dataclass(frozen=True)
+class OptimiseConfig:
+    """What the panel's jobs run and how it draws."""
+
+    sequence: SequenceConfig = CPU_SEQUENCE  # search/refine budgets of every job (the CPU preset)
+    redraw_hz: float = 10.0  # the most redraws a second while a job reports (DESIGN §6: 10–30 Hz)
+    image_px: int = 192  # side of the target and shadow images, px
+
+
+def clip_encoder(state: StudioState):
+    """The studio's CLIP encoder (``state.extras["clip"]``, or loaded once from ``state.extras["clip_weights"]``);
+    None when none is configured (the CLIP terms are then left out)."""
+    if state.extras.get("clip") is None and state.extras.get("clip_weights"):
+        from studio.imitate.clip_loss import load_clip
+
+        state.extras["clip"] = load_clip(weights=state.extras["clip_weights"])
+    return state.extras.get("clip")
+
+
+def mask_picture(mask: np.ndarray | None, side: int) -> bytes:
+    """PNG of a ``(H, W)`` {0, 1} mask as a black shape on white, ``side`` px (an empty white square for None)."""
+    if mask is None:
+        return png(np.full((side, side, 3), 255, np.uint8))
+    return png(upscale(grey_rgb(np.asarray(mask, np.uint8)), side))
+
+
+class OptimisePanel:
+    """The Optimise panel (module doc) over ``state``; ``.widget`` is what the notebook shows."""
+
+    def __init__(self, state: StudioState, cfg: OptimiseConfig | None = None):
+        self.state = state
+        self.cfg = cfg or OptimiseConfig()
+        self.messages = Messages()
+        self.jobs: list[Job] = []  # the jobs this panel started (run_project's included)
+        self._keyframes: dict[Job, list[int]] = {}  # each job of the panel → the keyframe ids it optimises
+        self.report: RunReport | None = None  # the last "stale" run's report
+        self.last: JobEvent | None = None  # the newest event drawn
+        self.step = 0  # the newest drawn event's step within its stage
+        self.best = math.nan  # the best loss so far of the job followed
+        self.shown_shadow: np.ndarray | None = None  # the shadow beside the target now (a preview or a result)
+        self.bars: dict[str, w.FloatProgress] = {}  # stage → its bar, for the job followed
+        self._following: int | None = None
+        self._run: threading.Thread | None = None
+        self._run_cancel = threading.Event()
+        self._pending: deque[JobEvent] = deque()
+        self._wake = threading.Condition()
+        self._draw = threading.RLock()
+        self._closed = False
+        self._report_shown = False
+        self._target_k: int | None = None  # the keyframe whose target is shown
+        self._run_floor: int | None = None  # while a "stale" run goes: jobs numbered above this are its
+
+        px = self.cfg.image_px
+        self.buttons = {
+            "keyframe": w.Button(description="This keyframe", icon="play", tooltip="optimise the keyframe in view"),
+            "stale": w.Button(description="All stale", icon="forward", tooltip="every missing or stale keyframe"),
+            "video": w.Button(description="Whole video", icon="film", tooltip="the keyframes of this source"),
+        }
+        for kind, b in self.buttons.items():
+            b.on_click(lambda _, kind=kind: self.start(kind))
+        self.cancel_button = w.Button(description="Cancel", icon="stop", button_style="danger", disabled=True)
+        self.cancel_button.on_click(lambda _: self.cancel())
+        self.status = w.HTML("idle")
+        self.loss = w.HTML("")
+        self.bar_box = w.VBox([])
+        self.target_image = w.Image(format="png", width=px, height=px)
+        self.shadow_image = w.Image(format="png", width=px, height=px)
+        self.job_list = w.HTML("")
+        pictures = w.HBox([w.VBox([w.HTML("target"), self.target_image]),
+                           w.VBox([w.HTML("best shadow"), self.shadow_image])])  # fmt: skip
+        self.widget = w.VBox([
+            title("Optimise"), w.HBox([*self.buttons.values(), self.cancel_button]), self.status, self.bar_box,
+            self.loss, pictures, w.HTML("<b>jobs</b>"), self.job_list, self.messages.widget,
+        ])  # fmt: skip
+        self._unsubscribe = state.queue.subscribe(self._on_event)
+        self._stop_listening = state.on_change(self._on_change)
+        self._writer = threading.Thread(target=self._write, name="optimise-panel", daemon=True)
+        self._writer.start()
+        self.show_selection()
+
+    # ---------------------------------------------------------------- what is in view
+    def keyframe_in_view(self) -> int:
+        """The selected keyframe id, else the keyframe of the selected frame."""
+        p, sel = self.state.project, self.state.selection
+        if sel.keyframe is not None:
+            return sel.keyframe
+        if not p.keyframes:
+            raise ValueError("this project has no keyframes to optimise")
+        return p.keyframes[int(p.assignment()[sel.frame])].id
+
+    def show_selection(self) -> None:
+        """The keyframe in view's target, and its result's shadow when it has one."""
+        with self._draw:
+            p, px = self.state.project, self.cfg.image_px
+            try:
+                k = self.keyframe_in_view()
+            except (ValueError, KeyError, IndexError):
+                self.target_image.value = self.shadow_image.value = mask_picture(None, px)
+                return
+            self.target_image.value = mask_picture(p.keyframe_masks(k)[0], px)
+            result = p.results.get(k)
+            self.shown_shadow = None if result is None else np.asarray(result.shadow)
+            self.shadow_image.value = mask_picture(self.shown_shadow, px)
+
+    def _on_change(self, what: str) -> None:
+        if what in ("selection", "project") and not self.busy:
+            self.show_selection()
+
+    # ---------------------------------------------------------------- start and cancel
+    @property
+    def busy(self) -> bool:
+        """Whether a job this panel started (or its run) is still going."""
+        return any(not j.finished for j in self.jobs) or (self._run is not None and self._run.is_alive())
+
+    def start(self, kind: str) -> list[Job]:
+        """Optimise ``kind`` (:data:`KINDS`) on the project's queue; returns the jobs submitted now (a "stale" run
+        submits its jobs one after another, from its own thread). Errors are shown in the panel."""
+        if kind not in KINDS:
+            raise ValueError(f"kind must be one of {KINDS}, not {kind!r}")
+        if self.busy:
+            self.messages.say("an optimisation is running: cancel it first, or wait for it", error=True)
+            return []
+        jobs = self.messages.run(self._start, kind)
+        self._set_running(self.busy)
+        self.refresh()
+        return jobs or []
+
+    def _start(self, kind: str) -> list[Job]:
+        p, seq = self.state.project, self.cfg.sequence
+        clip = clip_encoder(self.state) if p.weights.use_clip else None
+        if kind == "stale":
+            self._run_cancel = threading.Event()
+            self.report, self._report_shown = None, False
+            self._run_floor = len(self.state.queue.jobs())
+            self._run = threading.Thread(target=self._run_stale, args=(clip,), name="optimise-run", daemon=True)
+            self._run.start()
+            self.status.value = "optimising every missing or stale keyframe, then planning the show"
+            return []
+        k = self.keyframe_in_view()
+        if kind == "keyframe":
+            job = keyframe_job(p, k, search=seq.first, refine=seq.refine, candidates=seq.candidates, clip=clip)
+            ids = [k]
+        else:
+            source = p.frames[p.state.keyframe(k).representative].source
+            ids = [kf.id for kf in p.keyframes if p.frames[kf.representative].source == source]
+            job = video_job(p, ids, cfg=seq, clip=clip)
+        self._submit(job, ids)
+        return [job]
+
+    def _submit(self, job: Job, ids: list[int]) -> None:
+        self._keyframes[job] = ids
+        self.jobs.append(job)
+        self.state.queue.submit(job)
+
+    def keyframes_of(self, job_id: int) -> list[int]:
+        """The keyframe ids a job of this panel optimises (empty for another's)."""
+        return next((ids for job, ids in list(self._keyframes.items()) if job.id == job_id), [])
+
+    def _run_stale(self, clip) -> None:
+        """run_project in its own thread (it waits for each job); the panel draws its jobs' events as any."""
+
+        def on_job(job: Job, what: str) -> None:
+            found = re.match(r"keyframe (\d+)", job.title)
+            self._keyframes[job] = [int(found.group(1))] if found else []
+            self.jobs.append(job)
+
+        try:
+            self.report = run_project(self.state.project, RunConfig(sequence=self.cfg.sequence), clip,
+                                      queue=self.state.queue, cancel=self._run_cancel, on_job=on_job)  # fmt: skip
+        except Exception as e:  # shown by the writer (a ProjectError says what to do)
+            self.report = RunReport(str(self.state.project.path), message=f"{type(e).__name__}: {e}")
+        self._notify()
+
+    def cancel(self) -> bool:
+        """Cancel what this panel started (the final events come within a second); False when nothing ran."""
+        running = self.busy
+        self._run_cancel.set()
+        for job in self.jobs:
+            job.cancel()
+        self.refresh()
+        return running
+
+    # ---------------------------------------------------------------- events → widgets
+    def _on_event(self, event: JobEvent) -> None:
+        """The queue's subscriber (its thread): store the event and wake the writer, nothing more."""
+        with self._wake:
+            self._pending.append(event)
+            self._wake.notify()
+
+    def _notify(self) -> None:
+        with self._wake:
+            self._wake.notify()
+
+    def _write(self) -> None:
+        """The panel's one writer thread: draws pending events at most ``redraw_hz`` times a second."""
+        period = 1.0 / self.cfg.redraw_hz
+        last = 0.0
+        while True:
+            with self._wake:
+                while not self._pending and not self._closed and not self._run_done():
+                    self._wake.wait(0.5)
+                if self._closed:
+                    return
+            time.sleep(max(0.0, last + period - time.monotonic()))
+            last = time.monotonic()
+            try:
+                self.refresh()
+            except Exception:  # a redraw must never kill the writer
+                log.exception("the Optimise panel failed to redraw")
+
+    def _run_done(self) -> bool:
+        return self.report is not None and not self._report_shown
+
+    def _mine(self, job_id: int) -> bool:
+        running = self._run is not None and (self._run.is_alive() or not self._report_shown)
+        return any(j.id == job_id for j in list(self.jobs)) or (
+            running and self._run_floor is not None and job_id > self._run_floor
+        )
+
+    def refresh(self) -> None:
+        """Draw every pending event now (thread-safe; the writer calls it, tests may too)."""
+        with self._draw:
+            with self._wake:
+                events = list(self._pending)
+                self._pending.clear()
+            applied = False
+            for e in events:
+                if self._mine(e.job_id):
+                    applied |= self._draw_event(e)
+            if self.report is not None and not self._report_shown:
+                self._report_shown = True
+                self.messages.say(self.report.message, error=self.report.error is not None)
+            self.job_list.value = self._table()
+            self._set_running(self.busy)
+            if not self.busy and self.last is not None and self.last.final:
+                self.status.value = f"job #{self.last.job_id} {self.last.state.value}"
+        if applied:
+            self.state.changed("project")  # other panels show the new results
+
+    def _draw_event(self, e: JobEvent) -> bool:
+        """One event drawn; True when it is a job's completion (its result was applied)."""
+        if e.job_id != self._following and not e.final and e.stage not in ("", "start"):
+            self._following, self.bars, self.best = e.job_id, {}, math.nan
+            self.bar_box.children = ()
+        self.last, self.step = e, e.step
+        if e.total > 0:
+            bar = self.bars.get(e.stage)
+            if bar is None:
+                bar = self.bars[e.stage] = w.FloatProgress(min=0.0, max=1.0, description=e.stage[-24:],
+                                                           style={"description_width": "160px"})  # fmt: skip
+                self.bar_box.children = (*self.bar_box.children, bar)
+            bar.value = min(1.0, e.step / e.total)
+            bar.description = f"{e.stage[-16:]} {e.step}/{e.total}"
+        if not math.isnan(e.best):
+            self.best = e.best if math.isnan(self.best) else min(self.best, e.best)
+            self.loss.value = f"best loss so far: <b>{self.best:.4f}</b> ({html.escape(e.stage)})"
+        if e.shadow is not None:
+            self.shown_shadow = np.asarray(e.shadow)
+            self.shadow_image.value = mask_picture(self.shown_shadow, self.cfg.image_px)
+            self._show_target(e)
+        if not e.final:
+            self.status.value = f"job #{e.job_id} {html.escape(e.kind)}: {html.escape(e.stage)} ({e.elapsed:.1f} s)"
+            return False
+        if e.error is not None:
+            self.messages.say(str(e.error), error=True)
+        done = e.state == JobState.DONE
+        if done:
+            self._show_result(e.job_id)
+        return done
+
+    def _show_target(self, e: JobEvent) -> None:
+        ids = self.keyframes_of(e.job_id)
+        found = re.match(r"keyframe (\d+)/\d+", e.stage)
+        k = ids[int(found.group(1)) - 1] if found and int(found.group(1)) <= len(ids) else (ids[0] if ids else None)
+        if k is not None and k != self._target_k:
+            self._target_k = k
+            self.target_image.value = mask_picture(self.state.project.keyframe_masks(k)[0], self.cfg.image_px)
+
+    def _show_result(self, job_id: int) -> None:
+        """The applied result's shadow of the job's (last) keyframe, beside its target."""
+        ids = [k for k in self.keyframes_of(job_id) if k in self.state.project.results]
+        if not ids:
+            return
+        k = ids[-1]
+        self._target_k = k
+        self.target_image.value = mask_picture(self.state.project.keyframe_masks(k)[0], self.cfg.image_px)
+        self.shown_shadow = np.asarray(self.state.project.results[k].shadow)
+        self.shadow_image.value = mask_picture(self.shown_shadow, self.cfg.image_px)
+
+    def _set_running(self, running: bool) -> None:
+        self.cancel_button.disabled = not running
+        for b in self.buttons.values():
+            b.disabled = running
+
+    def _table(self) -> str:
+        rows = self.state.queue.table()
+        if not rows:
+            return "<i>no jobs yet</i>"
+        head = "<tr><th>#</th><th>job</th><th>state</th><th>stage</th><th>best</th><th>s</th></tr>"
+        body = "".join(
+            f"<tr><td>{r['id']}</td><td>{html.escape(r['kind'])} {html.escape(r['title'])}</td>"
+            f"<td>{r['state']}</td><td>{html.escape(r['stage'])} {r['step']}/{r['total']}</td>"
+            f"<td>{_loss(r['best'])}</td><td>{r['elapsed']:.1f}</td></tr>"
+            for r in rows[-12:]
+        )  # fmt: skip
+        return f"<table style='font-size:0.9em'>{head}{body}</table>"
+
+    def close(self) -> None:
+        """Cancel what is running, stop listening and stop the writer."""
+        self.cancel()
+        self._unsubscribe()
+        self._stop_listening()
+        with self._wake:
+            self._closed = True
+            self._wake.notify()
+        self._writer.join(2.0)
+
+
+def _loss(value: float) -> str:
+    return "" if math.isnan(value) else f"{value:.4f}"
+
+
+def optimise_panel(state: StudioState, cfg: OptimiseConfig | None = None) -> OptimisePanel:
+    """The Optimise panel over ``state`` (its ``.widget`` is what the notebook shows)."""
+    return OptimisePanel(state, cfg)
