@@ -1,0 +1,65 @@
+"""The studio app (widgets.app): every panel in the artist's order, a placeholder naming the reason for a panel that
+cannot be built, the demo project made on first use and reopened after, and a project from the environment."""
+
+from __future__ import annotations
+
+import ipywidgets as w
+import pytest
+from studio.assets import asset
+
+from studio.project.demo import PROJECT_NAME, demo_project
+from studio.project.project import Project
+from widgets import app
+from widgets.state import StudioState
+
+
+@pytest.fixture
+def state(tmp_path):
+    project = Project.create(tmp_path / "still.shadow", sources=[asset("targets/asl_o.jpeg")])
+    s = StudioState.open(project.path)
+    yield s
+    s.close()
+
+
+def tab_of(studio: w.Widget) -> w.Tab:
+    return next(c for c in studio.children if isinstance(c, w.Tab))
+
+
+def test_every_panel_in_order_and_a_placeholder_says_why(state, monkeypatch):
+    def broken(_state):
+        raise RuntimeError("the canvas is gone")
+
+    import widgets.weights
+
+    monkeypatch.setattr(widgets.weights, "weights_panel", broken)
+    studio = app.studio_app(state)
+    tab = tab_of(studio)
+    assert tab.titles == ("Targets", "Keyframes", "Masks", "Weights", "Optimise", "Review", "Jog", "Export")
+    assert len(tab.children) == 8 and all(isinstance(c, w.Widget) for c in tab.children)
+    assert tab.children[3].value == "Weights: unavailable (RuntimeError: the canvas is gone)"
+    assert studio.studio_state is state
+    missing = app.build_panel(state, "Nothing", "no_such_panel")
+    assert missing.value == "Nothing: unavailable (not built yet)"
+
+
+def test_open_studio_makes_the_demo_once_then_reopens_it(tmp_path, monkeypatch):
+    monkeypatch.delenv(app.PROJECT_ENV, raising=False)
+    studio = app.open_studio(folder=tmp_path)
+    state = studio.studio_state
+    try:
+        assert state.project.path == tmp_path / PROJECT_NAME
+        assert [s.kind for s in state.project.sources] == ["still", "video"]
+        assert "demo" in studio.children[0].value
+    finally:
+        state.close()
+    project, fresh = demo_project(tmp_path)
+    assert not fresh and project.path == tmp_path / PROJECT_NAME
+
+
+def test_open_studio_reads_the_project_from_the_environment_and_reports_a_bad_one(state, tmp_path, monkeypatch):
+    monkeypatch.setenv(app.PROJECT_ENV, str(state.project.path))
+    assert app.project_path() == state.project.path
+    monkeypatch.setenv(app.PROJECT_ENV, str(tmp_path / "nothing.shadow"))
+    message = app.open_studio()
+    assert isinstance(message, w.HTML) and "could not open the project" in message.value
+    assert "nothing.shadow" in message.value
