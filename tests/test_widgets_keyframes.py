@@ -1,0 +1,107 @@
+"""The Keyframes panel driven from Python: τ's live count leaves the project alone until applied, the strip, and
+every keyframe edit (add, remove, move a frame, time, hold) through the project, with undo and redo."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from studio.imitate.keyframes import KeyframeConfig
+from studio.imitate.video import DEFAULT_VIDEO, VideoConfig
+from studio.project.jobs import queue_for
+from studio.project.project import Project
+from widgets.keyframes import KeyframesPanel, keyframes_panel
+from widgets.state import StudioState
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    path = tmp_path_factory.mktemp("kf") / "horse.shadow"
+    # 9 frames: 4 keyframes at τ 0.3, 1 at τ ≤ 0.25, 9 at τ ≥ 0.39
+    Project.create(path, [DEFAULT_VIDEO], video=VideoConfig(size=48, hz=8.0), clustering=KeyframeConfig(tau=0.3))
+    return path
+
+
+@pytest.fixture
+def state(folder, tmp_path):
+    copy = tmp_path / "h.shadow"
+    shutil.copytree(folder, copy)
+    project = Project.open(copy)
+    s = StudioState(project, queue_for(project))
+    yield s
+    s.close()
+
+
+def test_tau_counts_live_and_edits_only_when_applied(state):
+    assert "Keyframes" in keyframes_panel(state).children[0].value
+    panel = KeyframesPanel(state)
+    p = state.project
+    before, n_frames = p.state.doc(), len(p.frames)
+    assert n_frames == 9 and panel.live_count == len(p.keyframes) == 4
+    assert len(panel.strip.children) == len(p.keyframes)
+    last = p.keyframes[-1]
+    card = panel.strip.children[-1]
+    t0, t1 = p.frames[last.members[0]].time_s, p.frames[last.members[-1]].time_s
+    assert bytes(card.children[0].value).startswith(b"\x89PNG")  # the representative's picture
+    assert f"{len(last.members)} frames" in card.children[2].value and f"{t0:.2f}" in card.children[2].value
+    assert len(last.members) == 1 or f"{t1:.2f}" in card.children[2].value
+    card.children[1].click()  # select that cluster
+    assert state.selection.keyframe == last.id and state.selection.frame == last.representative
+    assert panel.keyframe.value == last.id
+    panel.tau.value = 0.99
+    high = panel.live_count
+    panel.tau.value = 0.0
+    assert panel.live_count == 1 < high == 9  # one cluster per source at τ 0, every frame its own at τ 0.99
+    assert f"{panel.live_count} keyframes" in panel.count.value
+    assert p.state.doc() == before and not p.can_undo  # the project is untouched
+    panel.tau.value = 0.99
+    panel.apply_tau.click()
+    assert len(p.keyframes) == high and p.state.clustering.tau == 0.99
+    assert len(panel.strip.children) == high
+    panel.undo.click()
+    assert p.state.doc() == before and panel.undo.disabled and not panel.redo.disabled
+    panel.redo.click()
+    assert len(p.keyframes) == high
+
+
+def test_add_remove_move_time_and_hold(state):
+    panel = KeyframesPanel(state)
+    p = state.project
+    n = len(p.keyframes)
+    frame = next(kf.members[-1] for kf in p.keyframes if len(kf.members) > 1)  # a frame that is not alone
+    state.select(frame=frame)
+    panel.add.click()
+    assert panel.messages.text == "" and len(p.keyframes) == n + 1
+    k = panel.selected()
+    assert p.state.keyframe(k).members == (frame,) and len(panel.strip.children) == n + 1
+    panel.hold.value = True
+    assert p.state.keyframe(k).hold
+    panel.clock.value = False
+    panel.time.value = 2.5
+    panel.set_time.click()
+    assert p.state.keyframe(k).time_s == 2.5
+    other = next(kf.id for kf in p.keyframes if kf.id != k)
+    panel.move_to.value = other
+    panel.move.click()  # the frame joins another keyframe: the lone keyframe disappears
+    assert frame in p.state.keyframe(other).members and k not in [kf.id for kf in p.keyframes]
+    for _ in range(3):
+        panel.undo.click()
+    assert p.state.keyframe(k).members == (frame,) and not p.state.keyframe(k).hold
+    state.select(frame=frame, keyframe=k)
+    panel.remove.click()
+    assert len(p.keyframes) == n
+    panel.undo.click()
+    assert len(p.keyframes) == n + 1
+
+
+def test_a_refused_edit_is_a_message(state):
+    panel = KeyframesPanel(state)
+    lone = next((kf for kf in state.project.keyframes if len(kf.members) == 1), None)
+    if lone is None:
+        state.select(frame=0)
+        panel.add.click()
+        lone = state.project.state.keyframe(panel.selected())
+    state.select(frame=lone.representative)
+    panel.add.click()  # already a keyframe of its own
+    assert panel.messages.text and "Traceback" not in panel.messages.text

@@ -1,0 +1,193 @@
+"""The Keyframes panel: a τ slider whose cluster count updates live (computed, the project untouched until "Apply τ"
+re-clusters it), a strip of the clusters (representative, member count, time range), and the keyframe edits: add
+one at the scrubber's frame, remove one, move the frame to another cluster, a keyframe's show time and hold flag,
+undo and redo. Every edit goes through :meth:`StudioState.edit` (saved, undoable).
+
+    panel = KeyframesPanel(state)     # panel.widget goes in the notebook; tests set values and .click() buttons
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+
+import ipywidgets as w
+import numpy as np
+
+from studio.imitate.keyframes import cluster_keyframes
+from studio.project.state import Keyframe
+from widgets.images import MASK_RGB, Messages, grey_rgb, png, tint, title, upscale
+from widgets.state import StudioState
+
+log = logging.getLogger(__name__)
+
+CARD_PX = 96  # side of a cluster's picture in the strip, px
+
+
+class KeyframesPanel:
+    """The Keyframes panel (module doc) over ``state``; ``.widget`` is what the notebook shows."""
+
+    def __init__(self, state: StudioState):
+        self.state = state
+        self.messages = Messages()
+        self._masks_of: object = None  # the project state the cached masks were combined from
+        self._masks: np.ndarray | None = None  # (N, S, S) the expressive masks the artist sees
+        self._drawing = False  # True while redraw() sets values (their observers must not edit)
+        self.live_count = 0  # keyframes at the slider's τ (computed; the project is not edited)
+
+        self.tau = w.FloatSlider(min=0.0, max=1.0, step=0.005, readout_format=".3f", description="τ",
+                                 continuous_update=True)  # fmt: skip
+        self.count = w.Label()
+        self.apply_tau = w.Button(description="Apply τ", tooltip="re-cluster the frames (hand edits are replaced)")
+        self.strip = w.HBox(layout=w.Layout(overflow="auto", width="100%"))
+        self.keyframe = w.Dropdown(description="keyframe")
+        self.add = w.Button(description="Add at frame", icon="plus")
+        self.remove = w.Button(description="Remove", icon="trash")
+        self.move_to = w.Dropdown(description="move frame to")
+        self.move = w.Button(description="Move frame")
+        self.time = w.BoundedFloatText(min=0.0, max=1e6, step=0.1, description="time s")
+        self.clock = w.Checkbox(description="the video's clock", value=True)
+        self.set_time = w.Button(description="Set time")
+        self.hold = w.Checkbox(description="hold")
+        self.undo = w.Button(description="Undo", icon="undo")
+        self.redo = w.Button(description="Redo", icon="repeat")
+        self.frame_info = w.Label()
+
+        self.tau.observe(lambda _: self.messages.run(self.update_count), names="value")
+        self.apply_tau.on_click(lambda _: self.messages.run(self.state.edit, "recluster", tau=float(self.tau.value)))
+        self.keyframe.observe(self._picked, names="value")
+        self.add.on_click(lambda _: self.messages.run(self._add))
+        self.remove.on_click(lambda _: self.messages.run(self.state.edit, "remove_keyframe", self.selected()))
+        self.move.on_click(lambda _: self.messages.run(self._move))
+        self.set_time.on_click(lambda _: self.messages.run(self._set_time))
+        self.clock.observe(lambda ch: setattr(self.time, "disabled", ch["new"]), names="value")
+        self.hold.observe(self._held, names="value")
+        self.undo.on_click(lambda _: self.messages.run(self.state.undo))
+        self.redo.on_click(lambda _: self.messages.run(self.state.redo))
+
+        self.widget = w.VBox([
+            title("Keyframes"),
+            w.HBox([self.tau, self.count, self.apply_tau]),
+            self.strip,
+            w.HBox([self.keyframe, self.hold, self.remove]),
+            w.HBox([self.time, self.clock, self.set_time]),
+            self.frame_info,
+            w.HBox([self.add, self.move_to, self.move]),
+            w.HBox([self.undo, self.redo]),
+            self.messages.widget,
+        ])  # fmt: skip
+        self.tau.value = state.project.state.clustering.tau
+        state.on_change(self._changed)
+        self.redraw()
+
+    # ---------------------------------------------------------------- reading the project
+    def masks(self) -> np.ndarray:
+        """The project's expressive masks ``(N, S, S)`` (paint included), combined once per project state."""
+        s = self.state.project.state
+        if self._masks_of is not s:
+            self._masks, self._masks_of = self.state.project.combined_masks(), s
+        return self._masks
+
+    def count_at(self, tau: float) -> int:
+        """How many keyframes clustering at ``tau`` would make (per source, as the project clusters)."""
+        p = self.state.project
+        masks, cfg = self.masks(), replace(p.state.clustering, tau=float(tau))
+        sources = np.array([f.source for f in p.frames])
+        return sum(len(cluster_keyframes(masks[sources == s], cfg).members) for s in np.unique(sources))
+
+    def selected(self) -> int:
+        """The keyframe id in view: the selection's, else the one the scrubber's frame plays."""
+        p, sel = self.state.project, self.state.selection
+        ids = [kf.id for kf in p.keyframes]
+        if sel.keyframe in ids:
+            return sel.keyframe
+        return self.owner(sel.frame) if p.frames else ids[0]
+
+    def owner(self, frame: int) -> int:
+        """The id of the keyframe whose pose frame ``frame`` plays."""
+        p = self.state.project
+        return p.keyframes[int(p.assignment()[frame])].id
+
+    def _time_range(self, kf: Keyframe) -> tuple[float, float]:
+        times = [self.state.project.frames[m].time_s for m in kf.members]
+        return min(times), max(times)
+
+    # ---------------------------------------------------------------- drawing
+    def _changed(self, what: str) -> None:
+        if what in ("project", "selection"):
+            self.redraw()
+
+    def update_count(self) -> None:
+        """The live count at the slider's τ (the project is not edited)."""
+        self.live_count = self.count_at(self.tau.value)
+        now = len(self.state.project.keyframes)
+        self.count.value = f"{self.live_count} keyframes at τ {self.tau.value:.3f} (project: {now})"
+
+    def _card(self, kf: Keyframe, chosen: bool) -> w.Widget:
+        p = self.state.project
+        rep = kf.representative
+        pic = tint(grey_rgb(p.state.targets[rep]), self.masks()[rep], MASK_RGB, 0.6)
+        t0, t1 = self._time_range(kf)
+        when = f"{t0:.2f} s" if t0 == t1 else f"{t0:.2f}–{t1:.2f} s"
+        extra = (" · hold" if kf.hold else "") + (f" · at {kf.time_s:g} s" if kf.time_s is not None else "")
+        button = w.Button(description=f"k{kf.id}", button_style="info" if chosen else "",
+                          layout=w.Layout(width=f"{CARD_PX}px"))  # fmt: skip
+        button.on_click(lambda _, k=kf.id, r=rep: self.state.select(frame=r, keyframe=k))
+        return w.VBox([
+            w.Image(value=png(upscale(pic, CARD_PX)), format="png", width=CARD_PX, height=CARD_PX),
+            button,
+            w.HTML(f"<small>{len(kf.members)} frames<br>{when}{extra}</small>"),
+        ])  # fmt: skip
+
+    def redraw(self) -> None:
+        """Show the project's keyframes as they are now."""
+        p = self.state.project
+        self._drawing = True
+        try:
+            k = self.selected() if p.keyframes else None
+            options = [(f"k{kf.id} ({len(kf.members)} frames)", kf.id) for kf in p.keyframes]
+            self.keyframe.options = options
+            self.move_to.options = options
+            self.keyframe.value = k
+            kf = p.state.keyframe(k) if k is not None else None
+            if kf is not None:
+                self.hold.value = kf.hold
+                self.clock.value = kf.time_s is None
+                self.time.value = kf.time_s if kf.time_s is not None else self._time_range(kf)[0]
+                self.time.disabled = kf.time_s is None
+            if p.frames:
+                frame = self.state.selection.frame
+                owner = self.owner(frame)
+                self.frame_info.value = f"frame {frame} plays keyframe k{owner}"
+                self.move_to.value = owner
+            self.strip.children = [self._card(x, x.id == k) for x in p.keyframes]
+            self.undo.disabled, self.redo.disabled = not p.can_undo, not p.can_redo
+        finally:
+            self._drawing = False
+        self.messages.run(self.update_count, clear=False)
+
+    # ---------------------------------------------------------------- actions
+    def _picked(self, change) -> None:
+        if not self._drawing and change["new"] is not None:
+            self.state.select(frame=self.state.selection.frame, keyframe=change["new"])
+
+    def _held(self, change) -> None:
+        if not self._drawing:
+            self.messages.run(self.state.edit, "set_hold", self.selected(), bool(change["new"]))
+
+    def _add(self) -> int:
+        frame = self.state.selection.frame
+        k = self.state.edit("add_keyframe", frame)
+        self.state.select(frame=frame, keyframe=k)
+        return k
+
+    def _move(self) -> None:
+        self.state.edit("move_frame", self.state.selection.frame, int(self.move_to.value))
+
+    def _set_time(self) -> None:
+        self.state.edit("set_keyframe_time", self.selected(), None if self.clock.value else float(self.time.value))
+
+
+def keyframes_panel(state: StudioState) -> w.Widget:
+    """The Keyframes panel's widget (module doc)."""
+    return KeyframesPanel(state).widget
