@@ -1,0 +1,137 @@
+"""The Export panel driven without a browser: plan a tiny project's show as a job (allow late), write and validate
+the show file, show-info, CSV, and play on the emulator (real pyserial over a pty) with progress and stop."""
+
+from __future__ import annotations
+
+import csv
+import time
+
+import numpy as np
+import pytest
+from studio.assets import asset
+
+from studio.motion.show import load_show
+from studio.motion.show_info import show_info_lines
+from studio.project.jobs import JobState, queue_for
+from studio.project.project import Project
+from studio.project.show_timing import ShowLayout
+from studio.sim.shadow import Rig, ShadowRenderer
+from widgets.export import ExportConfig, ExportPanel, default_show_path, export_panel
+from widgets.state import StudioState
+
+STILL = asset("targets/asl_o.jpeg")
+
+
+@pytest.fixture
+def state(tmp_path, hand):
+    """A one-still project whose keyframe has a result: a bent index finger and its rendered shadow."""
+    project = Project.create(tmp_path / "export.shadow", sources=[STILL])
+    pose = hand.rest_pose().copy()
+    pose[hand.joint_names.index("index_pip")] = 0.8
+    shadow = ShadowRenderer(hand, Rig(resolution=32)).render_one(pose)
+    k = project.keyframes[0].id
+    project.set_result(k, pose, {"total": 0.4}, shadow, inputs=project.keyframe_inputs(k))
+    s = StudioState(project, queue_for(project))
+    yield s
+    s.close()
+
+
+def wait_for(job, timeout: float = 60.0) -> JobState:
+    """The job's final state (its final event has reached every subscriber by then)."""
+    assert job is not None
+    return job.wait(timeout)
+
+
+def test_plan_write_validate_info_and_csv(state, tmp_path):
+    panel = ExportPanel(state, ExportConfig(layout=ShowLayout(still_hold_s=1.0)))
+    assert "Export" in panel.widget.children[0].value and "no show planned" in panel.info.value
+    assert panel.path.value == str(tmp_path / "export.show.json") == str(default_show_path(state))
+    panel.write_button.click()  # nothing planned: a message, no file
+    assert "no planned show" in panel.messages.text and not (tmp_path / "export.show.json").exists()
+    panel.plan_button.click()
+    job = panel.jobs[-1]
+    assert wait_for(job) == JobState.DONE, job.error
+    assert state.project.show is not None and state.project.history[-1] == "planned show"
+    assert "planned a" in panel.messages.text and panel.progress.value == 1.0
+    assert "title:        export" in panel.info.value and "keyframes:" in panel.info.value
+    panel.write_button.click()
+    show = load_show(tmp_path / "export.show.json")
+    assert "validated" in panel.messages.text and np.allclose(show.positions, state.project.show.positions)
+    assert html_lines(panel.info.value)[1:] == show_info_lines(show)  # what `shadow-studio show-info` prints
+    panel.csv_path.value = str(tmp_path / "out.csv")
+    panel.degrees.value = True
+    panel.csv_button.click()
+    rows = list(csv.reader((tmp_path / "out.csv").open()))
+    assert rows[0] == ["t_s", *(f"{n}_deg" for n in show.joint_names)] and len(rows) == len(show.times) + 1
+    j = show.joint_names.index("index_pip")
+    assert float(rows[-1][1 + j]) == pytest.approx(np.degrees(0.8), abs=1e-6)
+    (tmp_path / "export.show.json").write_text("{}")  # a broken file: validate lists its problems
+    panel.validate_button.click()
+    assert "not a show file" in panel.messages.text, panel.messages.text
+    state.edit("set_keyframe_time", state.project.keyframes[0].id, 0.05)  # from home to the pose in 50 ms
+    assert "stale" in panel.info.value
+    panel.allow_late.value = False
+    assert wait_for(panel.plan()) == JobState.FAILED
+    assert "too fast" in panel.messages.text and "allow late" in panel.messages.text, panel.messages.text
+    panel.allow_late.value = True
+    assert wait_for(panel.plan()) == JobState.DONE
+    assert "1 late transition(s) stretched" in panel.messages.text and "late:         1 segment" in panel.info.value
+    state.undo()  # the stretched show, the keyframe time
+    state.undo()
+    state.undo()  # the show goes: CSV is refused with what to do, the info says so
+    assert state.project.show is None and "no show planned" in panel.info.value
+    panel.csv_button.click()
+    assert "plan show" in panel.messages.text
+    panel.close()
+
+
+def html_lines(value: str) -> list[str]:
+    """The lines inside the info's <pre>."""
+    import html
+
+    body = value.split(">", 1)[1].rsplit("</pre>", 1)[0]
+    return html.unescape(body).splitlines()
+
+
+def test_plan_without_results_says_what_to_do(tmp_path):
+    project = Project.create(tmp_path / "empty.shadow", sources=[STILL])
+    state = StudioState(project, queue_for(project))
+    try:
+        panel = export_panel(state)
+        panel.plan_button.click()
+        assert panel.jobs == [] and "no result for keyframe" in panel.messages.text
+        panel.play_button.click()
+        assert "no show planned" in panel.messages.text
+    finally:
+        state.close()
+
+
+def test_play_on_the_emulator_with_progress_and_stop(state):
+    panel = ExportPanel(state, ExportConfig(layout=ShowLayout(still_hold_s=3.0)))
+    assert wait_for(panel.plan()) == JobState.DONE
+    seen: list = []
+    state.queue.subscribe(seen.append)
+    job = panel.play()
+    assert job is not None and job.kind == "play" and not panel.stop_button.disabled
+    deadline = time.monotonic() + 30
+    while not any(e.job_id == job.id and e.stage == "play" and e.step > 20 for e in seen):
+        assert time.monotonic() < deadline and not job.finished, job.error
+        time.sleep(0.02)
+    assert panel.progress.description == "play" and 0 < panel.progress.value < 1
+    panel.stop_button.click()
+    assert wait_for(job, 5.0) == JobState.CANCELLED
+    assert "stopped" in panel.messages.text and panel.stop_button.disabled
+    panel.target.value = "port"
+    panel.play_button.click()  # no port typed: a message
+    assert "serial port" in panel.messages.text and len(panel.jobs) == 2
+    panel.port.value = "/dev/does-not-exist"
+    panel.play_button.click()
+    assert "cannot open servo bus" in panel.messages.text and len(panel.jobs) == 2
+    panel.target.value = "emulator"
+    short = ExportPanel(state, ExportConfig(layout=ShowLayout(still_hold_s=0.5)))
+    assert wait_for(short.plan()) == JobState.DONE
+    played = short.play()
+    assert wait_for(played, 30.0) == JobState.DONE, played.error
+    assert played.result.ok and "played" in short.messages.text and short.progress.value == 1.0
+    short.close()
+    panel.close()

@@ -1,0 +1,280 @@
+"""The Export panel: plan the project's show, write and validate the show file, describe it, export CSV, play it.
+
+A face of the engine (DESIGN §5.7): **plan** runs :func:`studio.project.jobs.show_job` on the project's queue
+through the keyframes of :meth:`Project.show_timing` (``allow late`` stretches transitions too fast for the
+servos instead of refusing), applied by ``project.set_show``; **write** is :meth:`Project.export_show` to the path
+in the box (default next to the project) read back by :func:`studio.motion.show.load_show`, which validates it;
+**show info** is what ``shadow-studio show-info`` prints (:func:`studio.motion.show_info.show_info_lines`);
+**CSV** is :func:`studio.motion.show.export_csv`; **play** runs :func:`studio.project.jobs.play_job` on the
+built-in emulator or on the hand at a serial port (the Jog panel's bus when it is connected to that port, so its
+e-stop stops the show), with progress and stop (a cancel: the player stops within a tick, torque as configured).
+
+Job events arrive on the queue's thread: the panel only sets widget values there, at most ``redraw_hz`` times a
+second (DESIGN §6); every error is a message in the panel, never a traceback.
+"""
+
+from __future__ import annotations
+
+import html
+import logging
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import ipywidgets as w
+
+from hardware.player import PlayerConfig
+from studio.motion.plan import PlanConfig
+from studio.motion.show import Show, export_csv, load_show
+from studio.motion.show_info import show_info_lines
+from studio.project.jobs import Job, JobEvent, JobState, play_job, show_job
+from studio.project.show_timing import ShowLayout
+from studio.project.state import ProjectError
+from studio.sim.hand import Hand, load_hand
+from widgets.images import Messages, title
+from widgets.state import StudioState
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class ExportConfig:
+    """How the Export panel plans and plays."""
+
+    allow_late: bool = True  # the "allow late" box's start value: stretch too-fast transitions instead of no show
+    redraw_hz: float = 10.0  # progress redraws per second at most, from the queue's thread (0, 30]
+    layout: ShowLayout | None = None  # how the project's sources share the show clock (None: the defaults)
+    plan: PlanConfig | None = None  # the planner (None: the defaults; its allow_late comes from the box)
+    player: PlayerConfig | None = None  # how a show plays (None: the player's defaults: 40 Hz, torque held on stop)
+
+
+def default_show_path(state: StudioState) -> Path:
+    """``NAME.show.json`` beside the project folder ``NAME.shadow``."""
+    p = state.project.path
+    return p.parent / f"{p.stem}.show.json"
+
+
+class ExportPanel:
+    """The Export panel of one studio (``.widget``)."""
+
+    def __init__(self, state: StudioState, cfg: ExportConfig | None = None, hand: Hand | None = None):
+        self.state = state
+        self.cfg = cfg or ExportConfig()
+        self.hand = hand or load_hand()
+        self.jobs: list[Job] = []  # the jobs this panel started, in order
+        self._own_bus: dict[Job, object] = {}  # a bus this panel opened for a play job (closed when the job ends)
+        self._last_draw = 0.0
+        self.messages = Messages()
+        self.allow_late = w.Checkbox(value=self.cfg.allow_late, description="allow late (stretch too-fast moves)",
+                                     indent=False)  # fmt: skip
+        self.plan_button = w.Button(description="plan show", button_style="primary")
+        path = default_show_path(state)
+        self.path = w.Text(value=str(path), description="show file", layout=w.Layout(width="520px"))
+        self.write_button = w.Button(description="write + validate")
+        self.validate_button = w.Button(description="validate file")
+        self.info = w.HTML()
+        self.csv_path = w.Text(value=str(path.with_suffix(".csv")), description="CSV file",
+                               layout=w.Layout(width="520px"))  # fmt: skip
+        self.degrees = w.Checkbox(value=False, description="degrees", indent=False)
+        self.csv_button = w.Button(description="export CSV")
+        self.target = w.ToggleButtons(options=[("emulator", "emulator"), ("hand (port)", "port")], value="emulator")
+        self.port = w.Text(placeholder="/dev/ttyUSB0", description="port", layout=w.Layout(width="260px"))
+        self.play_button = w.Button(description="play", icon="play", button_style="success")
+        self.stop_button = w.Button(description="stop", icon="stop", button_style="danger", disabled=True)
+        self.progress = w.FloatProgress(value=0.0, min=0.0, max=1.0, description="idle")
+        self.status = w.Label("")
+        self.plan_button.on_click(lambda _: self.plan())
+        self.write_button.on_click(lambda _: self.write())
+        self.validate_button.on_click(lambda _: self.validate())
+        self.csv_button.on_click(lambda _: self.export_csv())
+        self.play_button.on_click(lambda _: self.play())
+        self.stop_button.on_click(lambda _: self.stop())
+        self.widget = w.VBox([
+            title("Export"),
+            w.HBox([self.plan_button, self.allow_late]),
+            w.HBox([self.path, self.write_button, self.validate_button]),
+            self.info,
+            w.HBox([self.csv_path, self.degrees, self.csv_button]),
+            w.HBox([self.target, self.port, self.play_button, self.stop_button]),
+            w.HBox([self.progress, self.status]),
+            self.messages.widget,
+        ])  # fmt: skip
+        self._unsubscribe = state.queue.subscribe(self._on_event)
+        self._stop_listening = state.on_change(self._on_change)
+        self.show_info()
+
+    # ---------------------------------------------------------------- the show
+    def current_show(self) -> Show:
+        """The project's planned show; a ProjectError saying what to do when there is none or it is stale."""
+        p = self.state.project
+        if p.show is None:
+            raise ProjectError("no show planned yet: press 'plan show' (every keyframe needs a current result)")
+        if p.is_show_stale():
+            raise ProjectError("the planned show is stale (keyframes, results or settings changed): plan it again")
+        return p.show
+
+    def show_info(self, show: Show | None = None, note: str = "") -> None:
+        """Show ``show``'s info (default: the project's show) as ``shadow-studio show-info`` prints it."""
+        p = self.state.project
+        show = show or p.show
+        if show is None:
+            self.info.value = "<i>no show planned yet</i>"
+            return
+        stale = "(stale: plan it again)\n" if show is p.show and p.is_show_stale() else ""
+        text = note + ("\n" if note else "") + stale + "\n".join(show_info_lines(show))
+        self.info.value = f"<pre style='margin:2px 0'>{html.escape(text)}</pre>"
+
+    def plan(self) -> Job | None:
+        """Plan the show as a job on the project's queue (applied by ``set_show`` when it completes)."""
+
+        def go() -> Job:
+            keyframes = self.state.project.show_timing(self.cfg.layout).keyframes
+            base = self.cfg.plan or PlanConfig()
+            cfg = replace(base, timing=replace(base.timing, allow_late=bool(self.allow_late.value)))
+            return self._submit(show_job(self.state.project, keyframes, cfg=cfg))
+
+        return self.messages.run(go)
+
+    def write(self) -> Path | None:
+        """Write the planned show to the path in the box, then read it back (validated)."""
+
+        def go() -> Path:
+            out = self.state.project.export_show(Path(self.path.value).expanduser())
+            show = load_show(out, self.hand)
+            self.show_info(show, f"{out}: valid show, version {show.format_version}")
+            self.messages.say(f"wrote {out} and validated it")
+            return out
+
+        return self.messages.run(go)
+
+    def validate(self) -> Show | None:
+        """Validate the show file at the path in the box; its info when valid, every problem when not."""
+
+        def go() -> Show:
+            path = Path(self.path.value).expanduser()
+            show = load_show(path, self.hand)
+            self.show_info(show, f"{path}: valid show, version {show.format_version}")
+            self.messages.say(f"{path}: valid, {len(show.times)} samples, {show.duration:.3f} s")
+            return show
+
+        return self.messages.run(go)
+
+    def export_csv(self) -> Path | None:
+        """The planned show's samples as CSV at the path in the box (t, one column per joint)."""
+
+        def go() -> Path:
+            out = export_csv(self.current_show(), Path(self.csv_path.value).expanduser(), degrees=self.degrees.value)
+            self.messages.say(f"wrote {out}")
+            return out
+
+        return self.messages.run(go)
+
+    # ---------------------------------------------------------------- playing
+    def play(self) -> Job | None:
+        """Play the planned show on the emulator or on the hand at the port, as a job."""
+        return self.messages.run(self._play)
+
+    def _play(self) -> Job:
+        show = self.current_show()
+        bus, own = None, False
+        if self.target.value == "port":
+            port = self.port.value.strip()
+            if not port:
+                raise ValueError(
+                    "type the serial port of the servo adapter (e.g. /dev/ttyUSB0), or play on the emulator"
+                )
+            jog = self.state.extras.get("jog")
+            if jog is not None and jog.bus is not None and jog.bus.config.port == port:
+                bus = jog.bus  # the Jog panel's: its e-stop stops the show
+            else:
+                from hardware.serial_bus import BusConfig, SerialServoBus
+
+                bus, own = SerialServoBus(BusConfig(port)), True
+                bus.connect()
+        job = play_job(show, config=self.cfg.player, bus=bus, title=f"play {show.title}")
+        try:
+            self._submit(job, bus if own else None)
+        except BaseException:
+            if own:
+                bus.disconnect()
+            raise
+        return job
+
+    def stop(self) -> bool:
+        """Cancel this panel's running or queued jobs (a show stops within a tick); whether any was."""
+        stopped = [j.cancel() for j in self.jobs if not j.finished]
+        if any(stopped):
+            self.messages.say("stopping…")
+        return any(stopped)
+
+    def _submit(self, job: Job, bus=None) -> Job:
+        self.stop_button.disabled = False
+        self.progress.description, self.progress.value = job.kind, 0.0
+        self.status.value = f"{job.title}: queued"
+        if bus is not None:
+            self._own_bus[job] = bus
+        self.jobs.append(job)
+        try:
+            self.state.queue.submit(job)
+        except BaseException:
+            self.jobs.remove(job)
+            self._own_bus.pop(job, None)
+            raise
+        return job
+
+    # ---------------------------------------------------------------- job events (the queue's thread)
+    def _on_event(self, e: JobEvent) -> None:
+        job = next((j for j in list(self.jobs) if j.id == e.job_id and j.id), None)
+        if job is None:
+            return
+        now = time.monotonic()
+        if not e.final and now - self._last_draw < 1.0 / self.cfg.redraw_hz:
+            return  # throttled: the next event (or the final one) draws
+        self._last_draw = now
+        if not e.final:
+            self.progress.description = e.stage or job.kind
+            self.progress.value = e.fraction if e.total > 0 else 0.0
+            self.status.value = f"{job.title}: {e.stage} {e.step}/{e.total}" if e.total else f"{job.title}: {e.stage}"
+            return
+        self._finished(job, e)
+
+    def _finished(self, job: Job, e: JobEvent) -> None:
+        bus = self._own_bus.pop(job, None)
+        if bus is not None:
+            try:
+                bus.disconnect()
+            except Exception as err:
+                log.debug("closing the play bus failed: %s", err)
+        self.stop_button.disabled = all(j.finished for j in self.jobs)
+        self.progress.description = e.state.value
+        if e.state == JobState.DONE:
+            self.progress.value = 1.0
+        self.status.value = f"{job.title}: {e.state.value} after {e.elapsed:.1f} s"
+        if e.state == JobState.FAILED:
+            hint = " (tick 'allow late' to stretch them)" if e.error and e.error.type == "SegmentTooFastError" else ""
+            self.messages.say(f"{job.title} failed: {e.error.message if e.error else 'unknown error'}{hint}", True)
+        elif e.state == JobState.CANCELLED:
+            self.messages.say(f"{job.title} stopped")
+        elif job.kind == "plan":
+            late = job.result.show.provenance.get("late_segments") or []
+            stretched = f", {len(late)} late transition(s) stretched" if late else ""
+            self.messages.say(f"planned a {job.result.show.duration:.2f} s show{stretched}; write it or play it")
+            self.show_info()
+            self.state.changed("project")  # other panels see the new show
+        elif job.kind == "play":
+            r = job.result
+            self.messages.say(f"played: {r.message} (torque {r.torque}, {r.commands} move packets)")
+
+    def _on_change(self, what: str) -> None:
+        if what == "project":
+            self.show_info()
+
+    def close(self) -> None:
+        """Stop listening (jobs keep running on the project's queue; :meth:`stop` cancels them)."""
+        self._unsubscribe()
+        self._stop_listening()
+
+
+def export_panel(state: StudioState, cfg: ExportConfig | None = None) -> ExportPanel:
+    """The Export panel (its widget is ``.widget``)."""
+    return ExportPanel(state, cfg)
