@@ -27,6 +27,7 @@ from hardware.jog import Jog, JogConfig, JogMove
 from hardware.serial_bus import BusConfig, SerialServoBus
 from studio.errors import StudioError
 from studio.sim.hand import Hand, load_hand
+from widgets.images import title
 from widgets.state import StudioState
 
 log = logging.getLogger(__name__)
@@ -70,7 +71,7 @@ class JogPanel:
 
     # ------------------------------------------------------------------ widgets
     def _build(self) -> None:
-        self.title = W.HTML("<h3 style='margin:4px 0'>Jog</h3>")
+        self.title = title("Jog")
         self.source = W.ToggleButtons(options=[("emulator", "emulator"), ("serial port", "port")], value="emulator")
         self.port = W.Text(placeholder="/dev/ttyUSB0", description="port", layout=W.Layout(width="260px"))
         self.connect_button = W.Button(description="connect", icon="plug")
@@ -388,5 +389,5 @@ class JogPanel:
 
 
 def jog_panel(state: StudioState, calibration: Calibration | None = None, config: JogPanelConfig | None = None):
-    """The Jog panel's widget (its :class:`JogPanel` is ``state.extras["jog"]``)."""
-    return JogPanel(state, calibration, config).widget
+    """The Jog panel (its widget is ``.widget``; while open it is also ``state.extras["jog"]``)."""
+    return JogPanel(state, calibration, config)
