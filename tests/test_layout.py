@@ -66,6 +66,7 @@ def test_io_libraries_stay_at_their_edges():
         "meshcat": ("studio.review",),
         "serial": ("hardware",),
         "ipywidgets": ("widgets",),
+        "ipycanvas": ("widgets",),
         "hardware": ("hardware", "studio.cli", "studio.project.jobs", "widgets"),
         "widgets": ("widgets",),
     }

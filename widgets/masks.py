@@ -1,0 +1,181 @@
+"""The Masks panel: the selected frame's target with its expressive mask drawn over it (automatic in orange,
+painted additions green, erasures red), and a brush on an ipycanvas ``Canvas`` to paint additions and erasures:
+brush size, mode add / erase, clear, undo. Each stroke is rasterised into the project's square frame ``(S, S)`` and
+saved with ``project.paint(frame, additions=..., erasures=...)`` (the separate PNGs of DESIGN §4), one undoable
+edit per stroke.
+
+    panel = MasksPanel(state)
+    panel.stroke([(10, 10), (60, 40)], radius=6, mode="add")    # what a mouse drag does, in canvas pixels
+
+Without ipycanvas installed the picture is an ``ipywidgets.Image`` (no mouse painting; :meth:`MasksPanel.stroke`
+still works, and the panel says how to get the brush).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+
+import cv2
+import ipywidgets as w
+import numpy as np
+
+from studio.project.state import ProjectError
+from widgets.images import ADD_RGB, ERASE_RGB, MASK_RGB, Messages, grey_rgb, png, tint, title, upscale
+from widgets.state import StudioState
+
+try:  # the brush needs ipycanvas (a dependency); the panel still shows the masks without it
+    import ipycanvas
+except ImportError:  # pragma: no cover - depends on the environment
+    ipycanvas = None
+
+log = logging.getLogger(__name__)
+
+CANVAS_PX = 384  # side of the drawing canvas, px (the project's S × S frame is scaled to it)
+MODES = ("add", "erase")  # brush modes: paint additions or erasures
+
+
+class MasksPanel:
+    """The Masks panel (module doc) over ``state``; ``.widget`` is what the notebook shows."""
+
+    def __init__(self, state: StudioState, side: int = CANVAS_PX):
+        self.state = state
+        self.side = side  # canvas side, px
+        self.messages = Messages()
+        self._points: list[tuple[float, float]] | None = None  # the stroke being dragged, canvas px
+
+        self.brush = w.IntSlider(value=8, min=1, max=60, description="brush px")
+        self.mode = w.ToggleButtons(options=list(MODES), value="add", description="mode")
+        self.clear = w.Button(description="Clear paint", icon="eraser")
+        self.undo = w.Button(description="Undo", icon="undo")
+        self.info = w.Label()
+        if ipycanvas is not None:
+            self.canvas = ipycanvas.Canvas(width=side, height=side, layout=w.Layout(width=f"{side}px"))
+            self.canvas.on_mouse_down(self.mouse_down)
+            self.canvas.on_mouse_move(self.mouse_move)
+            self.canvas.on_mouse_up(self.mouse_up)
+            self.canvas.on_mouse_out(self.mouse_up)
+            picture: w.Widget = self.canvas
+            note = ""
+        else:
+            self.canvas = None
+            self.image = w.Image(format="png", width=side, height=side)
+            picture = self.image
+            note = "the brush needs ipycanvas: pip install 'ipycanvas>=0.13' and restart the kernel"
+
+        self.clear.on_click(lambda _: self.messages.run(self._clear))
+        self.undo.on_click(lambda _: self.messages.run(self.state.undo))
+        self.widget = w.VBox([
+            title("Masks"),
+            picture,
+            w.HBox([self.mode, self.brush]),
+            w.HBox([self.clear, self.undo, self.info]),
+            w.HTML(f"<i>{note}</i>" if note else ""),
+            self.messages.widget,
+        ])  # fmt: skip
+        state.on_change(self._changed)
+        self.redraw()
+
+    # ---------------------------------------------------------------- the picture
+    @property
+    def frame(self) -> int:
+        return self.state.selection.frame
+
+    def picture(self) -> np.ndarray:
+        """The selected frame's target with its expressive mask and paint over it, ``(side, side, 3)`` uint8."""
+        s = self.state.project.state
+        f = self.frame
+        key = s.frames[f].key
+        rgb = tint(grey_rgb(s.targets[f]), self.state.project.combined_masks()[f], MASK_RGB, 0.5)
+        if key in s.additions:
+            rgb = tint(rgb, s.additions[key], ADD_RGB, 0.6)
+        if key in s.erasures:
+            rgb = tint(rgb, s.erasures[key], ERASE_RGB, 0.6)
+        return upscale(rgb, self.side)
+
+    def _changed(self, what: str) -> None:
+        if what in ("project", "selection"):
+            self.redraw()
+
+    def redraw(self) -> None:
+        """Draw the selected frame as the project has it now."""
+        p = self.state.project
+        if not p.frames:
+            return
+        key = p.frames[self.frame].key
+        painted = [n for n, layer in (("additions", p.state.additions), ("erasures", p.state.erasures)) if key in layer]
+        self.info.value = f"frame {self.frame}" + (f" (painted: {', '.join(painted)})" if painted else "")
+        self.undo.disabled = not p.can_undo
+        rgb = self.picture()
+        if self.canvas is not None:
+            self.canvas.put_image_data(rgb, 0, 0)
+        else:
+            self.image.value = png(rgb)
+
+    # ---------------------------------------------------------------- painting
+    def rasterise(self, points: Sequence[tuple[float, float]], radius: float) -> np.ndarray:
+        """A stroke through ``points`` (canvas px) with a round brush of ``radius`` (canvas px) as ``(S, S)`` uint8
+        {0, 1} in the project's square frame."""
+        size = self.state.project.state.auto.shape[-1]
+        scale = size / self.side
+        out = np.zeros((size, size), np.uint8)
+        pts = [(int(round(x * scale - 0.5)), int(round(y * scale - 0.5))) for x, y in points]
+        r = max(0, int(round(radius * scale)))
+        for a, b in zip(pts, pts[1:], strict=False):
+            cv2.line(out, a, b, 1, thickness=max(1, 2 * r + 1))
+        for p in pts:
+            cv2.circle(out, p, r, 1, thickness=-1)
+        return out
+
+    def stroke(self, points: Sequence[tuple[float, float]], radius: float, mode: str = "add") -> None:
+        """Paint one stroke through ``points`` ``[(x, y), ...]`` (canvas px, origin top left) with a round brush of
+        ``radius`` canvas px: ``mode`` "add" paints additions (and takes back erasures there), "erase" the
+        reverse. Saved as one undoable ``project.paint`` edit."""
+        if mode not in MODES:
+            raise ProjectError(f"the brush mode is 'add' or 'erase', not {mode!r}")
+        if not points:
+            return
+        s = self.state.project.state
+        key = s.frames[self.frame].key
+        blank = np.zeros(s.auto.shape[1:], np.uint8)
+        add = np.array(s.additions.get(key, blank), np.uint8)
+        erase = np.array(s.erasures.get(key, blank), np.uint8)
+        m = self.rasterise(points, radius)
+        if mode == "add":
+            add, erase = add | m, erase & (1 - m)
+        else:
+            add, erase = add & (1 - m), erase | m
+        self.state.edit("paint", self.frame, additions=add, erasures=erase)
+
+    def _clear(self) -> None:
+        self.state.edit("clear_paint", self.frame)
+
+    # ---------------------------------------------------------------- the mouse (ipycanvas callbacks)
+    def mouse_down(self, x: float, y: float) -> None:
+        """A drag starts at canvas ``(x, y)``."""
+        self._points = [(x, y)]
+        self._dab(x, y)
+
+    def mouse_move(self, x: float, y: float) -> None:
+        """The drag goes on through ``(x, y)`` (drawn at once, saved on release)."""
+        if self._points is not None:
+            self._points.append((x, y))
+            self._dab(x, y)
+
+    def mouse_up(self, x: float, y: float) -> None:
+        """The drag ends: the stroke is saved (an error shows in the panel)."""
+        if self._points is None:
+            return
+        points, self._points = self._points + [(x, y)], None
+        self.messages.run(self.stroke, points, self.brush.value, self.mode.value)
+
+    def _dab(self, x: float, y: float) -> None:
+        if self.canvas is not None:
+            r, g, b = ADD_RGB if self.mode.value == "add" else ERASE_RGB
+            self.canvas.fill_style = f"rgb({r}, {g}, {b})"
+            self.canvas.fill_circle(x, y, self.brush.value)
+
+
+def masks_panel(state: StudioState) -> w.Widget:
+    """The Masks panel's widget (module doc)."""
+    return MasksPanel(state).widget
