@@ -224,6 +224,12 @@ class ExportPanel:
 
     # ---------------------------------------------------------------- job events (the queue's thread)
     def _on_event(self, e: JobEvent) -> None:
+        try:
+            self._draw(e)
+        except Exception:  # a redraw must never disturb the queue; logged quietly, no traceback in the notebook
+            log.debug("the Export panel failed to draw a job event", exc_info=True)
+
+    def _draw(self, e: JobEvent) -> None:
         job = next((j for j in list(self.jobs) if j.id == e.job_id and j.id), None)
         if job is None:
             return

@@ -172,6 +172,11 @@ class JogPanel:
             self._close_hardware()
             self._say(f"could not connect: {e}", error=True)
             return False
+        except Exception as e:  # a bug: nothing left open, a message, never a traceback
+            log.debug("jog panel: connect failed", exc_info=True)
+            self._close_hardware()
+            self._say(f"could not connect: unexpected {type(e).__name__}: {e}", error=True)
+            return False
         self.torque_on = None
         silent = [i for i, x in zip(self.cal.ids, self.jog.target) if not math.isfinite(x)]
         self._show_target()
