@@ -190,6 +190,21 @@ class ProjectRecording:
         viewer.display()
         return viewer
 
+    def notebook_widget(self, width: int | None = None, height: int | None = None):
+        """The live viewer as a widget to place in a notebook layout (made with ``notebook=True``; not displayed):
+        the ``rerun_notebook.Viewer`` that :meth:`show_notebook` shows. A ReviewError saying what to install when
+        the rerun-notebook package is missing."""
+        if self.server_url is None:
+            raise ReviewError("this recording serves no viewer: make it with ProjectRecording(..., notebook=True)")
+        try:
+            from rerun.notebook import Viewer
+
+            viewer = Viewer(width=width, height=height, url=self.server_url)
+        except Exception as e:  # ImportError, or rerun's own missing-dependency error
+            raise ReviewError(f"the notebook viewer needs the rerun-notebook package ({e}): "
+                              "pip install rerun-notebook") from None  # fmt: skip
+        return viewer._viewer  # rerun 0.41: the widget inside the wrapper, what Viewer.display() shows
+
     def flush(self) -> bool:
         """Send everything logged so far to every sink, waiting at most ``flush_timeout_s``; False (and a warning)
         when a sink did not take it all in time (a viewer that went away)."""
