@@ -3,6 +3,7 @@ live preview, and segment raw colour footage as a job; every edit undoable."""
 
 from __future__ import annotations
 
+import time
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -15,6 +16,8 @@ from studio.imitate.targets import TargetConfig
 from studio.imitate.video import VideoConfig
 from studio.project.jobs import JobState, queue_for
 from studio.project.project import Project
+from widgets.keyframes import KeyframesPanel
+from widgets.masks import MasksPanel
 from widgets.state import StudioState
 from widgets.targets import TargetsPanel, targets_panel
 
@@ -42,6 +45,7 @@ def labels(widget) -> str:
 def test_the_panel_has_its_title_and_adds_a_bundled_video(state):
     assert "Targets" in labels(targets_panel(state))
     panel = TargetsPanel(state)
+    others = KeyframesPanel(state), MasksPanel(state)  # they follow the scrubber and redraw after every edit
     assert panel.scrubber.max == 0 and panel.preview.value  # one still, previewed
     panel.sample.value = "muybridge_horse.gif"
     panel.add_sample.click()
@@ -57,8 +61,11 @@ def test_the_panel_has_its_title_and_adds_a_bundled_video(state):
     assert state.project.state.video.hz == 1.0 and len(state.project.frames) < n
     state.undo()
     assert len(state.project.frames) == n and panel.hz.value == 2.0
+    assert others[1].info.value.startswith(f"frame {state.selection.frame}") and state.selection.frame > 0
     state.undo()
     assert len(state.project.sources) == 1 and panel.scrubber.max == 0
+    assert state.selection.frame == 0 and others[1].info.value.startswith("frame 0")
+    assert len(others[0].strip.children) == len(state.project.keyframes)
 
 
 def test_a_missing_path_is_a_message_not_a_traceback(state, tmp_path):
@@ -129,3 +136,16 @@ def test_raw_colour_footage_waits_for_a_box_then_is_segmented_as_a_job(state, tm
     assert "segmented" in panel.sources.value
     state.undo()
     assert len(state.project.sources) == 1
+
+
+def test_the_preview_is_throttled_but_ends_on_the_latest_value(state):
+    panel = TargetsPanel(state)
+    time.sleep(0.1)
+    panel.threshold.value = 10.0  # due: drawn at once
+    assert panel.preview_level == 10.0
+    panel.threshold.value = 60.0  # within 1/15 s: drawn at the end of the interval
+    panel.threshold.value = 90.0
+    deadline = time.monotonic() + 2.0
+    while panel.preview_level != 90.0 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert panel.preview_level == 90.0

@@ -22,6 +22,12 @@ ERASE_RGB = (230, 60, 60)  # painted erasures
 MASK_RGB = (255, 170, 0)  # an automatic / binary mask over a frame
 
 
+def frame_in_view(state: Any) -> int:
+    """``state.selection.frame`` clamped to the project's frames (an undo may have removed the one in view)."""
+    n = len(state.project.frames)
+    return max(0, min(state.selection.frame, n - 1))
+
+
 def title(text: str) -> w.HTML:
     """The panel's visible title label (the browser test looks for it)."""
     return w.HTML(f"<b style='font-size:1.2em'>{text}</b>")

@@ -16,7 +16,7 @@ import numpy as np
 
 from studio.imitate.keyframes import cluster_keyframes
 from studio.project.state import Keyframe
-from widgets.images import MASK_RGB, Messages, grey_rgb, png, tint, title, upscale
+from widgets.images import MASK_RGB, Messages, frame_in_view, grey_rgb, png, tint, title, upscale
 from widgets.state import StudioState
 
 log = logging.getLogger(__name__)
@@ -156,7 +156,7 @@ class KeyframesPanel:
                 self.time.value = kf.time_s if kf.time_s is not None else self._time_range(kf)[0]
                 self.time.disabled = kf.time_s is None
             if p.frames:
-                frame = self.state.selection.frame
+                frame = frame_in_view(self.state)
                 owner = self.owner(frame)
                 self.frame_info.value = f"frame {frame} plays keyframe k{owner}"
                 self.move_to.value = owner
@@ -169,20 +169,20 @@ class KeyframesPanel:
     # ---------------------------------------------------------------- actions
     def _picked(self, change) -> None:
         if not self._drawing and change["new"] is not None:
-            self.state.select(frame=self.state.selection.frame, keyframe=change["new"])
+            self.state.select(frame=frame_in_view(self.state), keyframe=change["new"])
 
     def _held(self, change) -> None:
         if not self._drawing:
             self.messages.run(self.state.edit, "set_hold", self.selected(), bool(change["new"]))
 
     def _add(self) -> int:
-        frame = self.state.selection.frame
+        frame = frame_in_view(self.state)
         k = self.state.edit("add_keyframe", frame)
         self.state.select(frame=frame, keyframe=k)
         return k
 
     def _move(self) -> None:
-        self.state.edit("move_frame", self.state.selection.frame, int(self.move_to.value))
+        self.state.edit("move_frame", frame_in_view(self.state), int(self.move_to.value))
 
     def _set_time(self) -> None:
         self.state.edit("set_keyframe_time", self.selected(), None if self.clock.value else float(self.time.value))

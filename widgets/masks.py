@@ -21,7 +21,7 @@ import ipywidgets as w
 import numpy as np
 
 from studio.project.state import ProjectError
-from widgets.images import ADD_RGB, ERASE_RGB, MASK_RGB, Messages, grey_rgb, png, tint, title, upscale
+from widgets.images import ADD_RGB, ERASE_RGB, MASK_RGB, Messages, frame_in_view, grey_rgb, png, tint, title, upscale
 from widgets.state import StudioState
 
 try:  # the brush needs ipycanvas (a dependency); the panel still shows the masks without it
@@ -79,7 +79,7 @@ class MasksPanel:
     # ---------------------------------------------------------------- the picture
     @property
     def frame(self) -> int:
-        return self.state.selection.frame
+        return frame_in_view(self.state)
 
     def picture(self) -> np.ndarray:
         """The selected frame's target with its expressive mask and paint over it, ``(side, side, 3)`` uint8."""

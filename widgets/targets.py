@@ -23,7 +23,7 @@ from studio.imitate.video import crop_square, read_frames
 from studio.project.jobs import Job
 from studio.project.sources import locate, source_kind
 from studio.project.state import ProjectError
-from widgets.images import MASK_RGB, Messages, Throttle, grey_rgb, png, tint, title
+from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, png, tint, title
 from widgets.state import StudioState
 
 log = logging.getLogger(__name__)
@@ -106,7 +106,7 @@ class TargetsPanel:
     # ---------------------------------------------------------------- reading the project
     def _source_index(self) -> int:
         frames = self.state.project.frames
-        return frames[self.state.selection.frame].source if frames else 0
+        return frames[frame_in_view(self.state)].source if frames else 0
 
     def _is_still(self, source: int) -> bool:
         return self.state.project.sources[source].kind == "still"
@@ -158,10 +158,10 @@ class TargetsPanel:
         self.sources.value = "<br>".join(rows)
         n = len(p.frames)
         self.scrubber.max = max(n - 1, 0)
-        self.scrubber.value = min(self.state.selection.frame, self.scrubber.max)
+        self.scrubber.value = frame_in_view(self.state)
         self.hz.value = p.state.video.hz
         if n:
-            f = p.frames[self.state.selection.frame]
+            f = p.frames[frame_in_view(self.state)]
             self.frame_info.value = f"source {f.source}, source frame {f.source_frame}, {f.time_s:.2f} s"
             cfg = p.state.still if self._is_still(f.source) else p.state.video
             with self.threshold.hold_trait_notifications(), self.otsu.hold_trait_notifications():
@@ -180,7 +180,7 @@ class TargetsPanel:
         self.threshold.disabled = self.otsu.value
         if not self.state.project.frames:
             return
-        frame = self.state.selection.frame
+        frame = frame_in_view(self.state)
         source = self._source_index()
         grey = self._square(self._raw_grey(frame), source)
         cfg = self.state.project.state.still if self._is_still(source) else self.state.project.state.video
