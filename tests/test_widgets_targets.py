@@ -126,8 +126,12 @@ def test_raw_colour_footage_waits_for_a_box_then_is_segmented_as_a_job(state, tm
     panel.add_path.click()
     assert panel.pending == folder and "colour footage" in panel.messages.text
     assert len(state.project.sources) == 1
+    assert [t.value for t in panel.box] == [20, 16, 40, 32]  # a first guess: the middle of the 80 × 64 frame
     for t, v in zip(panel.box, (8, 18, 28, 28), strict=True):
         t.value = v
+    panel.refresh_preview()  # the first frame with the box drawn (80 px → 256 px: × 3.2)
+    assert tuple(panel.preview_rgb[int(18 * 3.2) + 1, 50]) == (255, 170, 0)  # its top edge
+    assert tuple(panel.preview_rgb[100, 150]) != (255, 170, 0)
     panel.segment.click()
     job = panel.segment_job
     assert job is not None and job.wait(60) == JobState.DONE, job.error

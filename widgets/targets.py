@@ -54,6 +54,8 @@ class TargetsPanel:
         self.preview_level = float("nan")  # the threshold the preview used (Otsu's when Otsu is on)
         self.preview_mask: np.ndarray | None = None  # (PREVIEW_PX, PREVIEW_PX) uint8 {0, 1}: the previewed mask
         self.segment_job: Job | None = None  # the last segmentation job
+        self.preview_rgb: np.ndarray | None = None  # (PREVIEW_PX, PREVIEW_PX, 3) uint8: what the preview shows
+        self._first: tuple[Path, np.ndarray] | None = None  # the pending footage's first frame (H, W, 3) RGB
 
         samples = bundled_samples()
         self.sample = w.Dropdown(options=list(samples), description="sample")
@@ -85,6 +87,8 @@ class TargetsPanel:
         self.otsu.observe(lambda _: self._throttled(), names="value")
         self.apply_threshold.on_click(lambda _: self.messages.run(self._apply_threshold))
         self.segment.on_click(lambda _: self.messages.run(self._segment))
+        for t in self.box:
+            t.observe(lambda _: self._throttled(), names="value")
 
         self.widget = w.VBox([
             title("Targets"),
@@ -175,9 +179,36 @@ class TargetsPanel:
         self.threshold.disabled = self.otsu.value
         self.messages.run(self.refresh_preview, clear=False)
 
+    def _pending_first(self) -> np.ndarray:
+        if self._first is None or self._first[0] != self.pending:
+            rgb, _, _, _ = read_frames(self.pending, self.state.project.state.video)
+            self._first = (self.pending, rgb[0])
+        return self._first[1]
+
+    def _show(self, rgb: np.ndarray) -> None:
+        self.preview_rgb = rgb
+        self.preview.value = png(rgb)
+
+    def _preview_box(self) -> None:
+        """The pending footage's first frame with the box drawn on it (source pixels → the preview square)."""
+        first = self._pending_first()
+        h, wd = first.shape[:2]
+        side = max(h, wd)
+        scale = PREVIEW_PX / side
+        square = np.clip(crop_square(first, (0, 0, side, side), PREVIEW_PX), 0, 255).astype(np.uint8)
+        x, y, bw, bh = (int(t.value) for t in self.box)
+        p0 = (int(round(x * scale)), int(round(y * scale)))
+        p1 = (int(round((x + bw) * scale)) - 1, int(round((y + bh) * scale)) - 1)
+        cv2.rectangle(square, p0, p1, MASK_RGB, 2)
+        self._show(square)
+
     def refresh_preview(self) -> None:
-        """Draw the binary mask at the slider's threshold (or Otsu's) over the selected frame, now."""
+        """Draw the binary mask at the slider's threshold (or Otsu's) over the selected frame, now (raw footage
+        waiting for a box: its first frame with the box)."""
         self.threshold.disabled = self.otsu.value
+        if self.pending is not None:
+            self._preview_box()
+            return
         if not self.state.project.frames:
             return
         frame = frame_in_view(self.state)
@@ -191,7 +222,7 @@ class TargetsPanel:
             level = float(self.threshold.value)
         mask = (shade > level).astype(np.uint8)
         self.preview_level, self.preview_mask = float(level), mask
-        self.preview.value = png(tint(grey_rgb(grey), mask, MASK_RGB, 0.55))
+        self._show(tint(grey_rgb(grey), mask, MASK_RGB, 0.55))
 
     # ---------------------------------------------------------------- actions
     def _add(self, path: Path) -> None:
@@ -203,6 +234,9 @@ class TargetsPanel:
             if "colour footage" not in str(e):
                 raise
             self.pending = path
+            h, wd = self._pending_first().shape[:2]
+            for t, v in zip(self.box, (wd // 4, h // 4, wd // 2, h // 2), strict=True):
+                t.value = v  # a first guess: the middle of the frame
             self.redraw()
             self.messages.say(f"{path.name} is colour footage: give the shape's box on its first frame, then Segment")
             return
