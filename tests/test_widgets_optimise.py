@@ -109,3 +109,38 @@ def test_all_stale_runs_the_project_and_reports(state):
             panel.start("bogus")
     finally:
         panel.close()
+
+
+def test_the_writer_redraws_on_its_own_at_most_ten_times_a_second(state):
+    panel = optimise_panel(state, OptimiseConfig(sequence=LONG, redraw_hz=10.0))
+    redraws = []
+    panel.status.observe(lambda change: redraws.append(time.monotonic()), names="value")  # elapsed: new each draw
+    try:
+        (job,) = panel.start("keyframe")
+        assert until(lambda: panel.step > 0, 90)  # no refresh() here: the panel's writer thread draws
+        redraws.clear()
+        time.sleep(2.0)
+        assert 3 <= len(redraws) <= 2.0 * 10 + 2, len(redraws)
+    finally:
+        panel.close()
+    assert job.wait(1.0) == JobState.CANCELLED  # closing the panel cancels what it started
+
+
+def test_the_whole_video_is_one_sequence_job_over_the_sources_keyframes(tmp_path):
+    from studio.imitate.video import DEFAULT_VIDEO
+
+    project = Project.create(tmp_path / "two.shadow", sources=[asset("targets/asl_o.jpeg"), DEFAULT_VIDEO])
+    state = StudioState(project, queue_for(project))
+    panel = optimise_panel(state, OptimiseConfig(sequence=TINY))
+    try:
+        state.select(frame=len(project.frames) - 1)  # a frame of the horse
+        video = [kf.id for kf in project.keyframes if project.frames[kf.representative].source == 1]
+        (job,) = panel.start("video")
+        assert job.kind == "imitate-video" and panel.keyframes_of(job.id) == video
+        assert job.wait(240) == JobState.DONE, job.error
+        assert sorted(project.results) == sorted(video)  # the still's keyframe was not part of it
+        last = f"keyframe {len(video)}/{len(video)}: refine"  # the sequence's stages, a bar each, as they came
+        assert until(lambda: last in panel.bars and panel.bars[last].description.startswith(last), 10), list(panel.bars)
+    finally:
+        panel.close()
+        state.close()

@@ -285,11 +285,12 @@ class OptimisePanel:
         if e.total > 0:
             bar = self.bars.get(e.stage)
             if bar is None:
-                bar = self.bars[e.stage] = w.FloatProgress(min=0.0, max=1.0, description=e.stage[-24:],
-                                                           style={"description_width": "160px"})  # fmt: skip
+                bar = self.bars[e.stage] = w.FloatProgress(min=0.0, max=1.0, description=e.stage,
+                                                           style={"description_width": "240px"},
+                                                           layout=w.Layout(width="560px"))  # fmt: skip
                 self.bar_box.children = (*self.bar_box.children, bar)
             bar.value = min(1.0, e.step / e.total)
-            bar.description = f"{e.stage[-16:]} {e.step}/{e.total}"
+            bar.description = f"{e.stage} {e.step}/{e.total}"
         if not math.isnan(e.best):
             self.best = e.best if math.isnan(self.best) else min(self.best, e.best)
             self.loss.value = f"best loss so far: <b>{self.best:.4f}</b> ({html.escape(e.stage)})"
