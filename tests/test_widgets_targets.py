@@ -132,9 +132,19 @@ def test_raw_colour_footage_waits_for_a_box_then_is_segmented_as_a_job(state, tm
     panel.refresh_preview()  # the first frame with the box drawn (80 px → 256 px: × 3.2)
     assert tuple(panel.preview_rgb[int(18 * 3.2) + 1, 50]) == (255, 170, 0)  # its top edge
     assert tuple(panel.preview_rgb[100, 150]) != (255, 170, 0)
+    for t, v in zip(panel.box, (500, 500, 10, 10), strict=True):  # nowhere near the shape
+        t.value = v
+    panel.segment.click()
+    assert panel.segment_job.wait(60) == JobState.FAILED and len(state.project.sources) == 1
+    assert "segmentation failed" in panel.messages.text and "outside" in panel.messages.text
+    assert "failed" in panel.segment_info.value
+    assert panel.pending == folder
+    for t, v in zip(panel.box, (8, 18, 28, 28), strict=True):
+        t.value = v
     panel.segment.click()
     job = panel.segment_job
     assert job is not None and job.wait(60) == JobState.DONE, job.error
+    assert panel.segment_info.value.endswith("done") and panel.cancel_segment.disabled
     src = state.project.sources[-1]
     assert src.footage == "segmented" and src.box == (8, 18, 28, 28) and panel.pending is None
     assert "segmented" in panel.sources.value

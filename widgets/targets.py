@@ -75,6 +75,7 @@ class TargetsPanel:
         self.apply_threshold = w.Button(description="Apply threshold")
         self.box = [w.IntText(description=n, layout=w.Layout(width="140px")) for n in ("x", "y", "w", "h")]
         self.segment = w.Button(description="Segment", icon="scissors")
+        self.cancel_segment = w.Button(description="Cancel", icon="stop", disabled=True)
         self.segment_info = w.Label()
 
         self.add_sample.on_click(lambda _: self.messages.run(self._add, self._samples[self.sample.value]))
@@ -89,6 +90,8 @@ class TargetsPanel:
         self.segment.on_click(lambda _: self.messages.run(self._segment))
         for t in self.box:
             t.observe(lambda _: self._throttled(), names="value")
+        self.cancel_segment.on_click(lambda _: self.segment_job is not None and self.segment_job.cancel())
+        state.queue.subscribe(self._job_event)  # the queue's thread writes only segment_info / messages
 
         self.widget = w.VBox([
             title("Targets"),
@@ -100,7 +103,7 @@ class TargetsPanel:
             w.HBox([self.threshold, self.otsu, self.apply_threshold]),
             w.HBox([self.hz, self.apply_hz]),
             w.HTML("<i>raw colour footage: the shape's box on the first frame (source pixels)</i>"),
-            w.HBox([*self.box, self.segment]),
+            w.HBox([*self.box, self.segment, self.cancel_segment]),
             self.segment_info,
             self.messages.widget,
         ])  # fmt: skip
@@ -224,6 +227,19 @@ class TargetsPanel:
         self.preview_level, self.preview_mask = float(level), mask
         self._show(tint(grey_rgb(grey), mask, MASK_RGB, 0.55))
 
+    def _job_event(self, event) -> None:
+        job = self.segment_job
+        if job is None or event.job_id != job.id:
+            return
+        if not event.final:
+            counted = f" {event.step}/{event.total}" if event.total else ""
+            self.segment_info.value = f"{job.title}: {event.stage}{counted}"
+            return
+        self.cancel_segment.disabled = True
+        self.segment_info.value = f"{job.title}: {event.state.value}"
+        if event.error is not None:
+            self.messages.say(f"segmentation failed: {event.error}", error=True)
+
     # ---------------------------------------------------------------- actions
     def _add(self, path: Path) -> None:
         if not path.exists():
@@ -291,7 +307,9 @@ class TargetsPanel:
 
         what = pending.name if pending is not None else f"source {source}"
         job = Job("segment", run, apply=apply, title=f"segment {what}")
-        self.segment_job = self.state.queue.submit(job)
+        self.segment_job = job
+        self.cancel_segment.disabled = False
+        self.state.queue.submit(job)
         self.segment_info.value = f"segmenting {what} (job {job.id})"
         self.state.changed("jobs")
         return job
