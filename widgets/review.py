@@ -17,6 +17,7 @@ from __future__ import annotations
 import html
 import importlib.util
 import logging
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -60,6 +61,7 @@ class ReviewPanel:
         self.cfg = cfg or ReviewConfig()
         self.messages = Messages()
         self.closed = False
+        self._lock = threading.RLock()  # one writer at a time: listeners may run on a job's thread (zmq is not safe)
         project = state.project
         self.rrd = Path(self.cfg.rrd) if self.cfg.rrd is not None else project.path.with_suffix(".rrd")
         self.missing = notebook_viewer_missing() if self.cfg.viewer else "the embedded viewer is off"
@@ -141,18 +143,20 @@ class ReviewPanel:
                 self.scene_html.value = self.scene.render_static(height=self.cfg.scene_height).data
 
     def _on_change(self, what: str) -> None:
-        if self.closed:
-            return
-        if what == "project":
-            self.relog()
-        if what in ("project", "selection"):
-            self.show_frame()
+        with self._lock:
+            if self.closed:
+                return
+            if what == "project":
+                self.relog()
+            if what in ("project", "selection"):
+                self.show_frame()
 
     def close(self) -> None:
         """Stop following the project, finish the recording and stop the meshcat server (idempotent)."""
-        if self.closed:
-            return
-        self.closed = True
+        with self._lock:
+            if self.closed:
+                return
+            self.closed = True
         self._stop()
         self._unsubscribe()
         if self.recording is not None:
