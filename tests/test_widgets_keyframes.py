@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import shutil
 
+import numpy as np
 import pytest
 
-from studio.imitate.keyframes import KeyframeConfig
+from studio.imitate.keyframes import KeyframeConfig, cluster_keyframes
 from studio.imitate.video import DEFAULT_VIDEO, VideoConfig
 from studio.project.jobs import queue_for
 from studio.project.project import Project
@@ -55,6 +56,11 @@ def test_tau_counts_live_and_edits_only_when_applied(state):
     assert panel.live_count == 1 < high == 9  # one cluster per source at τ 0, every frame its own at τ 0.99
     assert f"{panel.live_count} keyframes" in panel.count.value
     assert p.state.doc() == before and not p.can_undo  # the project is untouched
+    state.edit("paint", 0, additions=np.ones(p.state.auto.shape[1:], np.uint8))  # the masks change: recounted
+    panel.tau.value = 0.3
+    assert panel.live_count == len(cluster_keyframes(p.combined_masks(), KeyframeConfig(tau=0.3)).members) == 2
+    state.undo()
+    before = p.state.doc()
     panel.tau.value = 0.99
     panel.apply_tau.click()
     assert len(p.keyframes) == high and p.state.clustering.tau == 0.99

@@ -32,6 +32,7 @@ class KeyframesPanel:
         self.messages = Messages()
         self._masks_of: object = None  # the project state the cached masks were combined from
         self._masks: np.ndarray | None = None  # (N, S, S) the expressive masks the artist sees
+        self._counts: dict[float, int] = {}  # τ → keyframe count, for the cached masks (the slider goes back and forth)
         self._drawing = False  # True while redraw() sets values (their observers must not edit)
         self.live_count = 0  # keyframes at the slider's τ (computed; the project is not edited)
 
@@ -85,15 +86,19 @@ class KeyframesPanel:
         """The project's expressive masks ``(N, S, S)`` (paint included), combined once per project state."""
         s = self.state.project.state
         if self._masks_of is not s:
-            self._masks, self._masks_of = self.state.project.combined_masks(), s
+            self._masks, self._masks_of, self._counts = self.state.project.combined_masks(), s, {}
         return self._masks
 
     def count_at(self, tau: float) -> int:
         """How many keyframes clustering at ``tau`` would make (per source, as the project clusters)."""
         p = self.state.project
         masks, cfg = self.masks(), replace(p.state.clustering, tau=float(tau))
-        sources = np.array([f.source for f in p.frames])
-        return sum(len(cluster_keyframes(masks[sources == s], cfg).members) for s in np.unique(sources))
+        if cfg.tau not in self._counts:
+            sources = np.array([f.source for f in p.frames])
+            self._counts[cfg.tau] = sum(
+                len(cluster_keyframes(masks[sources == s], cfg).members) for s in np.unique(sources)
+            )
+        return self._counts[cfg.tau]
 
     def selected(self) -> int:
         """The keyframe id in view: the selection's, else the one the scrubber's frame plays."""
