@@ -105,3 +105,10 @@ def test_the_brush_is_an_ipycanvas_canvas_wired_to_the_mouse(state):
         panel.canvas._handle_frontend_event(panel.canvas, {"event": event, "x": x, "y": 40}, [])
     add = state.project.state.additions["0:0"]
     assert add[10, 10:20].all() and len(state.project.history) == 1
+
+
+def test_a_closed_panel_stops_following_the_state(state):
+    panel = MasksPanel(state, side=SIDE)
+    panel.close()
+    state.edit("paint", 0, additions=np.ones((S, S), np.uint8))
+    assert "painted" not in panel.info.value

@@ -78,8 +78,13 @@ class KeyframesPanel:
             self.messages.widget,
         ])  # fmt: skip
         self.tau.value = state.project.state.clustering.tau
-        state.on_change(self._changed)
+        self._stops = [state.on_change(self._changed)]
         self.redraw()
+
+    def close(self) -> None:
+        """Stop following the state (the widget stays as it is)."""
+        for stop in self._stops:
+            stop()
 
     # ---------------------------------------------------------------- reading the project
     def masks(self) -> np.ndarray:

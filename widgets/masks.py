@@ -73,8 +73,13 @@ class MasksPanel:
             w.HTML(f"<i>{note}</i>" if note else ""),
             self.messages.widget,
         ])  # fmt: skip
-        state.on_change(self._changed)
+        self._stops = [state.on_change(self._changed)]
         self.redraw()
+
+    def close(self) -> None:
+        """Stop following the state (the widget stays as it is)."""
+        for stop in self._stops:
+            stop()
 
     # ---------------------------------------------------------------- the picture
     @property

@@ -91,7 +91,6 @@ class TargetsPanel:
         for t in self.box:
             t.observe(lambda _: self._throttled(), names="value")
         self.cancel_segment.on_click(lambda _: self.segment_job is not None and self.segment_job.cancel())
-        state.queue.subscribe(self._job_event)  # the queue's thread writes only segment_info / messages
 
         self.widget = w.VBox([
             title("Targets"),
@@ -107,8 +106,16 @@ class TargetsPanel:
             self.segment_info,
             self.messages.widget,
         ])  # fmt: skip
-        state.on_change(self._changed)
+        self._stops = [
+            state.on_change(self._changed),
+            state.queue.subscribe(self._job_event),  # the queue's thread writes only segment_info / messages
+        ]
         self.redraw()
+
+    def close(self) -> None:
+        """Stop following the state (the widget stays as it is)."""
+        for stop in self._stops:
+            stop()
 
     # ---------------------------------------------------------------- reading the project
     def _source_index(self) -> int:
