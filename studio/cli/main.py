@@ -31,6 +31,7 @@ VERB_MODULES = (
     "studio.cli.plan",
     "studio.cli.project",
     "studio.cli.demo",
+    "studio.cli.lab",
 )
 
 
