@@ -53,12 +53,28 @@ def test_emulate_then_scan(emulate, capsys):
     assert "present: [1, 2, 3, 4, 5, 6, 7, 8, 10" in out and "DUPLICATE IDs" in out and "[9]" in out
 
 
+def wait_until_still(port: str, servo_id: int, timeout_s: float = 5.0) -> None:
+    """Read one servo over the bus until two reads 0.1 s apart agree (a jogged servo takes a while to arrive)."""
+    from hardware.serial_bus import BusConfig, SerialServoBus
+
+    with SerialServoBus(BusConfig(port, echo=True)) as bus:
+        last, end = None, time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            now = bus.read_position(servo_id)
+            if now == last:
+                return
+            last = now
+            time.sleep(0.1)
+    raise AssertionError(f"servo {servo_id} still moving after {timeout_s} s")
+
+
 def test_jog_and_calibrate_read_stdin(emulate, capsys, monkeypatch, tmp_path, hand):
     port = emulate("--echo")
     monkeypatch.setattr(sys, "stdin", io.StringIO("j wrist\ngo 10\nread\nbogus\nquit\n"))
     assert main(["jog", "--port", port, "--echo"]) == 0
     out = capsys.readouterr().out
     assert "wrist -> 10.0 deg" in out and "? unknown command" in out
+    wait_until_still(port, servo_id=1)  # the jogged wrist must stop before its three "set"s read one position
     out_file = tmp_path / "cal.yaml"
     monkeypatch.setattr(sys, "stdin", io.StringIO("set\n" * 3 + "skip\n" * 20))
     assert main(["calibrate", "--port", port, "--echo", "--out", str(out_file)]) == 1  # input ran out
