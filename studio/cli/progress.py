@@ -16,6 +16,7 @@ import math
 import signal
 import sys
 import threading
+from abc import ABC, abstractmethod
 from collections.abc import Iterator
 
 
@@ -24,11 +25,12 @@ def add_quiet_flag(parser: argparse.ArgumentParser, help: str = "no progress bar
     parser.add_argument("--quiet", action="store_true", help=help)
 
 
-class _Closes:
+class _Closes(ABC):
     """``with bars:`` closes them on the way out, whatever raised."""
 
+    @abstractmethod
     def close(self) -> None:
-        raise NotImplementedError
+        """Close every bar (idempotent)."""
 
     def __enter__(self):
         return self
