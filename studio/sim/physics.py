@@ -48,6 +48,36 @@ def connect_direct() -> int:
     return p.connect(p.DIRECT)
 
 
+class PyBulletClient:
+    """Owns one PyBullet DIRECT client (``self.p``, ``self.client``): ``close()`` disconnects it (idempotent), also at
+    the end of a ``with`` block and at garbage collection. Subclasses add their own clean-up in ``_release``."""
+
+    p = None
+    client: int | None = None
+
+    def _release(self) -> None:
+        """Extra clean-up after the client is gone (none here)."""
+
+    def close(self) -> None:
+        """Disconnect the PyBullet client and release what the subclass holds (idempotent)."""
+        if self.client is not None:
+            self.p.disconnect(self.client)
+            self.client = None
+        self._release()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # interpreter shutdown: pybullet may already be gone
+            pass
+
+
 @dataclass(frozen=True)
 class CollisionConfig:
     """Weights and thresholds of the collision score."""
@@ -69,7 +99,7 @@ class Contact:
     distance: float  # signed distance, m (negative = penetration)
 
 
-class CollisionWorld:
+class CollisionWorld(PyBulletClient):
     """A PyBullet DIRECT world holding the hand's collision skeleton with self-collision on.
 
     One world per instance, reused for every query (not thread-safe: one per thread or process). ``close()`` (or
@@ -213,21 +243,3 @@ class CollisionWorld:
         """The close pairs of one pose, by link name (for review and error messages)."""
         q = self.hand.check_theta(theta)[0]
         return [Contact(self._link_name[a], self._link_name[b], d) for a, b, d in self._pairs(q)]
-
-    def close(self) -> None:
-        """Disconnect the PyBullet client (idempotent)."""
-        if getattr(self, "client", None) is not None:
-            self.p.disconnect(self.client)
-            self.client = None
-
-    def __enter__(self) -> CollisionWorld:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:  # interpreter shutdown: pybullet may already be gone
-            pass

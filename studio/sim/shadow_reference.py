@@ -18,7 +18,7 @@ import numpy as np
 
 from studio.errors import ClosedError
 from studio.sim.hand import Hand
-from studio.sim.physics import connect_direct, pybullet_module
+from studio.sim.physics import PyBulletClient, connect_direct, pybullet_module
 from studio.sim.shadow import Rig
 
 
@@ -69,7 +69,7 @@ def mesh_twin_urdf(hand: Hand, folder: Path) -> Path:
     return out
 
 
-class PyBulletShadowCamera:
+class PyBulletShadowCamera(PyBulletClient):
     """``render(theta (21,)) -> (H, W) uint8``: the shadow as PyBullet's TinyRenderer sees it from the light.
 
     Holds a PyBullet DIRECT client and a temporary folder with the mesh twin; ``close()`` (or the end of a ``with``
@@ -117,22 +117,7 @@ class PyBulletShadowCamera:
         seg = np.asarray(seg).reshape(n, n)
         return (seg >= 0).astype(np.uint8)
 
-    def close(self) -> None:
-        """Disconnect the PyBullet client and delete the mesh twin's folder (idempotent)."""
-        if getattr(self, "client", None) is not None:
-            self.p.disconnect(self.client)
-            self.client = None
+    def _release(self) -> None:
+        """Delete the mesh twin's folder (after the client is disconnected)."""
         if hasattr(self, "_tmp"):
             self._tmp.cleanup()  # idempotent itself
-
-    def __enter__(self) -> PyBulletShadowCamera:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:  # interpreter shutdown: pybullet may already be gone
-            pass
