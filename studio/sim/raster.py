@@ -1,6 +1,11 @@
 """Compiled kernels of the shadow renderer (numba): FK, exact point-light projection of convex pieces,
 convex hull and scanline fill at pixel centres. Pure compute; ``studio.sim.shadow`` is the public face.
 
+Per piece the outline points are put in (x, y) order by O(M) merges (each projected ring is already a convex
+polygon in angular order), then Andrew's monotone chain gives the hull and a per-edge scanline fills it. The
+sorted order is unique, so the pixels are exactly those of a plain sort + hull + fill; ``tests/test_shadow.py``
+checks them bit for bit against a slow pure-Python twin.
+
 A piece is the convex hull of ``n`` spheres of one radius ``r`` (capsule: 2 centres, sphere: 1, box: its 8
 corners with r = 0). Its shadow is the convex hull of the shadows of those spheres; the shadow of a sphere under
 a point light is the projection of the sphere's contact circle with its tangent cone from the light (an
@@ -52,16 +57,69 @@ def _fk_one(theta, parent, T_origin, axis, T_out):
         child[3, 3] = 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _cross(ox, oy, ax, ay, bx, by):
     return (ax - ox) * (by - oy) - (ay - oy) * (bx - ox)
 
 
-@njit(cache=True)
-def _convex_hull(px, py, n, hx, hy):
-    """Andrew's monotone chain on ``n`` points (sorted in place, no allocation); writes the counter-clockwise
-    hull into hx, hy and returns its size."""
-    for i in range(1, n):  # insertion sort by (x, y): n <= 8 * M is small
+@njit(cache=True, inline="always")
+def _before(ax, ay, bx, by):
+    """(ax, ay) < (bx, by) in (x, y) order."""
+    return ax < bx or (ax == bx and ay < by)
+
+
+@njit(cache=True, inline="always")
+def _merge_ring(rx, ry, M, px, py, n, qx, qy):
+    """Merge the ring ``(rx, ry)[:M]`` into the (x, y)-sorted ``(px, py)[:n]``, giving the sorted ``[:n + M]``.
+
+    The ring is a convex polygon in angular order, stored twice over (``rx[M + m] == rx[m]``) so that index
+    arithmetic needs no modulo: its two chains from the first to the last point in (x, y) order are each
+    sorted, so one O(M) merge of the chains sorts it (into ``qx, qy``), and a second merges it into ``px, py``
+    from the back, in place. Rounding can break a chain's order by an ulp near a vertical edge; the merges
+    still output a permutation, and ``_sort_xy`` afterwards puts any such point back in its place."""
+    a = 0
+    b = 0
+    for m in range(1, M):
+        if _before(rx[m], ry[m], rx[a], ry[a]):
+            a = m
+        if _before(rx[b], ry[b], rx[m], ry[m]):
+            b = m
+    nf = b - a + 1 if b >= a else b - a + M + 1  # forward chain a, a+1, ..., b; backward a-1, a-2, ..., b+1
+    nb = M - nf
+    f = a  # next forward index
+    g = a + M - 1  # next backward index
+    ge = g - nb  # backward chain exhausted when g == ge
+    fe = a + nf
+    for t in range(M):
+        fx, fy, gx, gy = rx[f], ry[f], rx[g], ry[g]
+        take_g = g != ge and (f == fe or _before(gx, gy, fx, fy))
+        if take_g:
+            qx[t] = gx
+            qy[t] = gy
+            g -= 1
+        else:
+            qx[t] = fx
+            qy[t] = fy
+            f += 1
+    i = n - 1
+    j = M - 1
+    k = n + M - 1
+    while j >= 0:
+        if i >= 0 and _before(qx[j], qy[j], px[i], py[i]):
+            px[k] = px[i]
+            py[k] = py[i]
+            i -= 1
+        else:
+            px[k] = qx[j]
+            py[k] = qy[j]
+            j -= 1
+        k -= 1
+
+
+@njit(cache=True, inline="always")
+def _sort_xy(px, py, n):
+    """Insertion sort of ``(px, py)[:n]`` by (x, y) in place: O(n) on sorted input, O(n²) at worst (n <= 8 * M)."""
+    for i in range(1, n):
         x, y = px[i], py[i]
         k = i - 1
         while k >= 0 and (px[k] > x or (px[k] == x and py[k] > y)):
@@ -70,24 +128,41 @@ def _convex_hull(px, py, n, hx, hy):
             k -= 1
         px[k + 1] = x
         py[k + 1] = y
+
+
+@njit(cache=True, inline="always")
+def _hull_sorted(px, py, n, hx, hy):
+    """Andrew's monotone chain on ``n`` points sorted by (x, y); writes the counter-clockwise hull (collinear
+    and repeated points dropped) into hx, hy and returns its size."""
+    # the top two stack points are kept in locals (x1, y1 = hx[k-1], hy[k-1]; x2, y2 = hx[k-2], hy[k-2])
     k = 0
+    x1 = y1 = x2 = y2 = 0.0
     for i in range(n):  # lower hull
-        while k >= 2 and _cross(hx[k - 2], hy[k - 2], hx[k - 1], hy[k - 1], px[i], py[i]) <= 0:
+        x, y = px[i], py[i]
+        while k >= 2 and _cross(x2, y2, x1, y1, x, y) <= 0:
             k -= 1
-        hx[k] = px[i]
-        hy[k] = py[i]
+            x1, y1 = x2, y2
+            if k >= 2:
+                x2, y2 = hx[k - 2], hy[k - 2]
+        hx[k] = x
+        hy[k] = y
         k += 1
+        x2, y2, x1, y1 = x1, y1, x, y
     t = k + 1
     for i in range(n - 2, -1, -1):  # upper hull
-        while k >= t and _cross(hx[k - 2], hy[k - 2], hx[k - 1], hy[k - 1], px[i], py[i]) <= 0:
+        x, y = px[i], py[i]
+        while k >= t and _cross(x2, y2, x1, y1, x, y) <= 0:
             k -= 1
-        hx[k] = px[i]
-        hy[k] = py[i]
+            x1, y1 = x2, y2
+            x2, y2 = hx[k - 2], hy[k - 2]
+        hx[k] = x
+        hy[k] = y
         k += 1
+        x2, y2, x1, y1 = x1, y1, x, y
     return k - 1 if k > 1 else k
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _fill_convex(img, hx, hy, k, umin_row, umax_row):
     """Set every pixel whose centre (j+0.5, i+0.5) lies inside the convex polygon (hx, hy)[:k] (pixel units)."""
     H, W = img.shape
@@ -106,7 +181,8 @@ def _fill_convex(img, hx, hy, k, umin_row, umax_row):
         umax_row[i] = -1e30
     for e in range(k):
         ax, ay = hx[e], hy[e]
-        bx, by = hx[(e + 1) % k], hy[(e + 1) % k]
+        e1 = e + 1 if e + 1 < k else 0
+        bx, by = hx[e1], hy[e1]
         if ay == by:
             continue
         lo, hi = min(ay, by), max(ay, by)
@@ -122,19 +198,30 @@ def _fill_convex(img, hx, hy, k, umin_row, umax_row):
             continue
         j0 = max(0, int(math.ceil(umin_row[i] - 0.5)))
         j1 = min(W - 1, int(math.floor(umax_row[i] - 0.5)))
-        for j in range(j0, j1 + 1):
-            img[i, j] = 1
+        if j1 >= j0:
+            img[i, j0 : j1 + 1] = 1
 
 
-@njit(cache=True)
-def _render_one(T, piece_link, piece_pts, piece_n, piece_r, light, zb, half, scale, M, img, px, py, hx, hy, ur, vr):
-    """Shadow of one posed hand (link poses ``T (L, 4, 4)``) into ``img (H, W)`` uint8."""
-    ring_k = math.sqrt(2 * math.pi / (M * math.sin(2 * math.pi / M)))  # polygon keeps the ellipse's area
+@njit(cache=True, inline="always")
+def _ring_table(M):
+    """Unit ring ``cos, sin (M,)`` and the radius factor that makes the M-gon keep its circle's area."""
+    ring_k = math.sqrt(2 * math.pi / (M * math.sin(2 * math.pi / M)))
     cos_m = np.empty(M)
     sin_m = np.empty(M)
     for m in range(M):
         cos_m[m] = math.cos(2.0 * math.pi * m / M)
         sin_m[m] = math.sin(2.0 * math.pi * m / M)
+    return cos_m, sin_m, ring_k
+
+
+@njit(cache=True, inline="always")
+def _render_one(T, piece_link, piece_pts, piece_n, piece_r, light, zb, half, scale, ring, img, buf):
+    """Shadow of one posed hand (link poses ``T (L, 4, 4)``) into ``img (H, W)`` uint8 (already zero).
+
+    ``ring`` is ``_ring_table(M)``; ``buf`` holds the scratch rows (points, ring, merge, hull, row spans)."""
+    cos_m, sin_m, ring_k = ring
+    M = cos_m.shape[0]
+    px, py, rx, ry, qx, qy, hx, hy, ur, vr = buf
     Lx, Ly, Lz = light[0], light[1], light[2]
     for p in range(piece_link.shape[0]):
         Tl = T[piece_link[p]]
@@ -172,38 +259,44 @@ def _render_one(T, piece_link, piece_pts, piece_n, piece_r, light, zb, half, sca
                 wy = oy + ca * e1y + sa * e2y
                 wz = oz + ca * e1z + sa * e2z
                 s = (Lz - zb) / (Lz - wz)
-                px[n] = ((Lx + s * (wx - Lx)) + half) * scale
-                py[n] = (half - (Ly + s * (wy - Ly))) * scale
-                n += 1
-        k = _convex_hull(px, py, n, hx, hy)
+                rx[m] = rx[M + m] = ((Lx + s * (wx - Lx)) + half) * scale
+                ry[m] = ry[M + m] = (half - (Ly + s * (wy - Ly))) * scale
+            _merge_ring(rx, ry, M, px, py, n, qx, qy)
+            n += M
+        _sort_xy(px, py, n)  # boxes' corners; a no-op pass over merged rings
+        k = _hull_sorted(px, py, n, hx, hy)
         _fill_convex(img, hx, hy, k, ur, vr)
 
 
-def _render_batch(theta, parent, T_origin, axis, piece_link, piece_pts, piece_n, piece_r, light, zb, half, res, M):
-    """``theta (B, J)`` → shadows ``(B, res, res)`` uint8 (1 = shadow). Window side ``2*half`` metres."""
+CHUNK = 16  # poses per scratch allocation in the batch kernels
+
+
+def _render_into(out, theta, parent, T_origin, axis, piece_link, piece_pts, piece_n, piece_r, light, zb, half, M):
+    """``theta (B, J)`` → shadows written into ``out (B, res, res)`` uint8 (1 = shadow; any prior content is
+    overwritten). Window side ``2*half`` metres; ``M`` points per projected sphere outline."""
     B, J = theta.shape
-    out = np.zeros((B, res, res), dtype=np.uint8)
+    res = out.shape[1]
     scale = res / (2.0 * half)
+    ring = _ring_table(M)
     maxpts = piece_pts.shape[1] * M
-    for b in prange(B):
+    for c in prange((B + CHUNK - 1) // CHUNK):
         T = np.empty((J + 1, 4, 4))
-        _fk_one(theta[b], parent, T_origin, axis, T)
-        px = np.empty(maxpts)
-        py = np.empty(maxpts)
-        hx = np.empty(maxpts + 1)
-        hy = np.empty(maxpts + 1)
-        ur = np.empty(res)
-        vr = np.empty(res)
-        _render_one(
-            T, piece_link, piece_pts, piece_n, piece_r, light, zb, half, scale, M, out[b], px, py, hx, hy, ur, vr
-        )
+        buf = (
+            np.empty(maxpts), np.empty(maxpts), np.empty(2 * M), np.empty(2 * M), np.empty(M), np.empty(M),
+            np.empty(maxpts + 1), np.empty(maxpts + 1), np.empty(res), np.empty(res),
+        )  # fmt: skip
+        for b in range(c * CHUNK, min(B, (c + 1) * CHUNK)):
+            img = out[b]
+            img[:, :] = 0
+            _fk_one(theta[b], parent, T_origin, axis, T)
+            _render_one(T, piece_link, piece_pts, piece_n, piece_r, light, zb, half, scale, ring, img, buf)
     return out
 
 
 # The same kernel compiled twice: threads over the batch for large batches, and serial for small ones, where
 # waking the thread pool costs more than the work (refinement renders 8 shadows per step).
-render_batch = njit(cache=True, parallel=True)(_render_batch)
-render_batch_serial = njit(cache=True)(_render_batch)
+render_into = njit(cache=True, parallel=True)(_render_into)
+render_into_serial = njit(cache=True)(_render_into)
 SERIAL_BELOW = 64  # batches smaller than this use the serial kernel
 
 

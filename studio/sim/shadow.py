@@ -140,15 +140,17 @@ class ShadowRenderer:
     def render(self, theta: np.ndarray, check: bool = True) -> np.ndarray:
         """Shadows of poses ``theta (B, 21)`` rad → ``(B, H, W)`` uint8. ``check=False`` skips validation
         (callers that sampled within limits themselves)."""
-        from studio.sim.raster import SERIAL_BELOW, render_batch, render_batch_serial
+        from studio.sim.raster import SERIAL_BELOW, render_into, render_into_serial
 
         th = self.hand.check_theta(theta) if check else np.atleast_2d(np.asarray(theta, np.float64))
         th = np.ascontiguousarray(th, dtype=np.float64)
         jt, pc, rig = self.joints, self.pieces, self.rig
-        kernel = render_batch_serial if len(th) < SERIAL_BELOW else render_batch
+        # numpy's allocator (huge pages for big batches); the kernel zeroes each image in the thread drawing it
+        out = np.empty((len(th), rig.resolution, rig.resolution), dtype=np.uint8)
+        kernel = render_into_serial if len(th) < SERIAL_BELOW else render_into
         return kernel(
-            th, jt.parent, jt.T_origin, jt.axis, pc.link, pc.points, pc.count, pc.radius,
-            self._light, float(rig.backdrop_z), rig.window / 2, rig.resolution, self.ring_points,
+            out, th, jt.parent, jt.T_origin, jt.axis, pc.link, pc.points, pc.count, pc.radius,
+            self._light, float(rig.backdrop_z), rig.window / 2, self.ring_points,
         )  # fmt: skip
 
     def render_one(self, theta: np.ndarray) -> np.ndarray:
