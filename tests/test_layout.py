@@ -18,7 +18,7 @@ ALLOWED = {
     "project": {"sim", "learn", "imitate", "motion", "evaluate", "review"},
     "cli": {"sim", "learn", "imitate", "motion", "evaluate", "review", "project"},
 }
-FOUNDATION = {"studio.errors", "studio.atomic", "studio.assets"}
+FOUNDATION = {"studio.errors", "studio.atomic", "studio.assets", "studio.home"}
 
 
 def modules() -> dict[str, Path]:

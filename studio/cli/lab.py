@@ -107,7 +107,8 @@ def stop(proc: subprocess.Popen) -> None:
 
 
 def _lab(args: argparse.Namespace) -> int:
-    from studio.project.demo import demo_project, studio_home
+    from studio.home import studio_home
+    from studio.project.demo import demo_project
 
     home = studio_home()
     if args.project is None:

@@ -7,10 +7,10 @@ this one project; :func:`demo_project` makes it on first use and reopens it afte
 from __future__ import annotations
 
 import logging
-import os
 from pathlib import Path
 
 from studio.assets import asset
+from studio.home import studio_home
 from studio.project.project import Project
 from studio.project.project_format import DOC
 
@@ -18,12 +18,6 @@ log = logging.getLogger(__name__)
 
 DEMO_STILL = asset("targets/asl_o.jpeg")  # the bundled still the demo starts with
 PROJECT_NAME = "demo.shadow"  # the project folder inside the demo's folder
-HOME_ENV = "SHADOW_STUDIO_HOME"  # environment variable: the user folder for the demo project and the lab's notebook
-
-
-def studio_home() -> Path:
-    """The user folder of the studio: ``$SHADOW_STUDIO_HOME``, else ``~/.cache/shadow-studio``."""
-    return Path(os.environ.get(HOME_ENV) or Path.home() / ".cache" / "shadow-studio").expanduser()
 
 
 def demo_sources() -> list[Path]:
