@@ -5,6 +5,12 @@ limits) and take ``steps`` proposals each: ``θ' = clip(θ + N(0, σ))`` with σ
 step to a floor of 0.01 rad. A proposal is accepted only if it is collision-free and lowers the image loss of the
 shadow the exact renderer casts. The paper's 8 restarts run here as 8 parallel chains, so each step renders,
 scores and collision-checks one batch. The answer is the best collision-free pose any chain visited.
+
+``method="cmaes"`` (the studio's default, :data:`CPU_REFINE`) replaces the isotropic proposals with CMA-ES
+(:mod:`studio.imitate.cmaes`): each generation renders, scores and collision-checks ``popsize`` candidates drawn from
+a covariance it learns (joints that must move together, joints that do not matter), colliding candidates rank last.
+:data:`PAPER_REFINE` keeps the paper's hill climbing. Without CLIP the shadows are scored by the compiled
+:mod:`studio.imitate.rendered_loss`.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ import numpy as np
 import torch
 
 from studio.errors import ClosedError
+from studio.imitate.cmaes import CMAES
 from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import RenderedLoss, fast_loss
 from studio.sim.physics import CollisionWorld
@@ -27,14 +34,27 @@ from studio.sim.shadow import ShadowRenderer
 class RefineConfig:
     """Hill-climbing schedule (paper defaults)."""
 
-    restarts: int = 8  # chains (the paper's restarts), run in parallel [1, ∞)
-    steps: int = 1000  # proposals per chain [0, ∞)
+    method: str = "hill"  # "hill": the paper's hill climbing; "cmaes": CMA-ES (studio.imitate.cmaes) per restart
+    restarts: int = 8  # hill: chains (the paper's restarts), run in parallel; cmaes: runs, one after another [1, ∞)
+    steps: int = 1000  # hill: proposals per chain; cmaes: generations per run [0, ∞)
+    popsize: int = 16  # cmaes: candidates per generation [2, ∞)
     restart_noise: float = 0.25  # std, rad, of the chains' start around the best pose (chain 0 on it) [0, ∞)
-    sigma0: float = 0.08  # initial proposal std, rad (0, ∞)
-    decay: float = 0.995  # σ multiplier per step (0, 1]
-    sigma_min: float = 0.01  # σ floor, rad [0, ∞)
+    sigma0: float = 0.08  # initial proposal std (cmaes: initial step size), rad (0, ∞)
+    decay: float = 0.995  # hill: σ multiplier per step (0, 1]
+    sigma_min: float = 0.01  # hill: σ floor, rad [0, ∞)
     seed: int = 0  # proposal noise seed [0, ∞)
     log_every: int = 10  # record the best loss every this many steps [1, ∞)
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"refinement method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.restarts < 1 or self.steps < 0 or self.popsize < 2:
+            raise ValueError("refinement needs restarts ≥ 1, steps ≥ 0 and popsize ≥ 2")
+
+
+METHODS = ("hill", "cmaes")  # RefineConfig.method
+PAPER_REFINE = RefineConfig()  # the paper's schedule: 8 hill-climbing chains × 1000 isotropic proposals
+CPU_REFINE = RefineConfig(method="cmaes", restarts=1, steps=150, popsize=16, sigma0=0.1)  # the studio's default
 
 
 @dataclass
@@ -132,12 +152,32 @@ class Refiner:
         """
         self._check_open()
         cfg = cfg or RefineConfig()
-        lo, hi = self.hand.lower, self.hand.upper
         start = self.hand.check_theta(theta_start)[0]
         rng = np.random.default_rng(cfg.seed)
         start_loss = float(self.score(loss_fn, start[None], theta_prev)[0][0])
         start_collides = bool(self.world.in_collision(start, check=False)[0])
+        climb = self._hill if cfg.method == "hill" else self._cmaes
+        best_theta, best_loss, curve, evaluations, cancelled = climb(
+            loss_fn, start, cfg, rng, progress, cancel, theta_prev, best_pose
+        )
+        found = bool(np.isfinite(best_loss))
+        theta = best_theta if found else start
+        _, comps = self.score(loss_fn, theta[None], theta_prev)
+        return RefineResult(
+            theta=theta,
+            loss=best_loss if found else float("inf"),
+            components={k: float(v[0]) for k, v in comps.items()},
+            collision_free=found,
+            start_loss=start_loss,
+            start_collides=start_collides,
+            curve=curve,
+            evaluations=evaluations,
+            cancelled=cancelled,
+        )
 
+    def _hill(self, loss_fn, start, cfg, rng, progress, cancel, theta_prev, best_pose):
+        """The paper's hill climbing: ``restarts`` parallel chains, isotropic proposals (module docstring)."""
+        lo, hi = self.hand.lower, self.hand.upper
         cur = np.clip(start + rng.normal(0, cfg.restart_noise, (cfg.restarts, self.hand.dof)), lo, hi)
         cur[0] = start
         cur_loss, _ = self.score(loss_fn, cur, theta_prev)
@@ -177,17 +217,45 @@ class Refiner:
                     best_pose(best_theta.copy())
                 if progress:
                     progress(step, cfg.steps, best_loss)
-        found = bool(np.isfinite(best_loss))
-        theta = best_theta if found else start
-        _, comps = self.score(loss_fn, theta[None], theta_prev)
-        return RefineResult(
-            theta=theta,
-            loss=best_loss if found else float("inf"),
-            components={k: float(v[0]) for k, v in comps.items()},
-            collision_free=found,
-            start_loss=start_loss,
-            start_collides=start_collides,
-            curve=curve,
-            evaluations=evaluations,
-            cancelled=cancelled,
-        )
+        return best_theta, best_loss, curve, evaluations, cancelled
+
+    def _cmaes(self, loss_fn, start, cfg, rng, progress, cancel, theta_prev, best_pose):
+        """CMA-ES runs one after another (run 0 from the start pose, the others from N(0, restart_noise) around
+        it), each ``steps`` generations of ``popsize`` candidates. A colliding candidate ranks after every
+        collision-free one, by ``1 + loss + S_col`` (so a run that starts in collision climbs out of it)."""
+        lo, hi = self.hand.lower, self.hand.upper
+        free0 = not bool(self.world.in_collision(start, check=False)[0])
+        best_theta = start.copy()
+        best_loss = float(self.score(loss_fn, start[None], theta_prev)[0][0]) if free0 else float("inf")
+        curve: list[tuple[int, float]] = []
+        evaluations, cancelled, total = 1, False, cfg.restarts * cfg.steps
+        for run in range(cfg.restarts):
+            mean = start if run == 0 else np.clip(start + rng.normal(0, cfg.restart_noise, start.shape), lo, hi)
+            es = CMAES(mean, cfg.sigma0, lo, hi, cfg.popsize, rng)
+            for gen in range(1, cfg.steps + 1):
+                if cancel is not None and cancel.is_set():
+                    cancelled = True
+                    break
+                x = es.ask()
+                loss, _ = self.score(loss_fn, x, theta_prev)
+                evaluations += len(x)
+                hit = self.world.in_collision(x, check=False)
+                fit = loss.copy()
+                if hit.any():
+                    fit[hit] = 1.0 + loss[hit] + self.world.collision_score(x[hit], check=False)
+                free = np.flatnonzero(~hit)
+                if len(free):
+                    i = free[int(np.argmin(loss[free]))]
+                    if loss[i] < best_loss:
+                        best_theta, best_loss = x[i].copy(), float(loss[i])
+                es.tell(x, fit)
+                step = run * cfg.steps + gen
+                if step % cfg.log_every == 0 or step == total:
+                    curve.append((step, best_loss))
+                    if best_pose and np.isfinite(best_loss):
+                        best_pose(best_theta.copy())
+                    if progress:
+                        progress(step, total, best_loss)
+            if cancelled:
+                break
+        return best_theta, best_loss, curve, evaluations, cancelled
