@@ -14,7 +14,7 @@ import torch
 from studio.imitate.losses import ImageLoss, LossConfig
 from studio.imitate.refine import RefineConfig, Refiner
 from studio.imitate.search import CPU_SEARCH, SearchConfig, gradient_search, initial_poses
-from studio.imitate.still import DEFAULT_MODEL, Imitator
+from studio.imitate.still import DEFAULT_MODEL, ImitateConfig, Imitator
 from studio.imitate.targets import SAMPLE_DIR
 from studio.learn.selfmodel import SelfModel, SelfModelConfig, load_selfmodel
 from studio.sim.physics import CollisionWorld
@@ -241,6 +241,7 @@ def test_imitate_cli_errors(tmp_path):
 
 def _tiny_imitator(hand, **kw) -> tuple[Imitator, np.ndarray]:
     model = SelfModel(SelfModelConfig(resolution=32, hidden=32, channels=16, min_channels=8, res_blocks=1), hand)
+    kw.setdefault("config", ImitateConfig(retrieve=False))  # no index for this toy model (tests/test_retrieval.py)
     imitator = Imitator(model, loss_cfg=LossConfig(use_clip=False, crop_size=32), **kw)
     return imitator, imitator.renderer.render_one(free_poses(hand, 1, seed=2)[0])
 
@@ -258,7 +259,7 @@ def test_cancel_before_refinement_returns_a_flagged_result(hand):
         cancel.set()
         result = imitator.imitate(target, cancel=cancel)
         assert result.cancelled and result.search.cancelled and result.search.iterations == 0
-        assert result.refine is None and np.array_equal(result.theta, result.search.theta)
+        assert result.refine is None and np.array_equal(result.theta, result.unrefined_theta)
         assert np.isfinite(result.loss["total"])
         # cancelled during the search: still no refinement, still flagged
         cancel.clear()
@@ -276,7 +277,7 @@ def test_zero_candidates_is_refused(hand):
     from studio.imitate.still import distinct_best
 
     with pytest.raises(ValueError, match="candidates must be ≥ 1"):
-        _tiny_imitator(hand, candidates=0)
+        ImitateConfig(candidates=0)
     theta = np.random.default_rng(0).uniform(-1, 1, (6, 21))
     assert distinct_best(theta, np.arange(6.0), 0) == []
     assert len(distinct_best(theta, np.arange(6.0), 2)) == 2

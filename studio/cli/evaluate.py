@@ -19,8 +19,8 @@ from studio.cli.flags import add_config_flags, config_from_args, ranged
 from studio.cli.imitate import add_target_flags, target_config_from_args
 from studio.cli.progress import CountBar, StageBars, add_quiet_flag, ctrl_c_cancels
 from studio.cli.sequence_flags import add_sequence_flags, sequence_config_from_args
-from studio.imitate.refine import RefineConfig
-from studio.imitate.search import CPU_SEARCH, SearchConfig
+from studio.cli.still_flags import add_still_flags, still_configs
+from studio.imitate.search import SearchConfig
 
 DEFAULT_INVERSE = asset("models/inverse_cpu128.pt", must_exist=False)
 
@@ -49,13 +49,12 @@ def _run_evaluation(args: argparse.Namespace) -> int:
 
     files = gather_targets(args.targets, args.per_folder)
     target_cfg = target_config_from_args(args)
-    search = config_from_args(args, SearchConfig, prefix="search-", base=CPU_SEARCH, seed=args.seed)
-    refine = config_from_args(args, RefineConfig, prefix="refine-", seed=args.seed)
+    search, refine, config = still_configs(args, args.seed)
     model, _ = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
     size = model.cfg.resolution
     targets = [(str(f), load_target(f, size, target_cfg)) for f in files]  # every file loads before the slow part
     clip = clip_from_args(args, device=next(model.parameters()).device)  # CLIP sits with the self-model
-    imitator = Imitator(model, clip=clip, search=search, refine=refine)
+    imitator = Imitator(model, clip=clip, search=search, refine=refine, config=config)
     with imitator, Evaluator(imitator, Path(args.inverse), Path(args.nn_data), EvalConfig(seed=args.seed)) as evaluator:
         with CountBar(len(targets), "evaluate", "target", args.quiet) as bar:
             result = evaluator.run(targets, progress=bar)
@@ -138,9 +137,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--per-folder", type=ranged(int, "[1, ∞)"), default=None, metavar="N",
                    help="take the first N images of each sub-folder (default: all)")  # fmt: skip
     add_target_flags(p)
-    add_config_flags(p, SearchConfig, ("batch", "iterations"), prefix="search-", base=CPU_SEARCH,
-                     base_name="CPU_SEARCH", aliases={"iterations": "iters"})  # fmt: skip
-    add_config_flags(p, RefineConfig, ("steps", "restarts"), prefix="refine-")
+    add_still_flags(p)
     p.add_argument(
         "--seed",
         type=ranged(int, "[0, ∞)"),

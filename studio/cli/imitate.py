@@ -23,9 +23,8 @@ from studio.atomic import write_bytes, write_json
 from studio.cli.device_flags import add_device_flags, torch_threads
 from studio.cli.flags import add_config_flags, config_from_args, given, ranged
 from studio.cli.progress import StageBars, add_quiet_flag, ctrl_c_cancels
-from studio.imitate.refine import RefineConfig
-from studio.imitate.search import CPU_SEARCH, SearchConfig
-from studio.imitate.still import ImitateConfig
+from studio.cli.still_flags import add_still_flags, still_configs
+from studio.imitate.search import SearchConfig
 from studio.imitate.targets import TargetConfig
 
 
@@ -83,12 +82,10 @@ def _run(args: argparse.Namespace) -> int:
     target_cfg = target_config_from_args(args)
     model, info = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
     clip = clip_from_args(args, device=next(model.parameters()).device)
-    search = config_from_args(args, SearchConfig, prefix="search-", base=CPU_SEARCH, seed=args.seed)
-    refine = config_from_args(args, RefineConfig, prefix="refine-", seed=args.seed)
-    candidates = config_from_args(args, ImitateConfig).candidates
+    search, refine, config = still_configs(args, args.seed)
     target = load_target(target_path, size=model.cfg.resolution, cfg=target_cfg)  # before the slow set-up
     loss_cfg = LossConfig(use_clip=clip is not None, crop_size=model.cfg.resolution)
-    imitator = Imitator(model, loss_cfg=loss_cfg, clip=clip, search=search, refine=refine, candidates=candidates)
+    imitator = Imitator(model, loss_cfg=loss_cfg, clip=clip, search=search, refine=refine, config=config)
     expressive = still_expressive(target)  # a still target's openings (as `evaluate` does)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -100,7 +97,8 @@ def _run(args: argparse.Namespace) -> int:
         "expressive_pixels": 0 if expressive is None else int(expressive.sum()),
         "model": str(args.model or DEFAULT_MODEL), "model_metrics": info.metrics,
         "clip": None if clip is None else clip.name, "no_clip": clip is None, "loss_config": loss_cfg.to_dict(),
-        "search": asdict(search), "refine": asdict(refine), "candidates": candidates, "hand_hash": hand.hash,
+        "method": args.method, "search": asdict(search), "refine": asdict(refine), "imitate": asdict(config),
+        "hand_hash": hand.hash,
     }  # fmt: skip
     keyframe = {"t": args.at, "pose": hand.pose_to_dict(result.theta), "hold": True, "target": str(target_path),
                 "loss": result.loss["total"]}  # fmt: skip
@@ -108,7 +106,7 @@ def _run(args: argparse.Namespace) -> int:
         "keyframes": [keyframe],  # the shape `shadow-studio plan` reads
         "pose": hand.pose_to_dict(result.theta), "loss": _finite(result.loss), "collision_free": result.collision_free,
         "cancelled": result.cancelled,
-        "unrefined": {"pose": hand.pose_to_dict(result.search.theta), "loss": _finite(result.unrefined_loss),
+        "unrefined": {"pose": hand.pose_to_dict(result.unrefined_theta), "loss": _finite(result.unrefined_loss),
                       "collides": result.unrefined_collides, "self_model_loss": result.search.loss},
         "provenance": provenance,
     })  # fmt: skip
@@ -138,11 +136,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="folder for pose.json, shadow.png, compare.png, review.rrd")
     p.add_argument("--model", default=None, help="self-model checkpoint (default: the shipped CPU model)")
     add_target_flags(p)
-    add_config_flags(p, SearchConfig, ("batch", "iterations"), prefix="search-", base=CPU_SEARCH,
-                     base_name="CPU_SEARCH", aliases={"iterations": "iters"})  # fmt: skip
-    add_config_flags(p, RefineConfig, ("steps", "restarts"), prefix="refine-")
+    add_still_flags(p)
     p.add_argument("--no-refine", action="store_true", help="skip the collision-aware refinement")
-    add_config_flags(p, ImitateConfig, ("candidates",))
     p.add_argument("--at", type=ranged(float, "[0, ∞)"), default=2.0, metavar="S",
                    help="time of this pose in a show, s (the pose.json keyframe; default: 2.0; ≥ 0)")  # fmt: skip
     p.add_argument("--seed", type=ranged(int, "[0, ∞)"), default=SearchConfig.seed, metavar="N",

@@ -34,7 +34,7 @@ from studio.imitate.still import Imitator, still_expressive
 from studio.imitate.targets import IMAGE_SUFFIXES, TargetError, find_target_files
 from studio.learn.inverse import InverseCNN
 
-METHODS = ("Random", "Inverse CNN", "Nearest Neighbour", "Ours w/o refinement", "Ours")
+METHODS = ("Random", "Inverse CNN", "Nearest Neighbour", "Ours, first answer", "Ours w/o refinement", "Ours")
 LOSS_COLUMNS = {  # Table 1 header → loss component (studio.imitate.losses.COMPONENTS)
     "Total": "total", "Base": "base", "CLIP": "clip", "MAE": "mae", "IoU loss": "iou_loss",
     "Exp. IoU": "exp_iou", "Exp. CLIP": "exp_clip",
@@ -150,16 +150,20 @@ class Evaluator:
         expressive = still_expressive(target)
         loss_fn = self.imitator.loss_fn(target, expressive)
         ours = self.imitator.imitate(target, expressive, refine=True, cancel=cancel)
-        unrefined = BaselineOutput(ours.search.theta, ours.unrefined_shadow, ours.unrefined_collides,
+        unrefined = BaselineOutput(ours.unrefined_theta, ours.unrefined_shadow, ours.unrefined_collides,
                                    ours.timings["search"])  # fmt: skip
         final = BaselineOutput(ours.theta, ours.shadow, not ours.collision_free, ours.seconds)
         outputs = {
             "Random": self.random.query(),
             "Inverse CNN": self.inverse.query(target),
             "Nearest Neighbour": self.nn.query(target, loss_fn),
-            "Ours w/o refinement": unrefined,
-            "Ours": final,
         }
+        if ours.first is not None:  # the retrieval's best pose: what the studio shows first
+            theta = ours.first.theta[0]
+            collides = bool(self.imitator.refiner.world.in_collision(theta)[0])
+            shadow = self.imitator.renderer.render_one(theta)
+            outputs["Ours, first answer"] = BaselineOutput(theta, shadow, collides, ours.timings["first_answer"])
+        outputs |= {"Ours w/o refinement": unrefined, "Ours": final}
         records = []
         for method, out in outputs.items():
             rec = {"target": name, "method": method, **score(loss_fn, out.shadow)}
@@ -188,15 +192,35 @@ class Evaluator:
         im = self.imitator
         return {
             "resolution": im.resolution, "losses": im.loss_cfg.to_dict(), "clip": getattr(im.clip, "name", None),
-            "search": asdict(im.search_cfg), "refine": asdict(im.refine_cfg), "refined_candidates": im.candidates,
+            "search": asdict(im.search_cfg), "refine": asdict(im.refine_cfg), "imitate": asdict(im.cfg),
+            "retrieval": asdict(im.retrieval_cfg) if im.cfg.retrieve else None,
             "training_images": self.training_size,
             "nn": asdict(self.cfg.nn), "nn_setup_seconds": round(self.nn_setup_seconds, 2),
         }  # fmt: skip
 
+    def _method_note(self) -> str:
+        im = self.imitator
+        s, r, c = im.search_cfg, im.refine_cfg, im.cfg
+        if r.method == "hill":
+            refine = f"hill climbing, {r.restarts} chains × {r.steps} steps"
+        else:
+            refine = f"CMA-ES, {r.restarts} run(s) × {r.steps} generations of {r.popsize}"
+        first = (
+            f"retrieval over {im.retrieval_cfg.size} collision-free self-exploration shadows (Ours, first answer: "
+            f"its best pose; its best distinct poses seed the search), "
+            if c.retrieve
+            else "sampled initial poses, "
+        )
+        pick = "scored on the renderer" if c.select == "rendered" else "ranked by the self-model's loss"
+        return (
+            f"{first}gradient search batch {s.batch} × {s.iterations} iterations ({pick}), refinement ({refine}) "
+            f"from each of the {c.candidates} best distinct poses."
+        )
+
     def notes(self, rows: list[dict]) -> list[str]:
         im, n = self.imitator, rows[0]["targets"] if rows else 0
         k = rows[0]["expressive_targets"] if rows else 0
-        lc, s, r = im.loss_cfg, im.search_cfg, im.refine_cfg
+        lc = im.loss_cfg
         notes = [
             f"{n} targets at {im.resolution}²; every method's shadow (Random, Nearest Neighbour: the training image "
             f"itself; the others: the rendered shadow of their pose) scored by the same image loss on "
@@ -207,9 +231,7 @@ class Evaluator:
             "In collision: share of each method's poses whose skeleton penetrates itself (Ours w/o refinement: the "
             "searched poses before refinement). Seconds: wall time per target on this machine.",
             f"Random and Nearest Neighbour draw from {self.training_size} training images (aligning them once per "
-            f"run took {self.nn_setup_seconds:.1f} s, not in the per-target seconds); ours: gradient search batch "
-            f"{s.batch} × {s.iterations} iterations, refinement {r.restarts} restarts × {r.steps} steps from each "
-            f"of the {im.candidates} best distinct search results.",
+            f"run took {self.nn_setup_seconds:.1f} s, not in the per-target seconds); ours: {self._method_note()}",
         ]
         if not lc.use_clip:
             notes.append("CLIP off (--no-clip): CLIP and Exp. CLIP not computed (n/a); Base = 0.06·MAE + 0.4·IoU loss.")

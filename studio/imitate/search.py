@@ -58,8 +58,11 @@ def _to_phi(theta: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torch.Te
     return torch.log(u) - torch.log1p(-u)
 
 
-def initial_poses(hand: Hand, cfg: SearchConfig, init: np.ndarray | None = None) -> np.ndarray:
-    """``(B, 21)`` starting poses: around ``init`` (N(0, init_noise)) or drawn by the self-exploration sampler."""
+def initial_poses(
+    hand: Hand, cfg: SearchConfig, init: np.ndarray | None = None, starts: np.ndarray | None = None
+) -> np.ndarray:
+    """``(B, 21)`` starting poses: around ``init`` (N(0, init_noise)) or drawn by the self-exploration sampler;
+    ``starts (K, 21)`` (e.g. retrieved poses) then take the first ``min(K, B)`` rows."""
     rng = np.random.default_rng(cfg.seed)
     if init is not None:
         theta = np.asarray(init, dtype=float)[None] + rng.normal(0, cfg.init_noise, (cfg.batch, hand.dof))
@@ -68,6 +71,9 @@ def initial_poses(hand: Hand, cfg: SearchConfig, init: np.ndarray | None = None)
         theta = sample_poses(hand, cfg.batch, rng)[0]
         if cfg.include_rest:
             theta[0] = hand.rest_pose()
+    if starts is not None and len(starts):
+        k = min(len(starts), cfg.batch)
+        theta[:k] = np.asarray(starts, dtype=float)[:k]
     return np.clip(theta, hand.lower, hand.upper)
 
 
@@ -80,18 +86,20 @@ def gradient_search(
     progress: Callable[[int, int, float], None] | None = None,
     cancel: threading.Event | None = None,
     best_pose: Callable[[np.ndarray], None] | None = None,
+    starts: np.ndarray | None = None,
 ) -> SearchResult:
     """Minimise ``loss_fn(model(θ))`` (+ the temporal term against ``theta_prev``) over a batch of θ.
 
     ``progress(step, total, best_loss)`` is called every ``log_every`` steps, just after ``best_pose(θ (21,) rad)``
     with the pose of that best loss (for live previews); ``cancel`` stops early and the best pose so far is returned.
+    ``starts (K, 21)`` rad seed the first rows of the batch (:func:`initial_poses`).
     """
     cfg = cfg or SearchConfig()
     hand = model.hand
     device = next(model.parameters()).device
     lo = torch.tensor(hand.lower, dtype=torch.float32, device=device)
     hi = torch.tensor(hand.upper, dtype=torch.float32, device=device)
-    theta0 = torch.tensor(initial_poses(hand, cfg, init), dtype=torch.float32, device=device)
+    theta0 = torch.tensor(initial_poses(hand, cfg, init, starts), dtype=torch.float32, device=device)
     phi = _to_phi(theta0, lo, hi).requires_grad_(True)
     prev = None if theta_prev is None else torch.tensor(theta_prev, dtype=torch.float32, device=device)
     opt = torch.optim.Adam([phi], lr=cfg.lr)

@@ -18,7 +18,8 @@ import torch
 from studio.assets import asset
 from studio.errors import ClosedError
 from studio.imitate.losses import ImageLoss, LossConfig
-from studio.imitate.refine import RefineConfig, Refiner, RefineResult
+from studio.imitate.refine import CPU_REFINE, RefineConfig, Refiner, RefineResult
+from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, Retrieved, cached_index
 from studio.imitate.search import CPU_SEARCH, SearchConfig, SearchResult, gradient_search
 from studio.imitate.targets import TargetConfig, find_holes, load_target
 from studio.learn.selfmodel import SelfModel, load_selfmodel
@@ -34,6 +35,7 @@ class ImitationResult:
     target: np.ndarray  # (R, R) uint8 target mask in the model's frame, 1 = shadow
     search: SearchResult  # gradient search through the self-model
     predicted: np.ndarray  # (R, R) float self-model image of the searched pose
+    unrefined_theta: np.ndarray  # (21,) rad the searched pose (ImitateConfig.select: best by rendered or model loss)
     unrefined_shadow: np.ndarray  # (R, R) uint8 rendered shadow of the searched pose
     unrefined_loss: dict[str, float]  # rendered-shadow loss components of the searched pose
     unrefined_collides: bool  # the searched pose penetrates itself
@@ -43,15 +45,28 @@ class ImitationResult:
     loss: dict[str, float]  # rendered-shadow loss components of the final pose
     collision_free: bool  # the final pose does not penetrate itself
     seconds: float  # wall time of search + refinement
-    timings: dict[str, float] = field(default_factory=dict)  # seconds per stage
+    timings: dict[str, float] = field(default_factory=dict)  # seconds: index, first_answer, search, refine
     cancelled: bool = False  # the cancel event stopped the search or refinement: the best pose found so far
+    first: Retrieved | None = None  # the retrieval's distinct best poses (first answer: row 0); None when off
 
 
 @dataclass(frozen=True)
 class ImitateConfig:
-    """What ``Imitator.imitate`` does between the search and the refinement."""
+    """What ``Imitator.imitate`` does around the search and the refinement (defaults: the studio's method;
+    :data:`PAPER_IMITATE`: the paper's)."""
 
-    candidates: int = 4  # distinct best search results refined, each with the full refinement schedule [1, ∞)
+    candidates: int = 4  # distinct best poses refined, each with the full refinement schedule [1, ∞)
+    retrieve: bool = True  # answer first from the retrieval index and seed the search with its best distinct poses
+    select: str = "rendered"  # pick the unrefined pose and the candidates by "rendered" shadow loss or "model" loss
+
+    def __post_init__(self) -> None:
+        if self.candidates < 1:
+            raise ValueError(f"candidates must be ≥ 1 (distinct search results to refine), got {self.candidates}")
+        if self.select not in ("rendered", "model"):
+            raise ValueError(f'select must be "rendered" or "model", got {self.select!r}')
+
+
+PAPER_IMITATE = ImitateConfig(retrieve=False, select="model")  # sampled search batch, best by the self-model's loss
 
 
 def distinct_best(batch_theta: np.ndarray, batch_loss: np.ndarray, k: int, min_dist: float = 0.3) -> list:
@@ -74,7 +89,8 @@ class Imitator:
     """Reusable machinery for imitating still targets.
 
     Owns its refiner's collision world: ``close()`` (or the end of a ``with`` block) disconnects it, after which
-    ``imitate`` raises :class:`~studio.errors.ClosedError`.
+    ``imitate`` raises :class:`~studio.errors.ClosedError`. The retrieval index (``config.retrieve``) is loaded (or
+    built once per machine, :func:`~studio.imitate.retrieval.cached_index`) on the first ``imitate``, or given.
     """
 
     def __init__(
@@ -86,10 +102,9 @@ class Imitator:
         search: SearchConfig | None = None,
         refine: RefineConfig | None = None,
         device: str | None = None,
-        candidates: int = ImitateConfig.candidates,
+        config: ImitateConfig | None = None,
+        retrieval: RetrievalConfig | RetrievalIndex | None = None,
     ):
-        if candidates < 1:
-            raise ValueError(f"candidates must be ≥ 1 (distinct search results to refine), got {candidates}")
         if model is None:
             model, _ = load_selfmodel(Path(model_path or DEFAULT_MODEL), device=device)
         self.model = model
@@ -98,10 +113,16 @@ class Imitator:
         self.loss_cfg = loss_cfg or LossConfig(use_clip=clip is not None, crop_size=self.resolution)
         self.clip = clip
         self.search_cfg = search or CPU_SEARCH
-        self.refine_cfg = refine or RefineConfig()
+        self.refine_cfg = refine or CPU_REFINE
+        self.cfg = config or ImitateConfig()
         self.renderer = ShadowRenderer(self.hand, Rig(resolution=self.resolution))
         self.refiner = Refiner(self.renderer)
-        self.candidates = candidates  # distinct best search results refined (each with the full schedule)
+        self._index = retrieval if isinstance(retrieval, RetrievalIndex) else None
+        self.retrieval_cfg = self._index.cfg if self._index is not None else retrieval or RetrievalConfig()
+
+    @property
+    def candidates(self) -> int:
+        return self.cfg.candidates
 
     def close(self) -> None:
         """Disconnect the refiner's collision world (idempotent)."""
@@ -120,6 +141,12 @@ class Imitator:
     def loss_fn(self, target: np.ndarray, expressive: np.ndarray | None = None) -> ImageLoss:
         return ImageLoss(target, self.loss_cfg, self.clip, expressive)
 
+    def retrieval_index(self, progress: Callable[[int, int], None] | None = None) -> RetrievalIndex:
+        """The retrieval index for this model's hand and rig (loaded or built on first use, then kept)."""
+        if self._index is None:
+            self._index = cached_index(self.renderer, self.retrieval_cfg, progress=progress)
+        return self._index
+
     def imitate(
         self,
         target: np.ndarray,
@@ -129,8 +156,10 @@ class Imitator:
         cancel: threading.Event | None = None,
         best_pose: Callable[[np.ndarray], None] | None = None,
     ) -> ImitationResult:
-        """Search then (optionally) refine. ``progress(stage, step, total, best_loss)``; ``best_pose(θ (21,) rad)``
-        gets the pose of each reported best loss (search, then refinement) for live previews.
+        """Retrieve, search, then (optionally) refine. ``progress(stage, step, total, best_loss)`` with stages
+        "index" (building the retrieval index, once per machine), "retrieve" (the first answer), "search" and
+        "refine"; ``best_pose(θ (21,) rad)`` gets the pose of each reported best loss (the first answer, then the
+        search, then refinement) for live previews.
 
         Setting ``cancel`` stops early: the result is then flagged ``cancelled`` and holds the best pose found so
         far (the searched pose when refinement had not started or found no collision-free pose).
@@ -140,21 +169,37 @@ class Imitator:
         t0 = time.perf_counter()
         loss_fn = self.loss_fn(target, expressive)
         stage = (lambda name: lambda s, n, b: progress(name, s, n, b)) if progress else (lambda name: None)
+        timings: dict[str, float] = {}
+        first = None
+        if self.cfg.retrieve:
+            index = self.retrieval_index((lambda d, n: progress("index", d, n, float("nan"))) if progress else None)
+            t_q = time.perf_counter()
+            first = index.query(target, lambda th: self.refiner.score(loss_fn, th)[0], self.search_cfg.batch)
+            timings["index"] = t_q - t0
+            timings["first_answer"] = time.perf_counter() - t_q
+            if best_pose:
+                best_pose(first.theta[0].copy())
+            if progress:
+                progress("retrieve", 1, 1, float(first.loss[0]))
+        t_s = time.perf_counter()
         search = gradient_search(
-            self.model, loss_fn, self.search_cfg, progress=stage("search"), cancel=cancel, best_pose=best_pose
-        )
+            self.model, loss_fn, self.search_cfg, progress=stage("search"), cancel=cancel, best_pose=best_pose,
+            starts=None if first is None else first.theta,
+        )  # fmt: skip
+        pool_theta, pool_loss, unrefined = self._select(loss_fn, search, first)
         t1 = time.perf_counter()
+        timings["search"] = t1 - t_s
         with torch.no_grad():
             device = next(self.model.parameters()).device
-            predicted = self.model(torch.tensor(search.theta[None], dtype=torch.float32, device=device))
-        shadow0 = self.renderer.render_one(search.theta)
-        _, comps0 = self.refiner.score(loss_fn, search.theta[None])
-        collides0 = bool(self.refiner.world.in_collision(search.theta)[0])
+            predicted = self.model(torch.tensor(unrefined[None], dtype=torch.float32, device=device))
+        shadow0 = self.renderer.render_one(unrefined)
+        _, comps0 = self.refiner.score(loss_fn, unrefined[None])
+        collides0 = bool(self.refiner.world.in_collision(unrefined)[0])
         result = None
-        theta, shadow, comps = search.theta, shadow0, {k: float(v[0]) for k, v in comps0.items()}
+        theta, shadow, comps = unrefined, shadow0, {k: float(v[0]) for k, v in comps0.items()}
         cancelled = search.cancelled
         if refine and not cancelled:
-            for start in distinct_best(search.batch_theta, search.batch_loss, self.candidates):
+            for start in distinct_best(pool_theta, pool_loss, self.candidates):
                 if cancel is not None and cancel.is_set():
                     break
                 r = self.refiner.refine(loss_fn, start, self.refine_cfg, stage("refine"), cancel, best_pose=best_pose)
@@ -164,12 +209,14 @@ class Imitator:
                 theta, comps = result.theta, result.components
                 shadow = self.renderer.render_one(theta)
         t2 = time.perf_counter()
+        timings["refine"] = t2 - t1
         cancelled = cancelled or (cancel is not None and cancel.is_set())
         collision_free = not bool(self.refiner.world.in_collision(theta)[0])
         return ImitationResult(
             target=np.asarray(target, dtype=np.uint8),
             search=search,
             predicted=predicted[0, 0].cpu().numpy(),
+            unrefined_theta=unrefined,
             unrefined_shadow=shadow0,
             unrefined_loss={k: float(v[0]) for k, v in comps0.items()},
             unrefined_collides=collides0,
@@ -179,9 +226,26 @@ class Imitator:
             loss=comps,
             collision_free=collision_free,
             seconds=t2 - t0,
-            timings={"search": t1 - t0, "refine": t2 - t1},
+            timings=timings,
             cancelled=cancelled,
+            first=first,
         )
+
+    def _select(self, loss_fn: ImageLoss, search: SearchResult, first) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The refinement's candidate pool ``(P, 21)`` with its losses ``(P,)``, and the unrefined pose ``(21,)``.
+
+        ``select="model"`` (the paper): the search batch by its self-model loss, the unrefined pose its best.
+        ``"rendered"``: the search batch scored on the renderer (colliding poses excluded), the unrefined pose the
+        best collision-free searched pose, and the pool adds the retrieved poses."""
+        if self.cfg.select == "model":
+            return search.batch_theta, search.batch_loss, search.theta
+        batch = search.batch_theta
+        loss = self.refiner.score(loss_fn, batch)[0]
+        loss[self.refiner.world.in_collision(batch, check=False)] = np.inf
+        unrefined = batch[int(np.argmin(loss))] if np.isfinite(loss).any() else search.theta
+        if first is not None:
+            batch, loss = np.concatenate([batch, first.theta]), np.concatenate([loss, first.loss])
+        return batch, loss, unrefined.copy()
 
 
 def still_expressive(target: np.ndarray) -> np.ndarray | None:

@@ -139,7 +139,7 @@ def log_imitation(path: Path, result, hand: Hand, name: str = "target", notes: s
         rec.log("loss/search/mean", rr.Scalars(mean))
     n = result.search.iterations
     rec.set_time("opt_step", sequence=n)
-    log_pose(rec, hand, result.search.theta)
+    log_pose(rec, hand, result.unrefined_theta)
     rec.log("images/self_model", rr.Image(display(result.predicted)))
     rec.log("images/rendered", rr.Image(display(result.unrefined_shadow)))
     rec.log("images/overlay", rr.Image(overlay(result.target, result.unrefined_shadow)))

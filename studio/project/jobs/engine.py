@@ -70,9 +70,10 @@ def imitate_keyframe_job(
 
 def _imitate_keyframe(report: Reporter, cancel, *, target, expressive, search, refine, refine_enabled, candidates,
                       loss_cfg, clip, model_path, target_cfg, preview):  # fmt: skip
-    from studio.imitate.still import Imitator, still_expressive
+    from studio.imitate.still import ImitateConfig, Imitator, still_expressive
 
-    with Imitator(None, model_path, loss_cfg, clip, search, refine, candidates=candidates) as im:
+    config = ImitateConfig(candidates=candidates)
+    with Imitator(None, model_path, loss_cfg, clip, search, refine, config=config) as im:
         if isinstance(target, (str, Path)):
             mask = im.load(Path(target), target_cfg)
         else:

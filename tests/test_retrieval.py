@@ -1,0 +1,119 @@
+"""studio.imitate.retrieval: the index (fast popcount ranking against a slow reference, exact poses back, distinct
+answers, the cache) and the first answer it gives the Imitator."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from studio.imitate.losses import ImageLoss, LossConfig
+from studio.imitate.refine import RefineConfig
+from studio.imitate.rendered_loss import RenderedLoss, crop_batch
+from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, cached_index, index_key, pack_crops
+from studio.imitate.search import SearchConfig
+from studio.imitate.still import ImitateConfig, Imitator
+from studio.learn.selfmodel import SelfModel, SelfModelConfig
+from studio.sim.crop import pad_pixels
+from studio.sim.physics import CollisionWorld
+from studio.sim.shadow import Rig, ShadowRenderer
+
+CFG = RetrievalConfig(size=1500, chunk=700, shortlist=64, seed=3)
+
+
+@pytest.fixture(scope="module")
+def renderer(hand):
+    return ShadowRenderer(hand, Rig(resolution=32))
+
+
+@pytest.fixture(scope="module")
+def index(renderer):
+    return RetrievalIndex.build(renderer, CFG)
+
+
+def _scorer(renderer, target):
+    fast = RenderedLoss(ImageLoss(target, LossConfig(use_clip=False, crop_size=32)))
+    return lambda theta: fast(renderer.render(theta, check=False))[0]
+
+
+def test_index_holds_collision_free_poses_within_limits(hand, index):
+    assert len(index) == CFG.size and index.theta.shape == (CFG.size, 21) and index.bits.shape == (CFG.size, 16)
+    assert np.all(index.theta >= hand.lower - 1e-6) and np.all(index.theta <= hand.upper + 1e-6)
+    with CollisionWorld(hand) as world:
+        assert not world.in_collision(index.theta[::25].astype(float)).any()
+
+
+def test_pack_crops_are_the_thresholded_aligned_crops(renderer, index):
+    shadows = renderer.render(index.theta[:20].astype(float))
+    crops = crop_batch(shadows, pad_pixels(CFG.pad, 32, 32), CFG.crop) > 0.5
+    unpacked = np.unpackbits(pack_crops(shadows, CFG.crop, CFG.pad).view(np.uint8), axis=1)
+    np.testing.assert_array_equal(unpacked[:, : CFG.crop**2].astype(bool), crops.reshape(20, -1))
+    np.testing.assert_array_equal(pack_crops(shadows, CFG.crop, CFG.pad), index.bits[:20])
+
+
+def test_rank_matches_a_slow_reference(renderer, index):
+    target = renderer.render_one(index.theta[7].astype(float))
+    rank = index.rank(target)
+    lc = LossConfig()
+    t = (crop_batch(target[None], pad_pixels(CFG.pad, 32, 32), CFG.crop) > 0.5).reshape(-1)
+    rows = np.arange(0, len(index), 37)
+    crops = crop_batch(renderer.render(index.theta[rows].astype(float)), pad_pixels(CFG.pad, 32, 32), CFG.crop) > 0.5
+    for row, c in zip(rows, crops.reshape(len(rows), -1)):
+        inter, union = np.sum(c & t), np.sum(c | t)
+        ref = lc.w_mae * np.mean(c != t) + lc.w_iou * (1 - inter / max(union, 1))
+        assert rank[row] == pytest.approx(ref, abs=1e-6)
+
+
+def test_query_returns_the_exact_pose_of_a_rendered_target(renderer, index):
+    for i in (0, 123, 1499):
+        target = renderer.render_one(index.theta[i].astype(float))
+        got = index.query(target, _scorer(renderer, target), k=8)
+        assert got.loss[0] == pytest.approx(0.0, abs=1e-6)
+        np.testing.assert_array_equal(got.theta[0], index.theta[i].astype(float))
+        assert np.all(np.diff(got.loss) >= 0) and len(got.theta) == 8
+        gaps = np.abs(got.theta[:, None] - got.theta[None]).max(axis=-1) + np.eye(8) * 9
+        assert gaps.min() >= CFG.min_dist  # distinct poses, as documented
+
+
+def test_save_load_and_the_cache(tmp_path, renderer, index):
+    path = tmp_path / "index.npz"
+    index.save(path)
+    back = RetrievalIndex.load(path, index.key)
+    np.testing.assert_array_equal(back.theta, index.theta)
+    np.testing.assert_array_equal(back.bits, index.bits)
+    assert back.cfg == index.cfg
+    assert RetrievalIndex.load(path, "another key") is None  # stale: rebuilt by cached_index
+    assert RetrievalIndex.load(tmp_path / "missing.npz") is None
+    (tmp_path / "broken.npz").write_bytes(b"not an npz")
+    assert RetrievalIndex.load(tmp_path / "broken.npz") is None
+    small = RetrievalConfig(size=300, chunk=300, seed=5)
+    built = cached_index(renderer, small, folder=tmp_path / "cache")
+    assert (tmp_path / "cache" / f"index-{index_key(renderer.hand, renderer, small)}.npz").is_file()
+    assert cached_index(renderer, small, folder=tmp_path / "elsewhere") is built  # kept in this process
+
+
+def test_config_is_checked():
+    with pytest.raises(ValueError, match="multiple of 8"):
+        RetrievalConfig(crop=30)
+    with pytest.raises(ValueError, match="≥ 1"):
+        RetrievalConfig(size=0)
+
+
+def test_imitator_answers_first_from_the_index_then_improves(hand, index, renderer):
+    """The first reported pose is the retrieval's (collision-free, before any search step), the stages arrive in
+    order, the search starts from the retrieved poses and the final answer is no worse than the first."""
+    model = SelfModel(SelfModelConfig(resolution=32, hidden=32, channels=16, min_channels=8, res_blocks=1), hand)
+    search = SearchConfig(batch=8, iterations=4, log_every=2)
+    refine = RefineConfig(method="cmaes", restarts=1, steps=10)
+    loss_cfg = LossConfig(use_clip=False, crop_size=32)
+    imitator = Imitator(model, loss_cfg=loss_cfg, retrieval=index, search=search, refine=refine,
+                        config=ImitateConfig(candidates=2))  # fmt: skip
+    target = renderer.render_one(np.clip(index.theta[42] + 0.05, hand.lower, hand.upper))
+    stages, poses = [], []
+    with imitator:
+        result = imitator.imitate(target, progress=lambda s, *a: stages.append(s), best_pose=poses.append)
+    assert stages[0] == "retrieve" and stages.index("search") > 0 and stages[-1] == "refine"
+    np.testing.assert_array_equal(poses[0], result.first.theta[0])
+    assert result.timings["first_answer"] < result.seconds
+    assert result.loss["total"] <= result.first.loss[0] + 1e-9
+    assert result.collision_free
+    assert result.search.batch_theta.shape == (8, 21)
