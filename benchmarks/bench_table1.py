@@ -9,6 +9,8 @@ run; below 1 means ours is better), the share of refined poses in collision, and
 
     python benchmarks/bench_table1.py [--targets DIR|FILES...] [--per-folder 1] [--out runs/table1] [--paper]
                                       [-- extra evaluate args]
+    python benchmarks/bench_table1.py --targets ../shared/targets/mpeg7 --per-folder '' --per-class 1 \
+        --out runs/table1_mpeg7                      # one image of each of the 12 MPEG-7 classes
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ def evaluate(cli: list[str], args: argparse.Namespace, out: Path, method: str) -
            "--method", method, *args.extra]  # fmt: skip
     if args.per_folder:
         cmd += ["--per-folder", args.per_folder]
+    if args.per_class:
+        cmd += ["--per-class", args.per_class]
     done = subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.PIPE, text=True)
     print(Path(out, "table1.md").read_text())
     return {r["method"]: r for r in json.loads(done.stdout.strip().splitlines()[-1])["rows"]}
@@ -39,6 +43,7 @@ def main() -> int:
         "--targets", nargs="+", default=[str(ASL)], help="target folders/files (default ../shared/targets/asl)"
     )
     parser.add_argument("--per-folder", default="1", help="images per sub-folder (default 1: one per letter; '' = all)")
+    parser.add_argument("--per-class", default="", help="images per class, the name before its last '-' (MPEG-7)")
     parser.add_argument("--data", default=str(ROOT / "data" / "sx128"), help="training shards (made when missing)")
     parser.add_argument("--out", default=str(ROOT / "runs" / "table1"), help="folder for the table files")
     parser.add_argument("--paper", action="store_true", help="also run the paper's configuration (--method paper)")

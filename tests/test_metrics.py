@@ -205,6 +205,17 @@ def test_gather_targets_per_folder(tmp_path):
         gather_targets([tmp_path / "nowhere"])
 
 
+def test_gather_targets_per_class(tmp_path):
+    """MPEG-7 names: one image of each class, the name before its last '-' (``rat-01`` beside ``camel-1``)."""
+    for name in ("camel-1", "camel-10", "camel-2", "rat-01", "rat-02", "key"):
+        cv2.imwrite(str(tmp_path / f"{name}.png"), ring() * 255)
+    assert [p.stem for p in gather_targets([tmp_path], per_class=1)] == ["camel-1", "key", "rat-01"]
+    two = ["camel-1", "camel-10", "key", "rat-01", "rat-02"]  # first by name: camel-10 sorts before camel-2
+    assert [p.stem for p in gather_targets([tmp_path], per_class=2)] == two
+    with pytest.raises(ValueError, match="--per-class"):
+        gather_targets([tmp_path], per_class=0)
+
+
 def _evaluate_args(setup, out, *targets) -> list[str]:
     root = setup["root"]
     return ["evaluate", *map(str, targets), "--out", str(out), "--model", str(root / "model.pt"),

@@ -47,7 +47,7 @@ def _run_evaluation(args: argparse.Namespace) -> int:
     from studio.imitate.targets import load_target
     from studio.learn.selfmodel import load_selfmodel
 
-    files = gather_targets(args.targets, args.per_folder)
+    files = gather_targets(args.targets, args.per_folder, args.per_class)
     target_cfg = target_config_from_args(args)
     search, refine, config = still_configs(args, args.seed)
     model, _ = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
@@ -136,6 +136,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--nn-data", default="data/sx128", help="training shards for Random and Nearest Neighbour")
     p.add_argument("--per-folder", type=ranged(int, "[1, ∞)"), default=None, metavar="N",
                    help="take the first N images of each sub-folder (default: all)")  # fmt: skip
+    p.add_argument("--per-class", type=ranged(int, "[1, ∞)"), default=None, metavar="N",
+                   help="then the first N images of each class (the name before its last '-': camel-1)")  # fmt: skip
     add_target_flags(p)
     add_still_flags(p)
     p.add_argument(

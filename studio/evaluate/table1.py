@@ -60,11 +60,29 @@ class EvalResult:
     settings: dict = field(default_factory=dict)  # model, losses, search and refinement settings
 
 
-def gather_targets(paths: Sequence[str | Path], per_folder: int | None = None) -> list[Path]:
+def first_per_class(files: Sequence[Path], n: int) -> list[Path]:
+    """The first ``n`` files (in the given order) of each class, the class being the name before its last ``-``
+    (MPEG-7's ``camel-1.gif``, ``rat-01.gif``); a name without ``-`` is its own class."""
+    seen: dict[str, int] = {}
+    out = []
+    for f in files:
+        cls = f.stem.rsplit("-", 1)[0]
+        if seen.get(cls, 0) < n:
+            seen[cls] = seen.get(cls, 0) + 1
+            out.append(f)
+    return out
+
+
+def gather_targets(
+    paths: Sequence[str | Path], per_folder: int | None = None, per_class: int | None = None
+) -> list[Path]:
     """Target files from files and folders: a folder gives its images and those of each sub-folder (first
-    ``per_folder`` of each, by name). Raises :class:`TargetError` for a missing path or when nothing is found."""
+    ``per_folder`` of each, by name; of those, the first ``per_class`` of each :func:`first_per_class` class).
+    Raises :class:`TargetError` for a missing path or when nothing is found."""
     if per_folder is not None and per_folder < 1:
         raise ValueError("--per-folder must be at least 1")
+    if per_class is not None and per_class < 1:
+        raise ValueError("--per-class must be at least 1")
     out: list[Path] = []
     for p in map(Path, paths):
         if p.is_file():
@@ -74,6 +92,8 @@ def gather_targets(paths: Sequence[str | Path], per_folder: int | None = None) -
             raise TargetError(f"target file or folder not found: {p}")
         folders = [p, *sorted(d for d in p.iterdir() if d.is_dir())]
         found = [f for d in folders for f in find_target_files(d)[:per_folder]]
+        if per_class is not None:
+            found = first_per_class(found, per_class)
         if not found:
             raise TargetError(f"no target images ({', '.join(IMAGE_SUFFIXES)}) in {p} or its sub-folders")
         out += found

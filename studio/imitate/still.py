@@ -35,7 +35,7 @@ class ImitationResult:
     target: np.ndarray  # (R, R) uint8 target mask in the model's frame, 1 = shadow
     search: SearchResult  # gradient search through the self-model
     predicted: np.ndarray  # (R, R) float self-model image of the searched pose
-    unrefined_theta: np.ndarray  # (21,) rad the searched pose (ImitateConfig.select: best by rendered or model loss)
+    unrefined_theta: np.ndarray  # (21,) rad the pose before refinement (ImitateConfig.select: how it is picked)
     unrefined_shadow: np.ndarray  # (R, R) uint8 rendered shadow of the searched pose
     unrefined_loss: dict[str, float]  # rendered-shadow loss components of the searched pose
     unrefined_collides: bool  # the searched pose penetrates itself
@@ -235,16 +235,16 @@ class Imitator:
         """The refinement's candidate pool ``(P, 21)`` with its losses ``(P,)``, and the unrefined pose ``(21,)``.
 
         ``select="model"`` (the paper): the search batch by its self-model loss, the unrefined pose its best.
-        ``"rendered"``: the search batch scored on the renderer (colliding poses excluded), the unrefined pose the
-        best collision-free searched pose, and the pool adds the retrieved poses."""
+        ``"rendered"``: the search batch scored on the renderer (colliding poses excluded) and the retrieved poses
+        (collision-free) form the pool; the unrefined pose is its best (so never worse than the first answer)."""
         if self.cfg.select == "model":
             return search.batch_theta, search.batch_loss, search.theta
         batch = search.batch_theta
         loss = self.refiner.score(loss_fn, batch)[0]
         loss[self.refiner.world.in_collision(batch, check=False)] = np.inf
-        unrefined = batch[int(np.argmin(loss))] if np.isfinite(loss).any() else search.theta
         if first is not None:
             batch, loss = np.concatenate([batch, first.theta]), np.concatenate([loss, first.loss])
+        unrefined = batch[int(np.argmin(loss))] if np.isfinite(loss).any() else search.theta
         return batch, loss, unrefined.copy()
 
 
