@@ -5,7 +5,8 @@ they are missing (``collect --resolution 128 --n 50000 --out data/sx128``), runs
 method (and, with ``--paper``, again with the paper's: sampled search batch, the self-model's best, hill climbing
 8 × 1000), prints the Markdown table(s), and last a JSON object: per method its mean Total, IoU loss and seconds per
 target, the time to the first answer, the ratios Ours/Nearest Neighbour (Total and IoU loss, measured in the same
-run; below 1 means ours is better), the share of refined poses in collision, and the paper configuration's row.
+run; below 1 means ours is better), the share of refined poses in collision, and the paper configuration's row
+(with ``--paper`` also one Markdown table holding both configurations' rows).
 
     python benchmarks/bench_table1.py [--targets DIR|FILES...] [--per-folder 1] [--out runs/table1] [--paper]
                                       [-- extra evaluate args]
@@ -77,8 +78,12 @@ def main() -> int:
         summary["first_answer_seconds"] = round(first["seconds"], 3)
         summary["first_answer_vs_nearest_neighbour_total"] = round(first["total"] / nn["total"], 3)
     if args.paper:
+        from studio.evaluate.table1 import to_markdown
+
         paper = evaluate(cli, args, Path(args.out) / "paper", "paper")
         p = paper["Ours"]
+        both = [*rows.values(), p | {"method": "Ours, paper configuration"}]
+        print("Both configurations:\n\n" + to_markdown(both))
         summary["paper_configuration"] = {
             "total": round(p["total"], 4), "iou_loss": round(p["iou_loss"], 4),
             "seconds_per_target": round(p["seconds"], 2), "collide_pct": p["collide_pct"],
