@@ -12,6 +12,7 @@ from studio.imitate.rendered_loss import RenderedLoss, crop_batch
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, cached_index, index_key, pack_crops
 from studio.imitate.search import SearchConfig
 from studio.imitate.still import ImitateConfig, Imitator
+from studio.imitate.sweep import SweepConfig
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
 from studio.sim.crop import pad_pixels
 from studio.sim.physics import CollisionWorld
@@ -111,9 +112,32 @@ def test_imitator_answers_first_from_the_index_then_improves(hand, index, render
     stages, poses = [], []
     with imitator:
         result = imitator.imitate(target, progress=lambda s, *a: stages.append(s), best_pose=poses.append)
-    assert stages[0] == "retrieve" and stages.index("search") > 0 and stages[-1] == "refine"
+    assert stages[0] == "retrieve" and stages.index("sweep") < stages.index("search") and stages[-1] == "refine"
     np.testing.assert_array_equal(poses[0], result.first.theta[0])
     assert result.timings["first_answer"] < result.seconds
     assert result.loss["total"] <= result.first.loss[0] + 1e-9
+    swept = result.swept  # the block sweep: no pose worse than the retrieved one it started from, best first
+    assert swept.theta.shape == result.first.theta.shape and np.all(np.diff(swept.loss) >= 0)
+    assert swept.loss[0] <= result.first.loss[0] + 1e-12 and result.unrefined_loss["total"] <= swept.loss[0] + 1e-9
+    with CollisionWorld(hand) as world:
+        assert not world.in_collision(swept.theta).any()
     assert result.collision_free
     assert result.search.batch_theta.shape == (8, 21)
+
+
+def test_sweep_with_clip_scores_draws_by_pixels_and_reports_the_full_loss(hand, index, renderer):
+    """With CLIP on, the swept poses come back scored under the full loss (CLIP included), best first."""
+    from studio.imitate.clip_loss import tiny_clip
+
+    model = SelfModel(SelfModelConfig(resolution=32, hidden=32, channels=16, min_channels=8, res_blocks=1), hand)
+    loss_cfg = LossConfig(use_clip=True, crop_size=32)
+    clip = tiny_clip(seed=0)
+    imitator = Imitator(model, loss_cfg=loss_cfg, clip=clip, retrieval=index, search=SearchConfig(batch=4,
+                        iterations=1), config=ImitateConfig(candidates=1), sweep=SweepConfig(starts=2, draws=64,
+                        wrist_draws=16, passes=1))  # fmt: skip
+    target = renderer.render_one(np.clip(index.theta[9] + 0.1, hand.lower, hand.upper))
+    with imitator:
+        result = imitator.imitate(target, refine=False)
+        full = imitator.refiner.score(imitator.loss_fn(target), result.swept.theta)[0]
+    np.testing.assert_allclose(result.swept.loss, full, rtol=1e-5, atol=1e-6)
+    assert np.all(np.diff(result.swept.loss) >= 0)

@@ -49,12 +49,12 @@ def _run_evaluation(args: argparse.Namespace) -> int:
 
     files = gather_targets(args.targets, args.per_folder, args.per_class)
     target_cfg = target_config_from_args(args)
-    search, refine, config = still_configs(args, args.seed)
+    search, refine, config, sweep = still_configs(args, args.seed)
     model, _ = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
     size = model.cfg.resolution
     targets = [(str(f), load_target(f, size, target_cfg)) for f in files]  # every file loads before the slow part
     clip = clip_from_args(args, device=next(model.parameters()).device)  # CLIP sits with the self-model
-    imitator = Imitator(model, clip=clip, search=search, refine=refine, config=config)
+    imitator = Imitator(model, clip=clip, search=search, refine=refine, config=config, sweep=sweep)
     with imitator, Evaluator(imitator, Path(args.inverse), Path(args.nn_data), EvalConfig(seed=args.seed)) as evaluator:
         with CountBar(len(targets), "evaluate", "target", args.quiet) as bar:
             result = evaluator.run(targets, progress=bar)

@@ -82,10 +82,10 @@ def _run(args: argparse.Namespace) -> int:
     target_cfg = target_config_from_args(args)
     model, info = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
     clip = clip_from_args(args, device=next(model.parameters()).device)
-    search, refine, config = still_configs(args, args.seed)
+    search, refine, config, sweep = still_configs(args, args.seed)
     target = load_target(target_path, size=model.cfg.resolution, cfg=target_cfg)  # before the slow set-up
     loss_cfg = LossConfig(use_clip=clip is not None, crop_size=model.cfg.resolution)
-    imitator = Imitator(model, loss_cfg=loss_cfg, clip=clip, search=search, refine=refine, config=config)
+    imitator = Imitator(model, loss_cfg=loss_cfg, clip=clip, search=search, refine=refine, config=config, sweep=sweep)
     expressive = still_expressive(target)  # a still target's openings (as `evaluate` does)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -98,7 +98,7 @@ def _run(args: argparse.Namespace) -> int:
         "model": str(args.model or DEFAULT_MODEL), "model_metrics": info.metrics,
         "clip": None if clip is None else clip.name, "no_clip": clip is None, "loss_config": loss_cfg.to_dict(),
         "method": args.method, "search": asdict(search), "refine": asdict(refine), "imitate": asdict(config),
-        "hand_hash": hand.hash,
+        "sweep": asdict(sweep), "hand_hash": hand.hash,
     }  # fmt: skip
     keyframe = {"t": args.at, "pose": hand.pose_to_dict(result.theta), "hold": True, "target": str(target_path),
                 "loss": result.loss["total"]}  # fmt: skip

@@ -214,20 +214,27 @@ class Evaluator:
             "resolution": im.resolution, "losses": im.loss_cfg.to_dict(), "clip": getattr(im.clip, "name", None),
             "search": asdict(im.search_cfg), "refine": asdict(im.refine_cfg), "imitate": asdict(im.cfg),
             "retrieval": asdict(im.retrieval_cfg) if im.cfg.retrieve else None,
+            "sweep": asdict(im.sweep_cfg) if im.cfg.retrieve and im.sweep_cfg.starts else None,
             "training_images": self.training_size,
             "nn": asdict(self.cfg.nn), "nn_setup_seconds": round(self.nn_setup_seconds, 2),
         }  # fmt: skip
 
     def _method_note(self) -> str:
         im = self.imitator
-        s, r, c = im.search_cfg, im.refine_cfg, im.cfg
+        s, r, c, w = im.search_cfg, im.refine_cfg, im.cfg, im.sweep_cfg
+        sweep = (
+            f"a block sweep of its {w.starts} best poses ({w.draws} draws per finger, {w.wrist_draws} for the wrist, "
+            f"up to {w.passes} passes), "
+            if w.starts
+            else ""
+        )
         if r.method == "hill":
             refine = f"hill climbing, {r.restarts} chains × {r.steps} steps"
         else:
             refine = f"CMA-ES, {r.restarts} run(s) × {r.steps} generations of {r.popsize}"
         first = (
             f"retrieval over {im.retrieval_cfg.size} collision-free self-exploration shadows (Ours, first answer: "
-            f"its best pose; its best distinct poses seed the search), "
+            f"its best pose), " + sweep + "its best distinct poses seeding the search, "
             if c.retrieve
             else "sampled initial poses, "
         )

@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Callable
@@ -21,6 +22,7 @@ from studio.imitate.losses import ImageLoss, LossConfig
 from studio.imitate.refine import CPU_REFINE, RefineConfig, Refiner, RefineResult
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, Retrieved, cached_index
 from studio.imitate.search import CPU_SEARCH, SearchConfig, SearchResult, gradient_search
+from studio.imitate.sweep import SweepConfig, block_sweep, joint_blocks
 from studio.imitate.targets import TargetConfig, find_holes, load_target
 from studio.learn.selfmodel import SelfModel, load_selfmodel
 from studio.sim.shadow import Rig, ShadowRenderer
@@ -48,6 +50,7 @@ class ImitationResult:
     timings: dict[str, float] = field(default_factory=dict)  # seconds: index, first_answer, search, refine
     cancelled: bool = False  # the cancel event stopped the search or refinement: the best pose found so far
     first: Retrieved | None = None  # the retrieval's distinct best poses (first answer: row 0); None when off
+    swept: Retrieved | None = None  # those poses after the block sweep, best first (seconds: the sweep's); None: off
 
 
 @dataclass(frozen=True)
@@ -104,6 +107,7 @@ class Imitator:
         device: str | None = None,
         config: ImitateConfig | None = None,
         retrieval: RetrievalConfig | RetrievalIndex | None = None,
+        sweep: SweepConfig | None = None,
     ):
         if model is None:
             model, _ = load_selfmodel(Path(model_path or DEFAULT_MODEL), device=device)
@@ -115,6 +119,7 @@ class Imitator:
         self.search_cfg = search or CPU_SEARCH
         self.refine_cfg = refine or CPU_REFINE
         self.cfg = config or ImitateConfig()
+        self.sweep_cfg = sweep or SweepConfig()
         self.renderer = ShadowRenderer(self.hand, Rig(resolution=self.resolution))
         self.refiner = Refiner(self.renderer)
         self._index = retrieval if isinstance(retrieval, RetrievalIndex) else None
@@ -157,9 +162,9 @@ class Imitator:
         best_pose: Callable[[np.ndarray], None] | None = None,
     ) -> ImitationResult:
         """Retrieve, search, then (optionally) refine. ``progress(stage, step, total, best_loss)`` with stages
-        "index" (building the retrieval index, once per machine), "retrieve" (the first answer), "search" and
-        "refine"; ``best_pose(θ (21,) rad)`` gets the pose of each reported best loss (the first answer, then the
-        search, then refinement) for live previews.
+        "index" (building the retrieval index, once per machine), "retrieve" (the first answer), "sweep" (the block
+        sweep of the best retrieved poses), "search" and "refine"; ``best_pose(θ (21,) rad)`` gets the pose of each
+        reported best loss (the first answer, the sweep's, then the search's and refinement's) for live previews.
 
         Setting ``cancel`` stops early: the result is then flagged ``cancelled`` and holds the best pose found so
         far (the searched pose when refinement had not started or found no collision-free pose).
@@ -181,12 +186,17 @@ class Imitator:
                 best_pose(first.theta[0].copy())
             if progress:
                 progress("retrieve", 1, 1, float(first.loss[0]))
+        swept = None
+        if first is not None and self.sweep_cfg.starts > 0:
+            swept = self._sweep(loss_fn, target, expressive, first, progress, cancel, best_pose)
+            timings["sweep"] = swept.seconds
+        seeds = swept if swept is not None else first
         t_s = time.perf_counter()
         search = gradient_search(
             self.model, loss_fn, self.search_cfg, progress=stage("search"), cancel=cancel, best_pose=best_pose,
-            starts=None if first is None else first.theta,
+            starts=None if seeds is None else seeds.theta,
         )  # fmt: skip
-        pool_theta, pool_loss, unrefined = self._select(loss_fn, search, first)
+        pool_theta, pool_loss, unrefined = self._select(loss_fn, search, seeds)
         t1 = time.perf_counter()
         timings["search"] = t1 - t_s
         with torch.no_grad():
@@ -229,7 +239,50 @@ class Imitator:
             timings=timings,
             cancelled=cancelled,
             first=first,
+            swept=swept,
         )
+
+    def _sweep(self, loss_fn, target, expressive, first: Retrieved, progress, cancel, best_pose) -> Retrieved:
+        """Block-sweep the ``starts`` best retrieved poses (stage "sweep"); the rest of the retrieved poses follow
+        unchanged. Returns them all under ``loss_fn``, best first (each still collision-free). With CLIP on, the
+        sweep scores its thousands of draws by the pixel terms alone (CLIP on every draw would take minutes on a
+        CPU) and the swept poses are then scored under the full loss."""
+        cfg, t0 = self.sweep_cfg, time.perf_counter()
+        rng = np.random.default_rng(cfg.seed)
+        blocks = joint_blocks(self.hand)
+        pixel_fn = loss_fn
+        if loss_fn.clip is not None:
+            pixel_fn = ImageLoss(target, dataclasses.replace(loss_fn.cfg, use_clip=False), None, expressive)
+        theta = first.theta.copy()
+        loss = self.refiner.score(pixel_fn, theta)[0] if pixel_fn is not loss_fn else first.loss.astype(np.float64)
+        n = min(cfg.starts, len(theta))
+        best = [float(loss.min())]
+
+        def on_better(th: np.ndarray, value: float) -> None:
+            if value < best[0]:
+                best[0] = value
+                if best_pose:
+                    best_pose(th)
+
+        def score(th: np.ndarray) -> np.ndarray:
+            return self.refiner.score(pixel_fn, th)[0]
+
+        def collides(th: np.ndarray) -> np.ndarray:
+            return self.refiner.world.in_collision(th, check=False)
+
+        for k in range(n):
+            if cancel is not None and cancel.is_set():
+                break
+            theta[k], loss[k], _ = block_sweep(
+                theta[k], float(loss[k]), blocks, self.hand.lower, self.hand.upper, score, collides, cfg, rng,
+                cancel, on_better,
+            )  # fmt: skip
+            if progress:
+                progress("sweep", k + 1, n, best[0])
+        if pixel_fn is not loss_fn:
+            loss = self.refiner.score(loss_fn, theta)[0]
+        order = np.argsort(loss, kind="stable")
+        return Retrieved(theta[order], loss[order], time.perf_counter() - t0)
 
     def _select(self, loss_fn: ImageLoss, search: SearchResult, first) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The refinement's candidate pool ``(P, 21)`` with its losses ``(P,)``, and the unrefined pose ``(21,)``.
