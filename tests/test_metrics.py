@@ -17,6 +17,7 @@ from studio.evaluate.table1 import (
     EXTRA_COLUMNS,
     LOSS_COLUMNS,
     METHODS,
+    EvalConfig,
     Evaluator,
     gather_targets,
     summarise,
@@ -191,6 +192,29 @@ def test_clip_columns_filled_with_a_clip_model(setup):
     assert not any("--no-clip" in n for n in result.notes)
 
 
+def test_scoring_at_another_side_renders_every_pose_there(setup):
+    """score_resolution: each method's pose is rendered and scored at that side against the target framed there."""
+    from studio.imitate.losses import ImageLoss
+    from studio.sim.shadow import Rig, ShadowRenderer
+
+    imitator, hand = setup["imitator"], setup["hand"]
+    cfg = EvalConfig(score_resolution=64)
+    with Evaluator(imitator, InverseCNN(TINY_INVERSE, hand), setup["data"], cfg) as evaluator:
+        assert evaluator.score_resolution == 64
+        with pytest.raises(ValueError, match="64²"):
+            evaluator.evaluate_target("ring", ring())
+        result = evaluator.run([("ring", ring(), ring(64))])
+    assert result.settings["score_resolution"] == 64 and result.settings["losses"]["crop_size"] == 64
+    assert any("rendered at 64²" in n for n in result.notes)
+    renderer = ShadowRenderer(hand, Rig(resolution=64))
+    loss_fn = ImageLoss(ring(64), imitator.loss_cfg.__class__(use_clip=False, crop_size=64), None, find_holes(ring(64)))
+    for rec in result.records:  # Random / Nearest Neighbour too: their training pose rendered at 64², not the image
+        _, comps = loss_fn(torch.from_numpy(renderer.render_one(np.array(rec["theta"])).astype(np.float32)[None]))
+        assert rec["total"] == pytest.approx(float(comps["total"][0]), abs=1e-5)
+    with pytest.raises(ValueError, match="score_resolution"):
+        EvalConfig(score_resolution=4)
+
+
 def test_gather_targets_per_folder(tmp_path):
     for folder, n in (("a", 3), ("b", 1)):
         (tmp_path / folder).mkdir()
@@ -236,6 +260,7 @@ def test_evaluate_cli_writes_table_and_prints_json_last(setup, tmp_path, capsys)
     assert summary["rows"][0]["targets"] == 2 and summary["clip"] is False
     settings = json.loads((tmp_path / "out" / "settings.json").read_text())
     assert settings["losses"]["use_clip"] is False and settings["refine"]["steps"] == 3
+    assert settings["score_resolution"] == RES  # the model's side unless --score-resolution is given
     assert (tmp_path / "out" / "table1.md").is_file() and (tmp_path / "out" / "table1.csv").is_file()
 
 

@@ -52,10 +52,15 @@ def _run_evaluation(args: argparse.Namespace) -> int:
     search, refine, config, sweep = still_configs(args, args.seed)
     model, _ = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
     size = model.cfg.resolution
-    targets = [(str(f), load_target(f, size, target_cfg)) for f in files]  # every file loads before the slow part
+    score_side = args.score_resolution or size
+    targets = [  # every file loads before the slow part (framed at the scoring side too when it is another)
+        (str(f), load_target(f, size, target_cfg), *([load_target(f, score_side, target_cfg)] * (score_side != size)))
+        for f in files
+    ]
     clip = clip_from_args(args, device=next(model.parameters()).device)  # CLIP sits with the self-model
     imitator = Imitator(model, clip=clip, search=search, refine=refine, config=config, sweep=sweep)
-    with imitator, Evaluator(imitator, Path(args.inverse), Path(args.nn_data), EvalConfig(seed=args.seed)) as evaluator:
+    eval_cfg = EvalConfig(seed=args.seed, score_resolution=args.score_resolution)
+    with imitator, Evaluator(imitator, Path(args.inverse), Path(args.nn_data), eval_cfg) as evaluator:
         with CountBar(len(targets), "evaluate", "target", args.quiet) as bar:
             result = evaluator.run(targets, progress=bar)
     paths = write_table(result, Path(args.out))
@@ -126,6 +131,7 @@ def _run_video_evaluation(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from studio.evaluate.table1 import EvalConfig
     from studio.imitate.clip_loss import add_clip_arguments
 
     p = sub.add_parser("evaluate", help="Table 1: baselines and ours on a set of still targets (Markdown + CSV)")
@@ -140,6 +146,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="then the first N images of each class (the name before its last '-': camel-1)")  # fmt: skip
     add_target_flags(p)
     add_still_flags(p)
+    add_config_flags(p, EvalConfig, ("score_resolution",))
     p.add_argument(
         "--seed",
         type=ranged(int, "[0, ∞)"),

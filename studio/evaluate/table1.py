@@ -14,7 +14,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,9 +30,11 @@ from studio.evaluate.baselines import (
     TrainingSet,
 )
 from studio.evaluate.report import csv_text, markdown_table, write_report
+from studio.imitate.losses import ImageLoss
 from studio.imitate.still import Imitator, still_expressive
 from studio.imitate.targets import IMAGE_SUFFIXES, TargetError, find_target_files
 from studio.learn.inverse import InverseCNN
+from studio.sim.shadow import ShadowRenderer
 
 METHODS = ("Random", "Inverse CNN", "Nearest Neighbour", "Ours, first answer", "Ours w/o refinement", "Ours")
 LOSS_COLUMNS = {  # Table 1 header → loss component (studio.imitate.losses.COMPONENTS)
@@ -48,6 +50,11 @@ class EvalConfig:
 
     seed: int = 0  # seed of the Random baseline's draws
     nn: NNConfig = field(default_factory=NNConfig)  # Nearest Neighbour search settings
+    score_resolution: int = 0  # render and score every method's pose at this side, pixels (0: the model's; paper 256)
+
+    def __post_init__(self) -> None:
+        if self.score_resolution and self.score_resolution < 8:
+            raise ValueError(f"score_resolution must be 0 (the model's) or ≥ 8 pixels, got {self.score_resolution}")
 
 
 @dataclass
@@ -152,6 +159,16 @@ class Evaluator:
         self.nn = NearestNeighbour(data, imitator.loss_cfg, self.cfg.nn)
         self.nn_setup_seconds = time.perf_counter() - t0  # aligning the training images, once per run
         self.training_size = len(data)
+        side = self.cfg.score_resolution or imitator.resolution
+        self.score_renderer = None  # renders every method's pose at the scoring side when it is not the model's
+        self.score_loss_cfg = replace(imitator.loss_cfg, crop_size=side)
+        if side != imitator.resolution:
+            self.score_renderer = ShadowRenderer(imitator.hand, imitator.renderer.rig.with_resolution(side))
+
+    @property
+    def score_resolution(self) -> int:
+        """Side, pixels, at which the table's shadows are rendered and scored."""
+        return self.score_loss_cfg.crop_size
 
     def close(self) -> None:
         """Close the inverse baseline (its collision world is the imitator's, which stays open; idempotent)."""
@@ -163,8 +180,13 @@ class Evaluator:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def evaluate_target(self, name: str, target: np.ndarray, cancel: threading.Event | None = None) -> list[dict]:
-        """One record per method for one ``(R, R)`` target mask."""
+    def evaluate_target(
+        self, name: str, target: np.ndarray, cancel: threading.Event | None = None,
+        score_target: np.ndarray | None = None,
+    ) -> list[dict]:  # fmt: skip
+        """One record per method for one ``(R, R)`` target mask (at the model's side ``R``). With a scoring side
+        other than the model's, ``score_target`` is the same target framed at that side (``(S, S)``): every
+        method's pose is rendered and scored there (Random and Nearest Neighbour: their training pose's shadow)."""
         if self.inverse.closed:
             raise ClosedError("this Evaluator was closed; make a new one (or evaluate inside its `with` block)")
         expressive = still_expressive(target)
@@ -184,6 +206,12 @@ class Evaluator:
             shadow = self.imitator.renderer.render_one(theta)
             outputs["Ours, first answer"] = BaselineOutput(theta, shadow, collides, ours.timings["first_answer"])
         outputs |= {"Ours w/o refinement": unrefined, "Ours": final}
+        if self.score_renderer is not None:
+            if score_target is None or score_target.shape != (self.score_resolution,) * 2:
+                raise ValueError(f"scoring at {self.score_resolution}² needs the target framed at that side")
+            loss_fn = ImageLoss(score_target, self.score_loss_cfg, self.imitator.clip, still_expressive(score_target))
+            for out in outputs.values():
+                out.shadow = self.score_renderer.render_one(out.theta)
         records = []
         for method, out in outputs.items():
             rec = {"target": name, "method": method, **score(loss_fn, out.shadow)}
@@ -193,16 +221,17 @@ class Evaluator:
 
     def run(
         self,
-        targets: Sequence[tuple[str, np.ndarray]],
+        targets: Sequence[tuple],
         progress: Callable[[int, int, str], None] | None = None,
         cancel: threading.Event | None = None,
     ) -> EvalResult:
-        """Evaluate ``(name, (R, R) mask)`` targets; ``progress(done, total, name)`` after each target."""
+        """Evaluate ``(name, (R, R) mask)`` targets (``(name, mask, (S, S) mask)`` when scoring at another side
+        ``S``, :meth:`evaluate_target`); ``progress(done, total, name)`` after each target."""
         records: list[dict] = []
-        for i, (name, target) in enumerate(targets):
+        for i, (name, target, *scored) in enumerate(targets):
             if cancel is not None and cancel.is_set():
                 break
-            records += self.evaluate_target(name, target, cancel)
+            records += self.evaluate_target(name, target, cancel, scored[0] if scored else None)
             if progress:
                 progress(i + 1, len(targets), name)
         rows = summarise(records)
@@ -211,7 +240,8 @@ class Evaluator:
     def settings(self) -> dict:
         im = self.imitator
         return {
-            "resolution": im.resolution, "losses": im.loss_cfg.to_dict(), "clip": getattr(im.clip, "name", None),
+            "resolution": im.resolution, "score_resolution": self.score_resolution,
+            "losses": self.score_loss_cfg.to_dict(), "clip": getattr(im.clip, "name", None),
             "search": asdict(im.search_cfg), "refine": asdict(im.refine_cfg), "imitate": asdict(im.cfg),
             "retrieval": asdict(im.retrieval_cfg) if im.cfg.retrieve else None,
             "sweep": asdict(im.sweep_cfg) if im.cfg.retrieve and im.sweep_cfg.starts else None,
@@ -248,10 +278,15 @@ class Evaluator:
         im, n = self.imitator, rows[0]["targets"] if rows else 0
         k = rows[0]["expressive_targets"] if rows else 0
         lc = im.loss_cfg
+        side = self.score_resolution
+        shadows = (
+            "the training image itself; the others: the rendered shadow of their pose"
+            if self.score_renderer is None
+            else f"their training pose's; every shadow rendered at {side}², the target framed at {side}²"
+        )
         notes = [
-            f"{n} targets at {im.resolution}²; every method's shadow (Random, Nearest Neighbour: the training image "
-            f"itself; the others: the rendered shadow of their pose) scored by the same image loss on "
-            f"{lc.crop_size}² aligned crops. Lower is better.",
+            f"{n} targets at {im.resolution}²; every method's shadow (Random, Nearest Neighbour: {shadows}) scored "
+            f"by the same image loss on {side}² aligned crops. Lower is better.",
             f"Exp. IoU / Exp. CLIP: the expressive region of a still target is its holes; means over the {k} of {n} "
             f"targets that have holes (n/a: none has). Total = Base + expressive term for those targets, Base alone "
             f"for the others.",
