@@ -1,7 +1,7 @@
 """The flags of a still imitation (``imitate``, ``evaluate``) and the three configs they make.
 
 ``--method studio`` (the default) starts from the studio's presets: retrieval first answer, a block sweep of its
-best poses, the search seeded by them and scored on the renderer, CMA-ES refinement (``CPU_SEARCH``, ``CPU_REFINE``,
+best poses, the search seeded by them and scored on the renderer, CMA-ES refinement (``STUDIO_SEARCH``, ``CPU_REFINE``,
 ``ImitateConfig()``, ``SweepConfig()``); ``--method paper`` from the paper's: a sampled search batch, the self-model's
 best, 8 hill-climbing chains × 1000 steps (``CPU_SEARCH``, ``PAPER_REFINE``, ``PAPER_IMITATE``, ``PAPER_SWEEP``).
 Each ``--search-*``, ``--refine-*``, ``--sweep-*``, ``--candidates``, ``--retrieve`` or ``--select`` flag given on
@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 from studio.cli.flags import add_config_flags, dest_of, given
 from studio.imitate.refine import CPU_REFINE, METHODS, PAPER_REFINE, RefineConfig
-from studio.imitate.search import CPU_SEARCH, SearchConfig
+from studio.imitate.search import CPU_SEARCH, STUDIO_SEARCH, SearchConfig
 from studio.imitate.still import PAPER_IMITATE, ImitateConfig
 from studio.imitate.sweep import PAPER_SWEEP, SweepConfig
 
@@ -29,7 +29,7 @@ class Preset(NamedTuple):
 
 
 PRESETS = {
-    "studio": Preset(CPU_SEARCH, CPU_REFINE, ImitateConfig(), SweepConfig()),
+    "studio": Preset(STUDIO_SEARCH, CPU_REFINE, ImitateConfig(), SweepConfig()),
     "paper": Preset(CPU_SEARCH, PAPER_REFINE, PAPER_IMITATE, PAPER_SWEEP),
 }
 REFINE_FIELDS = ("method", "steps", "restarts", "popsize", "sigma0")
@@ -43,8 +43,8 @@ def add_still_flags(parser: argparse.ArgumentParser) -> None:
         help="presets: studio (retrieval, block sweep, seeded search, CMA-ES refinement) or paper (sampled "
              "search, the paper's hill climbing 8 × 1000); the flags below override single fields (default: studio)",
     )  # fmt: skip
-    add_config_flags(parser, SearchConfig, ("batch", "iterations"), prefix="search-", base=CPU_SEARCH,
-                     base_name="CPU_SEARCH", aliases={"iterations": "iters"})  # fmt: skip
+    add_config_flags(parser, SearchConfig, ("batch", "iterations"), prefix="search-", base=STUDIO_SEARCH,
+                     base_name="STUDIO_SEARCH", aliases={"iterations": "iters"})  # fmt: skip
     add_config_flags(parser, RefineConfig, REFINE_FIELDS, prefix="refine-", base=CPU_REFINE,
                      base_name="CPU_REFINE")  # fmt: skip
     add_config_flags(parser, SweepConfig, SWEEP_FIELDS, prefix="sweep-", base=SweepConfig(), base_name="SweepConfig()")

@@ -35,6 +35,7 @@ class SearchConfig:
 
 
 CPU_SEARCH = SearchConfig(batch=32, iterations=150, lr=0.08)  # seconds on 2 CPU cores with the 128² model
+STUDIO_SEARCH = SearchConfig(batch=32, iterations=50, lr=0.08)  # stills after the block sweep (studio preset)
 PAPER_SEQUENCE_FIRST = SearchConfig(batch=500, iterations=3000)  # first frame of a sequence
 PAPER_SEQUENCE_NEXT = SearchConfig(batch=128, iterations=1200)  # later frames, from the previous optimum
 

@@ -21,7 +21,7 @@ from studio.errors import ClosedError
 from studio.imitate.losses import ImageLoss, LossConfig
 from studio.imitate.refine import CPU_REFINE, RefineConfig, Refiner, RefineResult
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, Retrieved, cached_index
-from studio.imitate.search import CPU_SEARCH, SearchConfig, SearchResult, gradient_search
+from studio.imitate.search import STUDIO_SEARCH, SearchConfig, SearchResult, gradient_search
 from studio.imitate.sweep import SweepConfig, block_sweep, joint_blocks
 from studio.imitate.targets import TargetConfig, find_holes, load_target
 from studio.learn.selfmodel import SelfModel, load_selfmodel
@@ -116,7 +116,7 @@ class Imitator:
         self.resolution = model.cfg.resolution
         self.loss_cfg = loss_cfg or LossConfig(use_clip=clip is not None, crop_size=self.resolution)
         self.clip = clip
-        self.search_cfg = search or CPU_SEARCH
+        self.search_cfg = search or STUDIO_SEARCH
         self.refine_cfg = refine or CPU_REFINE
         self.cfg = config or ImitateConfig()
         self.sweep_cfg = sweep or SweepConfig()

@@ -55,7 +55,7 @@ def imitate_keyframe_job(
 
     ``target``: an image path (loaded with ``target_cfg``; a bad file fails the job with its ``TargetError``) or a
     mask ``(R, R)`` uint8 framed at the model's resolution. ``expressive``: a mask ``(R, R)``, ``"holes"`` (the
-    target's holes) or None. ``search``/``refine``/``candidates`` default to the CPU presets (``CPU_SEARCH``);
+    target's holes) or None. ``search``/``refine``/``candidates`` default to the studio presets (``STUDIO_SEARCH``);
     ``clip``: a CLIP encoder for the CLIP terms (None: off; an encoder object suits the thread worker);
     ``preview``: side of the live shadow previews (8–64; 0: none).
     """
