@@ -192,8 +192,9 @@ class Evaluator:
         expressive = still_expressive(target)
         loss_fn = self.imitator.loss_fn(target, expressive)
         ours = self.imitator.imitate(target, expressive, refine=True, cancel=cancel)
+        before_refine = ours.seconds - ours.timings["refine"]  # retrieval, sweep and search
         unrefined = BaselineOutput(ours.unrefined_theta, ours.unrefined_shadow, ours.unrefined_collides,
-                                   ours.timings["search"])  # fmt: skip
+                                   before_refine)  # fmt: skip
         final = BaselineOutput(ours.theta, ours.shadow, not ours.collision_free, ours.seconds)
         outputs = {
             "Random": self.random.query(),
