@@ -1,0 +1,26 @@
+"""benchmarks/bench_reach.py end to end on one reachable target: the table and the JSON line agree, the floor is
+the known pose's and the studio's answer is collision-free."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_bench_reach_one_target():
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "bench_reach.py"), "--count", "1", "--methods", "studio"]
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    lines = done.stdout.strip().splitlines()
+    s = json.loads(lines[-1])
+    row = s["methods"]["studio"]
+    assert s["targets"] == 1 and row["collide_pct"] == 0.0 and len(row["per_target"]) == 1
+    assert 0.0 <= row["floor"] < 0.2 and row["iou_loss"] == pytest.approx(row["per_target"][0], abs=1e-4)
+    assert row["excess"] == pytest.approx(max(row["iou_loss"] - row["floor"], 0.0), abs=1e-9)
+    assert any(line.startswith("| studio | ") for line in lines) and "excess_vs_paper" not in s
