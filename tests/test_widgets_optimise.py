@@ -59,7 +59,8 @@ def test_progress_advances_and_a_cancel_within_a_second_leaves_the_project_uncha
         assert until(lambda: panel.step > 0 and any(b.value > 0 for b in panel.bars.values()), 90, panel.refresh)
         first = panel.step
         assert until(lambda: panel.step > first, 30, panel.refresh)  # it keeps advancing
-        assert "search" in panel.bars and "best loss so far" in panel.loss.value
+        assert until(lambda: "search" in panel.bars, 90, panel.refresh)  # after the first answer and the sweep
+        assert "sweep" in panel.bars and "best loss so far" in panel.loss.value
         t0 = time.monotonic()
         assert panel.cancel()
         assert job.wait(1.0) == JobState.CANCELLED and time.monotonic() - t0 < 1.0

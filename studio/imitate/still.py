@@ -123,6 +123,7 @@ class Imitator:
         self.renderer = ShadowRenderer(self.hand, Rig(resolution=self.resolution))
         self.refiner = Refiner(self.renderer)
         self._index = retrieval if isinstance(retrieval, RetrievalIndex) else None
+        self._warm: threading.Thread | None = None  # torch's first-use start-up, run beside the sweep
         self.retrieval_cfg = self._index.cfg if self._index is not None else retrieval or RetrievalConfig()
 
     @property
@@ -188,9 +189,14 @@ class Imitator:
                 progress("retrieve", 1, 1, float(first.loss[0]))
         swept = None
         if first is not None and self.sweep_cfg.starts > 0:
+            if self._warm is None:  # warm torch while the sweep's numba kernels (nogil) run, after the first answer
+                self._warm = threading.Thread(target=self._warm_model, name="studio-torch-warm", daemon=True)
+                self._warm.start()
             swept = self._sweep(loss_fn, target, expressive, first, progress, cancel, best_pose)
             timings["sweep"] = swept.seconds
         seeds = swept if swept is not None else first
+        if self._warm is not None:
+            self._warm.join()
         t_s = time.perf_counter()
         search = gradient_search(
             self.model, loss_fn, self.search_cfg, progress=stage("search"), cancel=cancel, best_pose=best_pose,
@@ -242,6 +248,15 @@ class Imitator:
             swept=swept,
         )
 
+    def _warm_model(self) -> None:
+        """torch's lazy start-up, paid here beside the numba stages instead of when the search starts (where a
+        cancel during the sweep would wait for it): the first optimiser imports torch._dynamo (~1.7 s), the first
+        forward pass sets up the kernels."""
+        torch.optim.Adam([torch.zeros(1, requires_grad=True)])
+        device = next(self.model.parameters()).device
+        with torch.no_grad():
+            self.model(torch.zeros((1, self.hand.dof), dtype=torch.float32, device=device))
+
     def _sweep(self, loss_fn, target, expressive, first: Retrieved, progress, cancel, best_pose) -> Retrieved:
         """Block-sweep the ``starts`` best retrieved poses (stage "sweep"); the rest of the retrieved poses follow
         unchanged. Returns them all under ``loss_fn``, best first (each still collision-free). With CLIP on, the
@@ -270,15 +285,20 @@ class Imitator:
         def collides(th: np.ndarray) -> np.ndarray:
             return self.refiner.world.in_collision(th, check=False)
 
+        per_start = cfg.passes * len(blocks)  # the most blocks one start can take; the bar jumps when it stops early
+
+        def on_block(k: int) -> Callable[[int], None]:
+            return lambda done: progress("sweep", k * per_start + done, n * per_start, best[0]) if progress else None
+
         for k in range(n):
             if cancel is not None and cancel.is_set():
                 break
             theta[k], loss[k], _ = block_sweep(
                 theta[k], float(loss[k]), blocks, self.hand.lower, self.hand.upper, score, collides, cfg, rng,
-                cancel, on_better,
+                cancel, on_better, on_block(k),
             )  # fmt: skip
-            if progress:
-                progress("sweep", k + 1, n, best[0])
+            if progress and not (cancel is not None and cancel.is_set()):
+                progress("sweep", (k + 1) * per_start, n * per_start, best[0])
         if pixel_fn is not loss_fn:
             loss = self.refiner.score(loss_fn, theta)[0]
         order = np.argsort(loss, kind="stable")

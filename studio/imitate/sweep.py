@@ -81,14 +81,16 @@ def block_sweep(
     rng: np.random.Generator,
     cancel: threading.Event | None = None,
     on_better: Callable[[np.ndarray, float], None] | None = None,
+    on_block: Callable[[int], None] | None = None,
 ) -> tuple[np.ndarray, float, int]:
     """Sweep one pose ``theta (21,)`` rad (collision-free, with rendered loss ``loss``) block by block.
 
     Returns the best pose found ``(21,)``, its loss (never above ``loss``; the pose stays collision-free) and the
-    number of poses scored. ``on_better(θ, loss)`` is called at each improvement; ``cancel`` stops between blocks.
+    number of poses scored. ``on_better(θ, loss)`` is called at each improvement, ``on_block(done)`` after each
+    block with the blocks done so far (at most ``passes × len(blocks)``); ``cancel`` stops between blocks.
     """
     theta = np.asarray(theta, dtype=np.float64).copy()
-    scored = 0
+    scored = done = 0
     for _ in range(cfg.passes):
         improved = False
         order = [blocks[0]] + [blocks[i] for i in 1 + rng.permutation(len(blocks) - 1)] if blocks else []
@@ -106,6 +108,9 @@ def block_sweep(
                     if on_better:
                         on_better(theta.copy(), loss)
                     break
+            done += 1
+            if on_block:
+                on_block(done)
         if not improved:
             break
     return theta, loss, scored
