@@ -15,9 +15,10 @@ and for the workers the stage's steps/s, start-up s, cancel s, events received; 
 target (p99 ≤ 100 ms), and the workers that meet it.
 
 ``--stage refine`` measures the refinement instead (a 20-step search, then one long hill climb: the numba renderer
-and PyBullet, which hold the GIL in their calls).
+and PyBullet, which hold the GIL in their calls); ``--stage sweep`` the block sweep (all 32 retrieved poses swept,
+passes until none improves: batches of 1,024 renders and compiled losses, also GIL-holding calls).
 
-    python benchmarks/bench_jobs.py [--seconds 10] [--period-ms 20] [--workers thread,process] [--stage refine]
+    python benchmarks/bench_jobs.py [--seconds 10] [--period-ms 20] [--workers thread,process] [--stage refine|sweep]
 """
 
 from __future__ import annotations
@@ -86,6 +87,12 @@ def run_worker(worker: str, args) -> dict:
     if args.stage == "search":
         search = replace(CPU_SEARCH, iterations=1_000_000)
         job = imitate_keyframe_job(target, None, search=search, refine_enabled=False)
+    elif args.stage == "sweep":  # every retrieved pose swept until a pass finds nothing: outlasts the window
+        from studio.imitate.sweep import SweepConfig
+
+        sweep = SweepConfig(starts=CPU_SEARCH.batch, passes=1_000)
+        job = imitate_keyframe_job(target, None, search=replace(CPU_SEARCH, iterations=20), sweep=sweep,
+                                   refine_enabled=False)  # fmt: skip
     else:  # a short search, then one long refinement (numba renderer + PyBullet: the GIL-heavy stage)
         search = replace(CPU_SEARCH, iterations=20)
         job = imitate_keyframe_job(target, None, search=search, refine=RefineConfig(steps=1_000_000), candidates=1)
@@ -135,7 +142,7 @@ def main() -> None:
     ap.add_argument("--period-ms", type=float, default=20.0, help="main-thread callback period (default 20)")
     ap.add_argument("--workers", default="thread,process", help="comma-separated: thread, process")
     ap.add_argument("--switch-ms", type=float, default=None, help="sys.setswitchinterval in ms (default: Python's)")
-    ap.add_argument("--stage", choices=("search", "refine"), default="search", help="the job's stage measured")
+    ap.add_argument("--stage", choices=("search", "refine", "sweep"), default="search", help="the job's stage measured")
     ap.add_argument("--cores", type=int, default=2, help="pin to this many CPUs where there are more (0: no pin)")
     args = ap.parse_args()
     if args.cores and hasattr(os, "sched_setaffinity") and len(os.sched_getaffinity(0)) > args.cores:

@@ -93,7 +93,7 @@ def _crop_one(img, pad, size, k, out, tmp, iy, wy, ix, wx):
             out[r, c] = acc * inv * inv if k > 1 else acc
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def crop_batch(shadows, pad, size):
     """Aligned crops of binary shadows ``(B, H, W)`` uint8 → ``(B, size, size)`` float32 (``studio.sim.crop.align``)."""
     B, H, W = shadows.shape
@@ -108,7 +108,7 @@ def crop_batch(shadows, pad, size):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _scores(shadows, target, mask, has_mask, pad, eps):
     B, H, W = shadows.shape
     size = target.shape[0]
@@ -139,7 +139,7 @@ def _scores(shadows, target, mask, has_mask, pad, eps):
 
 
 # Two compilations of one kernel: serial for the small batches of refinement, threads over the batch for large ones.
-_scores_parallel = njit(cache=True, parallel=True)(_scores.py_func)
+_scores_parallel = njit(cache=True, parallel=True, nogil=True)(_scores.py_func)  # nogil: UI threads run
 PARALLEL_FROM = 256  # batches at least this large use the threaded kernel
 
 

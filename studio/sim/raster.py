@@ -295,8 +295,8 @@ def _render_into(out, theta, parent, T_origin, axis, piece_link, piece_pts, piec
 
 # The same kernel compiled twice: threads over the batch for large batches, and serial for small ones, where
 # waking the thread pool costs more than the work (refinement renders 8 shadows per step).
-render_into = njit(cache=True, parallel=True)(_render_into)
-render_into_serial = njit(cache=True)(_render_into)
+render_into = njit(cache=True, parallel=True, nogil=True)(_render_into)  # nogil: a UI thread runs meanwhile
+render_into_serial = njit(cache=True, nogil=True)(_render_into)
 SERIAL_BELOW = 64  # batches smaller than this use the serial kernel
 
 
@@ -309,5 +309,5 @@ def _fk_batch(theta, parent, T_origin, axis):
     return out
 
 
-fk_batch = njit(cache=True, parallel=True)(_fk_batch)
-fk_batch_serial = njit(cache=True)(_fk_batch)
+fk_batch = njit(cache=True, parallel=True, nogil=True)(_fk_batch)
+fk_batch_serial = njit(cache=True, nogil=True)(_fk_batch)

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from studio.imitate.refine import RefineConfig
     from studio.imitate.search import SearchConfig
     from studio.imitate.sequence import SequenceConfig
+    from studio.imitate.sweep import SweepConfig
     from studio.imitate.targets import TargetConfig
     from studio.motion.plan import Keyframes, PlanConfig
     from studio.motion.show import Show
@@ -43,6 +44,7 @@ def imitate_keyframe_job(
     refine: RefineConfig | None = None,
     refine_enabled: bool = True,
     candidates: int = 4,
+    sweep: SweepConfig | None = None,
     loss_cfg: LossConfig | None = None,
     clip: Any = None,
     model_path: Path | None = None,
@@ -55,25 +57,25 @@ def imitate_keyframe_job(
 
     ``target``: an image path (loaded with ``target_cfg``; a bad file fails the job with its ``TargetError``) or a
     mask ``(R, R)`` uint8 framed at the model's resolution. ``expressive``: a mask ``(R, R)``, ``"holes"`` (the
-    target's holes) or None. ``search``/``refine``/``candidates`` default to the studio presets (``STUDIO_SEARCH``);
-    ``clip``: a CLIP encoder for the CLIP terms (None: off; an encoder object suits the thread worker);
-    ``preview``: side of the live shadow previews (8–64; 0: none).
+    target's holes) or None. ``search``/``refine``/``candidates``/``sweep`` default to the studio presets
+    (``STUDIO_SEARCH``, ``CPU_REFINE``, ``SweepConfig()``); ``clip``: a CLIP encoder for the CLIP terms (None: off;
+    an encoder object suits the thread worker); ``preview``: side of the live shadow previews (8–64; 0: none).
     """
     run = functools.partial(
         _imitate_keyframe, target=target, expressive=expressive, search=search, refine=refine,
-        refine_enabled=refine_enabled, candidates=candidates, loss_cfg=loss_cfg, clip=clip, model_path=model_path,
-        target_cfg=target_cfg, preview=preview,
+        refine_enabled=refine_enabled, candidates=candidates, sweep=sweep, loss_cfg=loss_cfg, clip=clip,
+        model_path=model_path, target_cfg=target_cfg, preview=preview,
     )  # fmt: skip
     name = title or (Path(target).name if isinstance(target, (str, Path)) else "keyframe")
     return Job("imitate-keyframe", run, apply, name)
 
 
 def _imitate_keyframe(report: Reporter, cancel, *, target, expressive, search, refine, refine_enabled, candidates,
-                      loss_cfg, clip, model_path, target_cfg, preview):  # fmt: skip
+                      sweep, loss_cfg, clip, model_path, target_cfg, preview):  # fmt: skip
     from studio.imitate.still import ImitateConfig, Imitator, still_expressive
 
     config = ImitateConfig(candidates=candidates)
-    with Imitator(None, model_path, loss_cfg, clip, search, refine, config=config) as im:
+    with Imitator(None, model_path, loss_cfg, clip, search, refine, config=config, sweep=sweep) as im:
         if isinstance(target, (str, Path)):
             mask = im.load(Path(target), target_cfg)
         else:
