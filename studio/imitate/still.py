@@ -47,7 +47,7 @@ class ImitationResult:
     loss: dict[str, float]  # rendered-shadow loss components of the final pose
     collision_free: bool  # the final pose does not penetrate itself
     seconds: float  # wall time of search + refinement
-    timings: dict[str, float] = field(default_factory=dict)  # seconds: index, first_answer, search, refine
+    timings: dict[str, float] = field(default_factory=dict)  # seconds: index, first_answer, sweep, search, refine
     cancelled: bool = False  # the cancel event stopped the search or refinement: the best pose found so far
     first: Retrieved | None = None  # the retrieval's distinct best poses (first answer: row 0); None when off
     swept: Retrieved | None = None  # those poses after the block sweep, best first (seconds: the sweep's); None: off
