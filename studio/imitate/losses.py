@@ -16,8 +16,9 @@ poses) is reported as NaN and left out of the total, so tables and logs show tha
 
 from __future__ import annotations
 
+import copy
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 import torch
@@ -121,6 +122,17 @@ class ImageLoss:
         self.target_emb = self.clip(self.target_crop.to(device))
         if self.mask_crop is not None:
             self.exp_target_emb = self.clip((self.mask_crop * self.target_crop).to(device))
+
+    def pixel_only(self) -> ImageLoss:
+        """This loss with the CLIP terms off (the same target crops and expressive region): the pixel terms
+        alone, e.g. to rank thousands of candidate shadows before the full loss re-scores the best. Itself when
+        CLIP is already off."""
+        if self.clip is None:
+            return self
+        twin = copy.copy(self)
+        twin.cfg, twin.clip = replace(self.cfg, use_clip=False), None
+        twin.target_emb = twin.exp_target_emb = None
+        return twin
 
     @property
     def n_targets(self) -> int:

@@ -6,7 +6,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 import time
 from collections.abc import Callable
@@ -22,7 +21,8 @@ from studio.imitate.losses import ImageLoss, LossConfig
 from studio.imitate.refine import CPU_REFINE, RefineConfig, Refiner, RefineResult
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, Retrieved, cached_index
 from studio.imitate.search import STUDIO_SEARCH, SearchConfig, SearchResult, gradient_search
-from studio.imitate.sweep import SweepConfig, block_sweep, joint_blocks
+from studio.imitate.seeding import Seeds, rendered_pool, seed_poses
+from studio.imitate.sweep import SweepConfig
 from studio.imitate.targets import TargetConfig, find_holes, load_target
 from studio.learn.selfmodel import SelfModel, load_selfmodel
 from studio.sim.shadow import Rig, ShadowRenderer
@@ -123,7 +123,7 @@ class Imitator:
         self.renderer = ShadowRenderer(self.hand, Rig(resolution=self.resolution))
         self.refiner = Refiner(self.renderer)
         self._index = retrieval if isinstance(retrieval, RetrievalIndex) else None
-        self._warm: threading.Thread | None = None  # torch's first-use start-up, run beside the sweep
+        self._warmed = False  # torch's first-use start-up is done (run beside the first sweep)
         self.retrieval_cfg = self._index.cfg if self._index is not None else retrieval or RetrievalConfig()
 
     @property
@@ -176,31 +176,14 @@ class Imitator:
         loss_fn = self.loss_fn(target, expressive)
         stage = (lambda name: lambda s, n, b: progress(name, s, n, b)) if progress else (lambda name: None)
         timings: dict[str, float] = {}
-        first = None
-        if self.cfg.retrieve:
-            index = self.retrieval_index((lambda d, n: progress("index", d, n, float("nan"))) if progress else None)
-            t_q = time.perf_counter()
-            first = index.query(target, lambda th: self.refiner.score(loss_fn, th)[0], self.search_cfg.batch)
-            timings["index"] = t_q - t0
-            timings["first_answer"] = time.perf_counter() - t_q
-            if best_pose:
-                best_pose(first.theta[0].copy())
-            if progress:
-                progress("retrieve", 1, 1, float(first.loss[0]))
-        swept = None
-        if first is not None and self.sweep_cfg.starts > 0:
-            if self._warm is None:  # warm torch while the sweep's numba kernels (nogil) run, after the first answer
-                self._warm = threading.Thread(target=self._warm_model, name="studio-torch-warm", daemon=True)
-                self._warm.start()
-            swept = self._sweep(loss_fn, target, expressive, first, progress, cancel, best_pose)
-            timings["sweep"] = swept.seconds
-        seeds = swept if swept is not None else first
-        if self._warm is not None:
-            self._warm.join()
+        seeds = self.seed(loss_fn, target, progress=progress, cancel=cancel, best_pose=best_pose)
+        if seeds is not None:
+            timings |= seeds.timings  # index, first_answer, sweep
+        first, swept = (seeds.first, seeds.swept) if seeds is not None else (None, None)
         t_s = time.perf_counter()
         search = gradient_search(
             self.model, loss_fn, self.search_cfg, progress=stage("search"), cancel=cancel, best_pose=best_pose,
-            starts=None if seeds is None else seeds.theta,
+            starts=None if seeds is None else seeds.best.theta,
         )  # fmt: skip
         pool_theta, pool_loss, unrefined = self._select(loss_fn, search, seeds)
         t1 = time.perf_counter()
@@ -248,77 +231,53 @@ class Imitator:
             swept=swept,
         )
 
+    def seed(
+        self,
+        loss_fn: ImageLoss,
+        target: np.ndarray,
+        theta_prev: np.ndarray | None = None,
+        progress: Callable[[str, int, int, float], None] | None = None,
+        cancel: threading.Event | None = None,
+        best_pose: Callable[[np.ndarray], None] | None = None,
+    ) -> Seeds | None:
+        """The seeds of a search from scratch for ``target (R, R)`` under ``loss_fn`` (+ the temporal term against
+        ``theta_prev (21,)`` rad): the retrieval's ``search.batch`` best distinct poses (stage "retrieve", the first
+        answer), swept by ``self.sweep_cfg`` (stage "sweep"); stage "index" while the index is built, once per
+        machine. None when ``config.retrieve`` is off (the paper's sampled batch). ``timings`` has "index" too."""
+        if not self.cfg.retrieve:
+            return None
+        t0 = time.perf_counter()
+        index = self.retrieval_index((lambda d, n: progress("index", d, n, float("nan"))) if progress else None)
+        t_index = time.perf_counter() - t0
+        seeds = seed_poses(
+            index, self.refiner, self.sweep_cfg, loss_fn, target, self.search_cfg.batch, theta_prev, progress,
+            cancel, best_pose, beside_sweep=None if self._warmed else self._warm_model,
+        )  # fmt: skip
+        seeds.timings["index"] = t_index
+        return seeds
+
     def _warm_model(self) -> None:
-        """torch's lazy start-up, paid here beside the numba stages instead of when the search starts (where a
-        cancel during the sweep would wait for it): the first optimiser imports torch._dynamo (~1.7 s), the first
-        forward pass sets up the kernels."""
+        """torch's lazy start-up, paid beside the sweep's numba kernels (which release the GIL) instead of when the
+        search starts (where a cancel during the sweep would wait for it): the first optimiser imports
+        torch._dynamo (~1.7 s), the first forward pass sets up the kernels."""
         torch.optim.Adam([torch.zeros(1, requires_grad=True)])
         device = next(self.model.parameters()).device
         with torch.no_grad():
             self.model(torch.zeros((1, self.hand.dof), dtype=torch.float32, device=device))
+        self._warmed = True
 
-    def _sweep(self, loss_fn, target, expressive, first: Retrieved, progress, cancel, best_pose) -> Retrieved:
-        """Block-sweep the ``starts`` best retrieved poses (stage "sweep"); the rest of the retrieved poses follow
-        unchanged. Returns them all under ``loss_fn``, best first (each still collision-free). With CLIP on, the
-        sweep scores its thousands of draws by the pixel terms alone (CLIP on every draw would take minutes on a
-        CPU) and the swept poses are then scored under the full loss."""
-        cfg, t0 = self.sweep_cfg, time.perf_counter()
-        rng = np.random.default_rng(cfg.seed)
-        blocks = joint_blocks(self.hand)
-        pixel_fn = loss_fn
-        if loss_fn.clip is not None:
-            pixel_fn = ImageLoss(target, dataclasses.replace(loss_fn.cfg, use_clip=False), None, expressive)
-        theta = first.theta.copy()
-        loss = self.refiner.score(pixel_fn, theta)[0] if pixel_fn is not loss_fn else first.loss.astype(np.float64)
-        n = min(cfg.starts, len(theta))
-        best = [float(loss.min())]
-
-        def on_better(th: np.ndarray, value: float) -> None:
-            if value < best[0]:
-                best[0] = value
-                if best_pose:
-                    best_pose(th)
-
-        def score(th: np.ndarray) -> np.ndarray:
-            return self.refiner.score(pixel_fn, th)[0]
-
-        def collides(th: np.ndarray) -> np.ndarray:
-            return self.refiner.world.in_collision(th, check=False)
-
-        per_start = cfg.passes * len(blocks)  # the most blocks one start can take; the bar jumps when it stops early
-
-        def on_block(k: int) -> Callable[[int], None]:
-            return lambda done: progress("sweep", k * per_start + done, n * per_start, best[0]) if progress else None
-
-        for k in range(n):
-            if cancel is not None and cancel.is_set():
-                break
-            theta[k], loss[k], _ = block_sweep(
-                theta[k], float(loss[k]), blocks, self.hand.lower, self.hand.upper, score, collides, cfg, rng,
-                cancel, on_better, on_block(k),
-            )  # fmt: skip
-            if progress and not (cancel is not None and cancel.is_set()):
-                progress("sweep", (k + 1) * per_start, n * per_start, best[0])
-        if pixel_fn is not loss_fn:
-            loss = self.refiner.score(loss_fn, theta)[0]
-        order = np.argsort(loss, kind="stable")
-        return Retrieved(theta[order], loss[order], time.perf_counter() - t0)
-
-    def _select(self, loss_fn: ImageLoss, search: SearchResult, first) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _select(
+        self, loss_fn: ImageLoss, search: SearchResult, seeds: Seeds | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The refinement's candidate pool ``(P, 21)`` with its losses ``(P,)``, and the unrefined pose ``(21,)``.
 
         ``select="model"`` (the paper): the search batch by its self-model loss, the unrefined pose its best.
-        ``"rendered"``: the search batch scored on the renderer (colliding poses excluded) and the retrieved poses
+        ``"rendered"``: the search batch scored on the renderer (colliding poses excluded) and the seeds
         (collision-free) form the pool; the unrefined pose is its best (so never worse than the first answer)."""
         if self.cfg.select == "model":
             return search.batch_theta, search.batch_loss, search.theta
-        batch = search.batch_theta
-        loss = self.refiner.score(loss_fn, batch)[0]
-        loss[self.refiner.world.in_collision(batch, check=False)] = np.inf
-        if first is not None:
-            batch, loss = np.concatenate([batch, first.theta]), np.concatenate([loss, first.loss])
-        unrefined = batch[int(np.argmin(loss))] if np.isfinite(loss).any() else search.theta
-        return batch, loss, unrefined.copy()
+        return rendered_pool(self.refiner, loss_fn, search.batch_theta, search.theta,
+                             None if seeds is None else seeds.best)  # fmt: skip
 
 
 def still_expressive(target: np.ndarray) -> np.ndarray | None:

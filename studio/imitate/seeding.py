@@ -1,0 +1,161 @@
+"""Seeds for a search from scratch, scored on the exact renderer: the retrieval's first answer, then the block
+sweep of its best poses, and the refinement pool that keeps them.
+
+The still :class:`~studio.imitate.still.Imitator` seeds every target this way, and a sequence every keyframe it
+searches from scratch (the first one, or all of them when independent). Every score here is the rendered-shadow
+loss of :meth:`~studio.imitate.refine.Refiner.score`, with the temporal term against ``theta_prev`` when a
+sequence gives one, so the seeds, the pool and the final choice are ranked by the objective being optimised.
+
+Pure compute over a refiner (renderer + collision world); progress and live previews go through callbacks.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from studio.imitate.losses import ImageLoss
+from studio.imitate.refine import Refiner
+from studio.imitate.retrieval import RetrievalIndex, Retrieved
+from studio.imitate.sweep import SweepConfig, block_sweep, joint_blocks
+
+Progress = Callable[[str, int, int, float], None]  # (stage, step, total, best loss)
+
+
+@dataclass
+class Seeds:
+    """What seeding found (plain data): the first answer's poses and, when the sweep ran, the swept ones."""
+
+    first: Retrieved  # the retrieval's distinct best poses, best first (row 0: the first answer), collision-free
+    swept: Retrieved | None  # those poses after the block sweep, best first (None: sweep off, or cancelled first)
+    timings: dict[str, float] = field(default_factory=dict)  # seconds: "first_answer" (the query), "sweep"
+
+    @property
+    def best(self) -> Retrieved:
+        """The poses that seed the search: the swept ones when the sweep ran, else the retrieved ones."""
+        return self.swept if self.swept is not None else self.first
+
+
+def retrieve(
+    index: RetrievalIndex, refiner: Refiner, loss_fn: ImageLoss, target: np.ndarray, k: int,
+    theta_prev: np.ndarray | None = None,
+) -> Retrieved:  # fmt: skip
+    """The ``k`` best distinct collision-free poses of ``index`` for ``target (R, R)``, ranked by the rendered
+    loss of ``loss_fn`` (+ the temporal term against ``theta_prev (21,)`` rad when given), best first."""
+    return index.query(target, lambda th: refiner.score(loss_fn, th, theta_prev)[0], k)
+
+
+def sweep(
+    refiner: Refiner,
+    cfg: SweepConfig,
+    loss_fn: ImageLoss,
+    first: Retrieved,
+    theta_prev: np.ndarray | None = None,
+    progress: Callable[[int, int, float], None] | None = None,
+    cancel: threading.Event | None = None,
+    best_pose: Callable[[np.ndarray], None] | None = None,
+) -> Retrieved:
+    """Block-sweep the ``cfg.starts`` best of the ``first`` poses; the rest follow unchanged. Returns them all under
+    ``loss_fn``, best first, each still collision-free. ``progress(step, total, best)`` after every block.
+
+    With CLIP on, the thousands of draws are scored by the pixel terms alone (CLIP on every draw would take
+    minutes on a CPU) and the swept poses are then re-scored under the full loss."""
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(cfg.seed)
+    hand = refiner.hand
+    blocks = joint_blocks(hand)
+    pixel_fn = loss_fn.pixel_only()
+    theta = first.theta.copy()
+    loss = refiner.score(pixel_fn, theta, theta_prev)[0] if pixel_fn is not loss_fn else first.loss.astype(float)
+    n = min(cfg.starts, len(theta))
+    best = [float(loss.min())]
+
+    def on_better(th: np.ndarray, value: float) -> None:
+        if value < best[0]:
+            best[0] = value
+            if best_pose:
+                best_pose(th)
+
+    def score(th: np.ndarray) -> np.ndarray:
+        return refiner.score(pixel_fn, th, theta_prev)[0]
+
+    def collides(th: np.ndarray) -> np.ndarray:
+        return refiner.world.in_collision(th, check=False)
+
+    per_start = cfg.passes * len(blocks)  # the most blocks one start can take; the bar jumps when it stops early
+
+    def on_block(k: int) -> Callable[[int], None] | None:
+        return (lambda done: progress(k * per_start + done, n * per_start, best[0])) if progress else None
+
+    for k in range(n):
+        if cancel is not None and cancel.is_set():
+            break
+        theta[k], loss[k], _ = block_sweep(
+            theta[k], float(loss[k]), blocks, hand.lower, hand.upper, score, collides, cfg, rng, cancel,
+            on_better, on_block(k),
+        )  # fmt: skip
+        if progress and not (cancel is not None and cancel.is_set()):
+            progress((k + 1) * per_start, n * per_start, best[0])
+    if pixel_fn is not loss_fn:
+        loss = refiner.score(loss_fn, theta, theta_prev)[0]
+    order = np.argsort(loss, kind="stable")
+    return Retrieved(theta[order], loss[order], time.perf_counter() - t0)
+
+
+def seed_poses(
+    index: RetrievalIndex,
+    refiner: Refiner,
+    cfg: SweepConfig,
+    loss_fn: ImageLoss,
+    target: np.ndarray,
+    k: int,
+    theta_prev: np.ndarray | None = None,
+    progress: Progress | None = None,
+    cancel: threading.Event | None = None,
+    best_pose: Callable[[np.ndarray], None] | None = None,
+    beside_sweep: Callable[[], None] | None = None,
+) -> Seeds:
+    """Retrieve ``k`` poses for ``target (R, R)`` (stage "retrieve": the first answer, reported to ``best_pose``),
+    then sweep the best ``cfg.starts`` of them (stage "sweep"; none when ``cfg.starts`` is 0). ``beside_sweep``
+    (e.g. warming torch) runs in a thread while the sweep's kernels, which release the GIL, run; it is joined
+    before this returns. ``cancel`` stops the sweep between blocks (``swept`` then holds what it had)."""
+    t0 = time.perf_counter()
+    first = retrieve(index, refiner, loss_fn, target, k, theta_prev)
+    timings = {"first_answer": time.perf_counter() - t0}
+    if best_pose:
+        best_pose(first.theta[0].copy())
+    if progress:
+        progress("retrieve", 1, 1, float(first.loss[0]))
+    swept = None
+    if cfg.starts > 0 and not (cancel is not None and cancel.is_set()):
+        worker = None
+        if beside_sweep is not None:
+            worker = threading.Thread(target=beside_sweep, name="studio-beside-sweep", daemon=True)
+            worker.start()
+        stage = (lambda s, n, b: progress("sweep", s, n, b)) if progress else None
+        try:
+            swept = sweep(refiner, cfg, loss_fn, first, theta_prev, stage, cancel, best_pose)
+        finally:
+            if worker is not None:
+                worker.join()
+        timings["sweep"] = swept.seconds
+    return Seeds(first, swept, timings)
+
+
+def rendered_pool(
+    refiner: Refiner, loss_fn: ImageLoss, batch_theta: np.ndarray, fallback: np.ndarray,
+    seeds: Retrieved | None = None, theta_prev: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """A search batch ``(B, 21)`` scored on the renderer (colliding poses at +inf) with the collision-free
+    ``seeds`` appended → the refinement's pool ``(P, 21)``, its losses ``(P,)`` and its best pose ``(21,)``
+    (``fallback`` when none is collision-free), so the pose kept is never worse than the best seed."""
+    loss = refiner.score(loss_fn, batch_theta, theta_prev)[0]
+    loss[refiner.world.in_collision(batch_theta, check=False)] = np.inf
+    if seeds is not None:
+        batch_theta, loss = np.concatenate([batch_theta, seeds.theta]), np.concatenate([loss, seeds.loss])
+    best = batch_theta[int(np.argmin(loss))] if np.isfinite(loss).any() else fallback
+    return batch_theta, loss, np.array(best, dtype=np.float64)
