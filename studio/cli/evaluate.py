@@ -171,7 +171,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--model", default=None, help="self-model checkpoint (default assets/models/selfmodel_cpu128.pt)")
     add_config_flags(v, VideoConfig, ("hz", "fps"))
     add_config_flags(v, KeyframeConfig, ("tau",))
-    add_sequence_flags(v, ("candidates",))
+    add_sequence_flags(v, ("candidates", "retrieve"))
     add_config_flags(v, TransitionConfig, ("total",), prefix="transition-")
     add_device_flags(v, zero_threads=True)
     add_quiet_flag(v, "no progress bars and no table on stdout (JSON only)")

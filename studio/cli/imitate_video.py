@@ -169,7 +169,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="raw colour footage: the object's mask in the first frame (white or nonzero = object, "
                           "the source's size), segmented through the video")  # fmt: skip
     add_config_flags(p, KeyframeConfig, ("tau",))
-    add_sequence_flags(p, ("mode", "expressive", "temporal", "candidates", "refine_enabled"))
+    add_sequence_flags(p, ("mode", "expressive", "temporal", "candidates", "refine_enabled", "retrieve"))
     add_config_flags(p, TimingConfig, ("allow_late",))
     add_config_flags(p, LimitsConfig, ("velocity_scale", "acceleration", "jerk"),
                      ranges={"velocity_scale": "(0, 1]", "acceleration": "(0, ∞)", "jerk": "(0, ∞)"})  # fmt: skip

@@ -154,7 +154,7 @@ def add_run_flags(p: argparse.ArgumentParser, allow_late: bool = False) -> None:
     from studio.motion.timing import TimingConfig
     from studio.project.show_timing import ShowLayout
 
-    add_sequence_flags(p, ("mode", "expressive", "temporal", "candidates", "refine_enabled"))
+    add_sequence_flags(p, ("mode", "expressive", "temporal", "candidates", "refine_enabled", "retrieve"))
     add_config_flags(p, TimingConfig, ("allow_late",), base=TimingConfig(allow_late=allow_late))
     add_config_flags(p, ShowLayout)
     add_config_flags(p, LimitsConfig, ("velocity_scale",), ranges={"velocity_scale": "(0, 1]"})

@@ -8,6 +8,11 @@ two modes:
 - ``sequential``: the first keyframe from scratch (``first``), each later one from the previous keyframe's final
   pose + N(0, ``next.init_noise`` = 0.05 rad) (``next`` search; the paper's 128 × 1200).
 
+``retrieve`` (on in ``CPU_SEQUENCE``, off in the paper's ``PAPER_SEQUENCE``) seeds each keyframe searched from
+scratch like a still target (:mod:`studio.imitate.seeding`): the retrieval's best distinct poses, block-swept, fill
+the first rows of its search batch and stay in the pool its refinement starts from, all scored with the temporal
+term when the keyframe has one. Inherited keyframes keep the previous pose as their only seed.
+
 Switches: ``expressive`` adds ``L_expr`` on the keyframe's expressive region; ``temporal`` adds
 ``L_temp = w_temporal·‖θ − θ*_{k−1}‖²`` against the previous keyframe's final pose to the search *and* to the
 refinement (a refinement that jumps away from the previous pose would break the transition the search kept).
@@ -32,7 +37,14 @@ import numpy as np
 from studio.errors import ClosedError
 from studio.imitate.losses import COMPONENTS, ImageLoss, LossConfig
 from studio.imitate.refine import RefineConfig
-from studio.imitate.search import CPU_SEARCH, PAPER_SEQUENCE_FIRST, PAPER_SEQUENCE_NEXT, SearchConfig, gradient_search
+from studio.imitate.search import (
+    PAPER_SEQUENCE_FIRST,
+    PAPER_SEQUENCE_NEXT,
+    STUDIO_SEARCH,
+    SearchConfig,
+    gradient_search,
+)
+from studio.imitate.seeding import rendered_pool
 from studio.imitate.still import Imitator, distinct_best
 from studio.imitate.transitions import TransitionConfig, TransitionReport, transition_success
 from studio.learn.selfmodel import SelfModel
@@ -55,6 +67,7 @@ class SequenceConfig:
     refine: RefineConfig = RefineConfig()  # hill climbing of each keyframe on the rendered shadow
     candidates: int = 4  # distinct best search results refined per keyframe, the best kept [1, ∞)
     refine_enabled: bool = True  # False: keep the searched poses (no rendered-shadow refinement)
+    retrieve: bool = False  # a keyframe searched from scratch starts from retrieval + block sweep (the still method)
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -69,11 +82,17 @@ PAPER_SEQUENCE = SequenceConfig()  # the paper's sizes (GPU): first 500 × 3000,
 # candidates × 500 steps instead of 2 × 150 lowers L_base by up to 0.01 for 10 % more time; a later-keyframe search
 # of 32 × 100 instead of 16 × 60 changes L_base by < 0.003 and doubles the time. benchmarks/bench_sequence.py on the
 # six DAVIS sequences (2–4 keyframes each): 13 s a sequence sequential, 28 s independent (every keyframe 32 × 150).
+# Seeding the keyframes searched from scratch (retrieve: retrieval + block sweep, as a still) and searching them
+# 32 × 50 (STUDIO_SEARCH) instead of 32 × 150, same benchmark: independent L_base + L_expr 0.520 → 0.489 (L_base
+# 0.237 → 0.229), 20.2 → 21.4 s a sequence; sequential 0.569 → 0.563 (L_base 0.241 → 0.236), 10.2 → 11.7 s. Kept
+# at 32 × 150, the seeded search was no better (0.492 / 0.558) and 50–60 % slower; sweeping the inherited poses too
+# (under the temporal term) changed nothing (0.563) for 20 % more time.
 CPU_SEQUENCE = SequenceConfig(
-    first=CPU_SEARCH,  # 32 × 150
+    first=STUDIO_SEARCH,  # 32 × 50: after the seeds, as for a still
     next=SearchConfig(batch=16, iterations=60, lr=0.08),
     refine=RefineConfig(steps=500),
     candidates=4,
+    retrieve=True,  # keyframes searched from scratch start from retrieval + block sweep, as still targets do
 )
 
 
@@ -89,7 +108,7 @@ class KeyframeResult:
     collision_free: bool  # the final pose does not penetrate itself
     search_loss: float  # the self-model loss of the searched pose
     seconds: float  # wall time of this keyframe's search + refinement
-    timings: dict[str, float] = field(default_factory=dict)  # seconds per stage ("search", "refine")
+    timings: dict[str, float] = field(default_factory=dict)  # seconds per stage ("seed", "search", "refine")
 
     def total(self, reading: str = "base") -> float:
         """The endpoint total of the transition test (:mod:`studio.imitate.transitions`): ``"base"`` L_base,
@@ -177,7 +196,9 @@ class SequenceImitator:
         """Keyframe targets ``masks (K, S, S)`` uint8 (1 = shadow) in first-appearance order (all N frames work too:
         each is then its own keyframe), their expressive masks ``(K, S, S)`` or None → :class:`SequenceResult`.
 
-        ``progress(stage, step, total, best)`` with stages "keyframe k/K: search" and "keyframe k/K: refine".
+        ``progress(stage, step, total, best)`` with stages "keyframe k/K: search" and "keyframe k/K: refine", and
+        for a keyframe seeded from scratch (``cfg.retrieve``) first "keyframe k/K: retrieve" and ".. : sweep" (and
+        ".. : index" while the retrieval index is built, once per machine; see ``Imitator.imitate``).
         Setting ``cancel`` returns within a search or refinement step, with the keyframes finished before it and
         ``cancelled=True`` (a keyframe interrupted half-way is left out). ``cfg`` overrides this object's config
         for this call. ``best_pose(θ (21,) rad)`` gets the pose of each reported best loss (live previews).
@@ -196,6 +217,11 @@ class SequenceImitator:
             raise ValueError(
                 "the expressive term needs expressive masks (expressive_masks(video.masks)), "
                 "or SequenceConfig(expressive=False)"
+            )
+        if cfg.retrieve and not self.imitator.cfg.retrieve:
+            raise ValueError(
+                "SequenceConfig(retrieve=True) seeds keyframes from the retrieval index, which this imitator has off "
+                "(ImitateConfig(retrieve=False)); use SequenceConfig(retrieve=False) or an imitator with retrieval"
             )
         t0 = time.perf_counter()
         done: list[KeyframeResult] = []
@@ -229,16 +255,32 @@ class SequenceImitator:
         search_cfg = replace(cfg.next if inherit else cfg.first, seed=(cfg.next if inherit else cfg.first).seed + k)
         name = f"keyframe {k + 1}/{n}"
         stage = (lambda s: lambda i, m, b: progress(f"{name}: {s}", i, m, b)) if progress else (lambda s: None)
+        seeds, seed_s = None, 0.0
+        if cfg.retrieve and not inherit:  # retrieval's first answer, then the block sweep of its best poses
+            t_seed = time.perf_counter()
+            seeds = self.imitator.seed(
+                loss_fn, target, prev_t, (lambda s, i, m, b: progress(f"{name}: {s}", i, m, b)) if progress else None,
+                cancel, best_pose,
+            )  # fmt: skip
+            if cancel is not None and cancel.is_set():
+                return None
+            seed_s = time.perf_counter() - t_seed
+        t_search = time.perf_counter()
         search = gradient_search(
-            self.model, loss_fn, search_cfg, prev if inherit else None, prev_t, stage("search"), cancel, best_pose
-        )
+            self.model, loss_fn, search_cfg, prev if inherit else None, prev_t, stage("search"), cancel, best_pose,
+            starts=None if seeds is None else seeds.best.theta,
+        )  # fmt: skip
         t1 = time.perf_counter()
         if search.cancelled:
             return None
-        theta = search.theta
+        pool_theta, pool_loss, theta = search.batch_theta, search.batch_loss, search.theta
+        if seeds is not None:  # ranked on the renderer, the seeds kept: never worse than the best seed
+            pool_theta, pool_loss, theta = rendered_pool(
+                self.refiner, loss_fn, search.batch_theta, search.theta, seeds.best, prev_t
+            )
         if cfg.refine_enabled:
             best = None
-            for start in distinct_best(search.batch_theta, search.batch_loss, cfg.candidates):
+            for start in distinct_best(pool_theta, pool_loss, cfg.candidates):
                 r = self.refiner.refine(
                     loss_fn, start, cfg.refine, stage("refine"), cancel, theta_prev=prev_t, best_pose=best_pose
                 )
@@ -265,7 +307,7 @@ class SequenceImitator:
             collision_free=not bool(self.refiner.world.in_collision(theta)[0]),
             search_loss=search.loss,
             seconds=t2 - t0,
-            timings={"search": t1 - t0, "refine": t2 - t1},
+            timings={"seed": seed_s, "search": t1 - t_search, "refine": t2 - t1},
         )
 
 

@@ -109,7 +109,8 @@ def imitate_video_job(
     """Every keyframe of a video in first-appearance order (:class:`studio.imitate.sequence.SequenceImitator`) →
     ``SequenceResult``. ``masks (K, S, S)`` uint8 keyframe targets and their expressive masks (``keyframe_targets``
     picks them from a video's frames); ``cfg`` defaults to ``CPU_SEQUENCE`` (its ``expressive`` term needs masks).
-    Stages are "keyframe k/K: search" and "keyframe k/K: refine". ``clip`` as for :func:`imitate_keyframe_job`;
+    Stages are "keyframe k/K: search" and "keyframe k/K: refine", after "keyframe k/K: retrieve" and ".. : sweep"
+    for a keyframe seeded from scratch (``cfg.retrieve``). ``clip`` as for :func:`imitate_keyframe_job`;
     ``previous (21,) rad``: the pose before the first of these keyframes (continuing a sequence), None: none."""
     run = functools.partial(
         _imitate_video, masks=np.asarray(masks), expressive=None if expressive is None else np.asarray(expressive),

@@ -1,0 +1,158 @@
+"""studio.imitate.seeding: the retrieval + block-sweep seeds of a search from scratch, scored with the temporal term
+when a sequence gives one, the rendered pool that keeps them, and sequences that seed the keyframes they search
+from scratch (first keyframe; every keyframe when independent) while inheriting the rest."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from studio.imitate.clip_loss import tiny_clip
+from studio.imitate.losses import ImageLoss, LossConfig
+from studio.imitate.refine import RefineConfig
+from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex
+from studio.imitate.search import SearchConfig
+from studio.imitate.seeding import rendered_pool, seed_poses
+from studio.imitate.sequence import SequenceConfig, SequenceImitator
+from studio.imitate.still import ImitateConfig, Imitator
+from studio.imitate.sweep import SweepConfig
+from studio.learn.selfmodel import SelfModel, SelfModelConfig
+from studio.sim.physics import CollisionWorld
+from studio.sim.sampling import sample_poses
+from studio.sim.shadow import Rig, ShadowRenderer
+
+SWEEP = SweepConfig(starts=2, draws=48, wrist_draws=16, passes=1)
+SEQ = SequenceConfig(
+    first=SearchConfig(batch=8, iterations=4, lr=0.08),
+    next=SearchConfig(batch=4, iterations=3, lr=0.08),
+    refine=RefineConfig(method="cmaes", restarts=1, steps=6, popsize=8),
+    candidates=1,
+    expressive=False,
+    retrieve=True,
+)
+LOSS = LossConfig(use_clip=False, crop_size=32)
+
+
+@pytest.fixture(scope="module")
+def renderer(hand):
+    return ShadowRenderer(hand, Rig(resolution=32))
+
+
+@pytest.fixture(scope="module")
+def index(renderer):
+    return RetrievalIndex.build(renderer, RetrievalConfig(size=1200, chunk=600, shortlist=48, seed=5))
+
+
+@pytest.fixture(scope="module")
+def imitator(hand, index):
+    model = SelfModel(SelfModelConfig(resolution=32, hidden=32, channels=16, min_channels=8, res_blocks=1), hand)
+    with Imitator(model, loss_cfg=LOSS, retrieval=index, search=SearchConfig(batch=8, iterations=4),
+                  sweep=SWEEP) as im:  # fmt: skip
+        yield im
+
+
+@pytest.fixture(scope="module")
+def targets(index, renderer, hand):
+    """Three shadows of index poses moved a little (so no target is an index entry)."""
+    rows = [11, 230, 871]
+    return np.stack([renderer.render_one(np.clip(index.theta[r] + 0.07, hand.lower, hand.upper)) for r in rows])
+
+
+def test_seeds_are_scored_with_the_temporal_term(imitator, index, targets):
+    """With ``theta_prev`` the retrieved and swept poses are ranked by shadow + temporal term, as the search and
+    refinement of that keyframe will score them, and the sweep never makes the best seed worse."""
+    loss_fn = ImageLoss(targets[0], LOSS)
+    prev = index.theta[500].astype(np.float64)
+    refiner = imitator.refiner
+    seeds = seed_poses(index, refiner, SWEEP, loss_fn, targets[0], 6, theta_prev=prev)
+    total, comps = refiner.score(loss_fn, seeds.first.theta, prev)
+    np.testing.assert_allclose(seeds.first.loss, total, rtol=1e-9)
+    assert np.all(np.isfinite(comps["temporal"])) and np.all(comps["temporal"] > 0)
+    np.testing.assert_allclose(seeds.swept.loss, refiner.score(loss_fn, seeds.swept.theta, prev)[0], rtol=1e-9)
+    assert seeds.swept.loss[0] <= seeds.first.loss[0] + 1e-12 and np.all(np.diff(seeds.swept.loss) >= 0)
+    assert seeds.best is seeds.swept and set(seeds.timings) == {"first_answer", "sweep"}
+    plain = seed_poses(index, refiner, SWEEP, loss_fn, targets[0], 6)
+    assert np.all(np.isnan(refiner.score(loss_fn, plain.first.theta)[1]["temporal"]))
+
+
+def test_rendered_pool_keeps_the_seeds_and_drops_colliding_poses(imitator, index, targets, hand):
+    loss_fn = ImageLoss(targets[1], LOSS)
+    seeds = seed_poses(index, imitator.refiner, SweepConfig(starts=0), loss_fn, targets[1], 3)
+    assert seeds.swept is None and seeds.best is seeds.first
+    drawn, _ = sample_poses(hand, 64, rng=np.random.default_rng(4))
+    with CollisionWorld(hand) as world:
+        colliding = drawn[world.in_collision(drawn)][:2]  # random poses: about half penetrate themselves
+    assert len(colliding) == 2
+    pool, loss, best = rendered_pool(imitator.refiner, loss_fn, colliding, colliding[0], seeds.first)
+    assert pool.shape == (5, 21) and np.all(np.isinf(loss[:2]))
+    np.testing.assert_allclose(loss[2:], seeds.first.loss)
+    np.testing.assert_array_equal(best, seeds.first.theta[0])
+    _, _, fallback = rendered_pool(imitator.refiner, loss_fn, colliding, colliding[0])
+    np.testing.assert_array_equal(fallback, colliding[0])  # nothing collision-free: the caller's fallback
+
+
+def test_pixel_only_is_the_loss_without_clip(targets):
+    plain = ImageLoss(targets[0], LOSS)
+    assert plain.pixel_only() is plain
+    with_clip = ImageLoss(targets[0], LossConfig(use_clip=True, crop_size=32), tiny_clip(seed=0))
+    twin = with_clip.pixel_only()
+    assert twin.clip is None and not twin.cfg.use_clip and with_clip.clip is not None
+    shadows = np.stack([targets[1], targets[2]]).astype(np.float32)
+    np.testing.assert_allclose(twin(shadows)[0].numpy(), plain(shadows)[0].numpy(), rtol=1e-6)
+    assert not np.allclose(with_clip(shadows)[0].numpy(), plain(shadows)[0].numpy())
+
+
+def _stages(seq, targets, cfg, **kw):
+    stages, poses = [], []
+    result = seq.imitate(targets, cfg=cfg, progress=lambda s, *a: stages.append(s), best_pose=poses.append, **kw)
+    return result, stages, poses
+
+
+def test_sequential_seeds_the_first_keyframe_and_inherits_the_rest(imitator, targets, hand):
+    seq = SequenceImitator(cfg=SEQ, imitator=imitator)
+    result, stages, poses = _stages(seq, targets, SEQ)
+    assert [s for s in stages if s.endswith(("retrieve", "sweep"))][:1] == ["keyframe 1/3: retrieve"]
+    later = {s.split(": ")[1] for s in stages if not s.startswith("keyframe 1/3")}
+    assert "keyframe 1/3: sweep" in stages and later == {"search", "refine"}  # inherited: no seeds
+    assert stages.index("keyframe 1/3: sweep") < stages.index("keyframe 1/3: search")
+    first = result.keyframes[0]
+    assert first.timings["seed"] > 0 and [k.timings["seed"] for k in result.keyframes[1:]] == [0.0, 0.0]
+    assert len(result.keyframes) == 3 and all(k.collision_free for k in result.keyframes)
+    with CollisionWorld(hand) as world:
+        assert not world.in_collision(result.thetas).any()
+    assert np.all(result.thetas >= hand.lower - 1e-9) and np.all(result.thetas <= hand.upper + 1e-9)
+    # never worse than the first answer: the seeds stay in the pool that picks the unrefined pose
+    retrieved = seed_poses(imitator.retrieval_index(), imitator.refiner, SweepConfig(starts=0),
+                           ImageLoss(targets[0], LOSS), targets[0], SEQ.first.batch)  # fmt: skip
+    assert first.loss["total"] <= retrieved.first.loss[0] + 1e-9
+
+
+def test_independent_seeds_every_keyframe(imitator, targets):
+    cfg = SequenceConfig(**{**SEQ.__dict__, "mode": "independent"})
+    result, stages, _ = _stages(SequenceImitator(cfg=cfg, imitator=imitator), targets, cfg)
+    assert [s for s in stages if s.endswith(": retrieve")] == [f"keyframe {k}/3: retrieve" for k in (1, 2, 3)]
+    assert all(k.timings["seed"] > 0 for k in result.keyframes)
+    plain, stages, _ = _stages(SequenceImitator(cfg=cfg, imitator=imitator), targets,
+                               SequenceConfig(**{**cfg.__dict__, "retrieve": False}))  # fmt: skip
+    assert not any(s.endswith((": retrieve", ": sweep")) for s in stages)  # the paper's sampled batches
+    assert len(plain.keyframes) == 3
+
+
+def test_cancel_during_the_seeds_leaves_no_half_keyframe(imitator, targets):
+    cancel = threading.Event()
+
+    def progress(stage, *a):
+        if stage.endswith("sweep"):
+            cancel.set()
+
+    result = SequenceImitator(cfg=SEQ, imitator=imitator).imitate(targets, cfg=SEQ, progress=progress, cancel=cancel)
+    assert result.cancelled and result.keyframes == []
+
+
+def test_retrieve_needs_an_imitator_with_retrieval(hand, index):
+    model = SelfModel(SelfModelConfig(resolution=32, hidden=32, channels=16, min_channels=8, res_blocks=1), hand)
+    with Imitator(model, loss_cfg=LOSS, retrieval=index, config=ImitateConfig(retrieve=False)) as im:
+        with pytest.raises(ValueError, match="retrieval index"):
+            SequenceImitator(cfg=SEQ, imitator=im).imitate(np.ones((1, 32, 32), np.uint8), cfg=SEQ)
