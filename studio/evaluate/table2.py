@@ -277,7 +277,9 @@ class VideoEvaluator:
             f"Transitions: success when both endpoints' {reading} ≤ {t.max_total:g}, mean|Δθ| ≤ {t.max_mean_step:g} "
             f"and max|Δθ| ≤ {t.max_step:g} rad (paper: 34.5 % independent → 86.2 % sequential +Exp+Temp). "
             "Mean Δθ: mean over joints of |θ_{k+1} − θ_k|, averaged over the transitions.",
-            f"Search: first keyframe (every keyframe when independent) {cfg.first.batch} × {cfg.first.iterations}; "
+            f"Search: first keyframe (every keyframe when independent) {cfg.first.batch} × {cfg.first.iterations}"
+            + (", seeded by the retrieval's best poses after the block sweep (as a still)" if cfg.retrieve else "")
+            + "; "
             f"later keyframes (sequential) {cfg.next.batch} × {cfg.next.iterations} from the previous pose + "
             f"N(0, {cfg.next.init_noise:g} rad); refinement {cfg.refine.restarts} × {cfg.refine.steps} steps from "
             f"each of the {cfg.candidates} best distinct search results"

@@ -17,8 +17,8 @@ depend on how large a sequence's expressive region happens to be:
 - the expressive term is left out of the default: its weight (1.0 on ``1 − IoU`` inside M) is 2.5 times the base's
   IoU weight, and where the whole animal moves M is its whole silhouette, so ``L_base + L_expr`` measures the
   region's size as much as the imitation. Measured on the six shared DAVIS sequences (15 keyframes, 9
-  transitions) with the shipped 128² model, no CLIP, ``CPU_SEQUENCE``: ``L_base`` 0.13–0.30 per keyframe,
-  ``L_base + L_expr`` 0.53 (independent) and 0.56 (sequential) on average, so at 0.35 the literal reading passes
+  transitions) with the shipped 128² model, no CLIP, ``CPU_SEQUENCE``: ``L_base`` 0.11–0.33 per keyframe,
+  ``L_base + L_expr`` 0.49 (independent) and 0.56 (sequential) on average, so at 0.35 the literal reading passes
   no transition in either mode (the base reading: independent 0 of 9, sequential +Exp+Temp 9 of 9).
   ``total="image"`` (``L_base + L_expr``) and ``total="full"`` (+ ``L_temp``) select the other readings;
   ``benchmarks/bench_sequence.py`` reports the base and image readings.
