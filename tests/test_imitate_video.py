@@ -20,6 +20,7 @@ SMALL = ["--no-clip", "--quiet", "--hz", "4", "--first-batch", "8", "--first-ite
          "--next-iters", "10", "--refine-steps", "20", "--refine-restarts", "2", "--candidates", "1"]  # fmt: skip
 FAST_SERVOS = ["--acceleration", "200", "--jerk", "5000"]  # servos fast enough for a 1.1 s gallop at 4 Hz
 SLOW_SERVOS = ["--velocity-scale", "0.05"]  # far too slow for it
+UNSEEDED = ["--no-retrieve"]  # tests about timing and footage: no seeding sweep (the first fixture run seeds)
 FILES = ("keyframes.json", "show.json", "contact.png", "side_by_side.mp4", "review.rrd")
 
 
@@ -112,7 +113,7 @@ def test_review_holds_frames_and_the_show(horse):
 
 
 def test_too_fast_for_the_servos_reports_and_allow_late_stretches(tmp_path):
-    strict = cli("imitate-video", DEFAULT_VIDEO, "--out", tmp_path / "strict", *SMALL, *SLOW_SERVOS)
+    strict = cli("imitate-video", DEFAULT_VIDEO, "--out", tmp_path / "strict", *SMALL, *UNSEEDED, *SLOW_SERVOS)
     assert strict.returncode == 1, strict.stderr[-2000:]
     s = summary(strict)
     assert s["show"] is None and s["late_transitions"] and not (tmp_path / "strict" / "show.json").exists()
@@ -121,7 +122,8 @@ def test_too_fast_for_the_servos_reports_and_allow_late_stretches(tmp_path):
     assert f"frame {late['to_frame']}" in strict.stdout and "--allow-late" in strict.stderr.splitlines()[-1]
     for name in set(FILES) - {"show.json"}:
         assert (tmp_path / "strict" / name).is_file(), name
-    stretched = cli("imitate-video", DEFAULT_VIDEO, "--out", tmp_path / "late", *SMALL, *SLOW_SERVOS, "--allow-late")
+    stretched = cli("imitate-video", DEFAULT_VIDEO, "--out", tmp_path / "late", *SMALL, *UNSEEDED, *SLOW_SERVOS,
+                    "--allow-late")  # fmt: skip
     assert stretched.returncode == 0, stretched.stderr[-2000:]
     s2 = summary(stretched)
     assert s2["late_transitions"] == s["late_transitions"] and s2["show_seconds"] > s2["video_seconds"]
@@ -155,7 +157,8 @@ def test_raw_footage_is_segmented_from_a_first_mask(shared_targets, tmp_path):
     for f in sorted((shared_targets / "davis-rgb" / "blackswan").glob("*.jpg"))[:24]:
         (rgb / f.name).write_bytes(f.read_bytes())
     out = tmp_path / "swan"
-    proc = cli("imitate-video", rgb, "--out", out, "--first-mask", truth / "00000.png", *SMALL, "--allow-late")
+    proc = cli("imitate-video", rgb, "--out", out, "--first-mask", truth / "00000.png", *SMALL, *UNSEEDED,
+               "--allow-late")  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     s = summary(proc)
     assert s["frames"] == 4 and s["video_seconds"] == pytest.approx(1.0)  # 24 frames at 24 fps, sampled at 4 Hz
