@@ -3,6 +3,8 @@ answers, the cache) and the first answer it gives the Imitator."""
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 
@@ -90,6 +92,41 @@ def test_save_load_and_the_cache(tmp_path, renderer, index):
     built = cached_index(renderer, small, folder=tmp_path / "cache")
     assert (tmp_path / "cache" / f"index-{index_key(renderer.hand, renderer, small)}.npz").is_file()
     assert cached_index(renderer, small, folder=tmp_path / "elsewhere") is built  # kept in this process
+
+
+def test_a_cancelled_build_returns_nothing_and_saves_nothing(tmp_path, renderer):
+    """A cancel set during the build stops it at the next chunk: no index, no file, and the next call builds."""
+    cfg = RetrievalConfig(size=900, chunk=300, seed=17)
+    cancel, seen = threading.Event(), []
+
+    def progress(done, size):
+        seen.append(done)
+        cancel.set()
+
+    assert cached_index(renderer, cfg, folder=tmp_path, progress=progress, cancel=cancel) is None
+    assert len(seen) == 1 and 0 < seen[0] <= 300 and list(tmp_path.iterdir()) == []  # one chunk, then stopped
+    built = cached_index(renderer, cfg, folder=tmp_path)
+    assert len(built) == 900 and (tmp_path / f"index-{built.key}.npz").is_file()
+
+
+def test_a_cancel_while_the_index_is_built_ends_the_imitation_cancelled(hand, renderer, tmp_path, monkeypatch):
+    """The first imitation on a machine builds the index (stage "index"); a cancel there returns at once, flagged
+    cancelled, with no first answer and no refinement, and leaves no index behind."""
+    monkeypatch.setenv("SHADOW_STUDIO_CACHE", str(tmp_path))
+    model = SelfModel(SelfModelConfig(resolution=32, hidden=32, channels=16, min_channels=8, res_blocks=1), hand)
+    cancel = threading.Event()
+
+    def progress(stage, *a):
+        if stage == "index":
+            cancel.set()
+
+    imitator = Imitator(model, loss_cfg=LossConfig(use_clip=False, crop_size=32), search=SearchConfig(batch=4),
+                        retrieval=RetrievalConfig(size=1200, chunk=300, seed=19))  # fmt: skip
+    with imitator:
+        target = renderer.render_one(np.zeros(21))
+        result = imitator.imitate(target, progress=progress, cancel=cancel)
+    assert result.cancelled and result.first is None and result.refine is None and result.search.iterations == 0
+    assert not any(tmp_path.rglob("*.npz"))
 
 
 def test_config_is_checked():

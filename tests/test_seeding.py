@@ -156,3 +156,15 @@ def test_retrieve_needs_an_imitator_with_retrieval(hand, index):
     with Imitator(model, loss_cfg=LOSS, retrieval=index, config=ImitateConfig(retrieve=False)) as im:
         with pytest.raises(ValueError, match="retrieval index"):
             SequenceImitator(cfg=SEQ, imitator=im).imitate(np.ones((1, 32, 32), np.uint8), cfg=SEQ)
+
+
+def test_cancel_while_the_index_is_built_leaves_no_keyframe(imitator, tmp_path, monkeypatch, targets):
+    """The first video on a machine builds the retrieval index under "keyframe 1/K: index"; a cancel there stops it
+    (nothing saved) and the sequence returns cancelled with no keyframe."""
+    monkeypatch.setenv("SHADOW_STUDIO_CACHE", str(tmp_path))
+    cancel = threading.Event()
+    stop_at_index = lambda stage, *a: cancel.set() if stage == "keyframe 1/3: index" else None  # noqa: E731
+    with Imitator(imitator.model, loss_cfg=LOSS, retrieval=RetrievalConfig(size=1200, chunk=300, seed=23)) as im:
+        seq = SequenceImitator(cfg=SEQ, imitator=im)
+        result = seq.imitate(targets, cfg=SEQ, progress=stop_at_index, cancel=cancel)
+    assert result.cancelled and result.keyframes == [] and not any(tmp_path.rglob("*.npz"))

@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -98,8 +99,10 @@ class RetrievalIndex:
         cfg: RetrievalConfig | None = None,
         world: CollisionWorld | None = None,
         progress: Callable[[int, int], None] | None = None,
-    ) -> RetrievalIndex:
-        """Sample, keep the collision-free, render and pack until ``cfg.size`` poses; ``progress(done, size)``."""
+        cancel: threading.Event | None = None,
+    ) -> RetrievalIndex | None:
+        """Sample, keep the collision-free, render and pack until ``cfg.size`` poses; ``progress(done, size)``.
+        ``cancel`` is checked before every chunk: once set, the build stops and returns None."""
         cfg = cfg or RetrievalConfig()
         hand = renderer.hand
         own = world is None
@@ -108,6 +111,8 @@ class RetrievalIndex:
         thetas, bits, done = [], [], 0
         try:
             while done < cfg.size:
+                if cancel is not None and cancel.is_set():
+                    return None
                 theta = sample_poses(hand, cfg.chunk, rng)[0]
                 theta = theta[~world.in_collision(theta, check=False)][: cfg.size - done]
                 thetas.append(theta.astype(np.float32))
@@ -189,9 +194,11 @@ def cached_index(
     cfg: RetrievalConfig | None = None,
     folder: Path | None = None,
     progress: Callable[[int, int], None] | None = None,
-) -> RetrievalIndex:
+    cancel: threading.Event | None = None,
+) -> RetrievalIndex | None:
     """The index for ``renderer``'s hand and rig: from this process, else from ``folder`` (default
-    ``cache_dir()/retrieval``), else built (logged; ``progress(done, size)``) and saved there."""
+    ``cache_dir()/retrieval``), else built (logged; ``progress(done, size)``) and saved there. None when ``cancel``
+    stopped the build (nothing is saved or kept; the next call builds again)."""
     cfg = cfg or RetrievalConfig()
     key = index_key(renderer.hand, renderer, cfg)
     if key in _MEMO:
@@ -201,7 +208,10 @@ def cached_index(
     if index is None:
         log.info("building the retrieval index once: %d collision-free poses → %s", cfg.size, path)
         t0 = time.perf_counter()
-        index = RetrievalIndex.build(renderer, cfg, progress=progress)
+        index = RetrievalIndex.build(renderer, cfg, progress=progress, cancel=cancel)
+        if index is None:
+            log.info("retrieval index build cancelled; nothing saved")
+            return None
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             index.save(path)

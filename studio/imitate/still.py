@@ -147,10 +147,13 @@ class Imitator:
     def loss_fn(self, target: np.ndarray, expressive: np.ndarray | None = None) -> ImageLoss:
         return ImageLoss(target, self.loss_cfg, self.clip, expressive)
 
-    def retrieval_index(self, progress: Callable[[int, int], None] | None = None) -> RetrievalIndex:
-        """The retrieval index for this model's hand and rig (loaded or built on first use, then kept)."""
+    def retrieval_index(
+        self, progress: Callable[[int, int], None] | None = None, cancel: threading.Event | None = None
+    ) -> RetrievalIndex | None:
+        """The retrieval index for this model's hand and rig (loaded or built on first use, then kept); None when
+        ``cancel`` stopped its build."""
         if self._index is None:
-            self._index = cached_index(self.renderer, self.retrieval_cfg, progress=progress)
+            self._index = cached_index(self.renderer, self.retrieval_cfg, progress=progress, cancel=cancel)
         return self._index
 
     def imitate(
@@ -243,11 +246,14 @@ class Imitator:
         """The seeds of a search from scratch for ``target (R, R)`` under ``loss_fn`` (+ the temporal term against
         ``theta_prev (21,)`` rad): the retrieval's ``search.batch`` best distinct poses (stage "retrieve", the first
         answer), swept by ``self.sweep_cfg`` (stage "sweep"); stage "index" while the index is built, once per
-        machine. None when ``config.retrieve`` is off (the paper's sampled batch). ``timings`` has "index" too."""
+        machine. None when ``config.retrieve`` is off (the paper's sampled batch) or ``cancel`` stopped the index
+        build. ``timings`` has "index" too."""
         if not self.cfg.retrieve:
             return None
         t0 = time.perf_counter()
-        index = self.retrieval_index((lambda d, n: progress("index", d, n, float("nan"))) if progress else None)
+        index = self.retrieval_index((lambda d, n: progress("index", d, n, float("nan"))) if progress else None, cancel)
+        if index is None:  # cancelled while the index was built: no seeds (the caller sees the cancel)
+            return None
         t_index = time.perf_counter() - t0
         seeds = seed_poses(
             index, self.refiner, self.sweep_cfg, loss_fn, target, self.search_cfg.batch, theta_prev, progress,
