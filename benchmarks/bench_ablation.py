@@ -31,9 +31,9 @@ import numpy as np
 import torch
 
 from studio.evaluate.table1 import gather_targets
+from studio.imitate.expressive import still_expressive
 from studio.imitate.losses import ImageLoss, LossConfig
 from studio.imitate.search import CPU_SEARCH, SearchConfig, gradient_search
-from studio.imitate.still import still_expressive
 from studio.imitate.targets import load_target
 from studio.learn.checkpoint import CheckpointError, read_checkpoint
 from studio.learn.config import TrainConfig

@@ -23,9 +23,10 @@ import numpy as np
 import torch
 
 from studio.evaluate.reachable import ReachableConfig, reach_summary, reachable_targets
+from studio.imitate.expressive import still_expressive
 from studio.imitate.refine import CPU_REFINE, PAPER_REFINE
 from studio.imitate.search import CPU_SEARCH, STUDIO_SEARCH
-from studio.imitate.still import PAPER_IMITATE, ImitateConfig, Imitator, still_expressive
+from studio.imitate.still import PAPER_IMITATE, ImitateConfig, Imitator
 from studio.imitate.sweep import PAPER_SWEEP, SweepConfig
 
 METHODS = {  # name → (search, refine, imitate, sweep): `--method studio|paper`, and the studio's before the sweep

@@ -24,9 +24,9 @@ import numpy as np
 import torch
 
 from studio.imitate.expressive import expressive_masks
-from studio.imitate.keyframes import cluster_keyframes
+from studio.imitate.keyframes import cluster_keyframes, keyframe_targets
 from studio.imitate.losses import LossConfig
-from studio.imitate.sequence import CPU_SEQUENCE, SequenceImitator, keyframe_targets
+from studio.imitate.sequence import CPU_SEQUENCE, SequenceImitator
 from studio.imitate.still import DEFAULT_MODEL
 from studio.imitate.transitions import TransitionConfig
 from studio.imitate.video import VideoConfig, load_video

@@ -274,7 +274,7 @@ def test_cancel_before_refinement_returns_a_flagged_result(hand):
 
 
 def test_zero_candidates_is_refused(hand):
-    from studio.imitate.still import distinct_best
+    from studio.imitate.candidates import distinct_best
 
     with pytest.raises(ValueError, match="candidates must be ≥ 1"):
         ImitateConfig(candidates=0)

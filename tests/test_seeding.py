@@ -9,12 +9,13 @@ import threading
 import numpy as np
 import pytest
 
+from studio.imitate.candidates import rendered_pool
 from studio.imitate.clip_loss import tiny_clip
 from studio.imitate.losses import ImageLoss, LossConfig
 from studio.imitate.refine import RefineConfig
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex
 from studio.imitate.search import SearchConfig
-from studio.imitate.seeding import rendered_pool, seed_poses
+from studio.imitate.seeding import seed_poses
 from studio.imitate.sequence import SequenceConfig, SequenceImitator
 from studio.imitate.still import ImitateConfig, Imitator
 from studio.imitate.sweep import SweepConfig

@@ -14,6 +14,7 @@ import torch
 
 from studio.errors import ClosedError
 from studio.imitate.expressive import expressive_masks
+from studio.imitate.keyframes import keyframe_targets
 from studio.imitate.losses import ImageLoss, LossConfig
 from studio.imitate.refine import RefineConfig
 from studio.imitate.search import SearchConfig
@@ -22,7 +23,6 @@ from studio.imitate.sequence import (
     PAPER_SEQUENCE,
     SequenceConfig,
     SequenceImitator,
-    keyframe_targets,
 )
 from studio.imitate.still import DEFAULT_MODEL
 from studio.imitate.transitions import TransitionConfig, transition_success

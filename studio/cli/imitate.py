@@ -72,8 +72,9 @@ def _imitate(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from studio.cli.hand import write_shadow_png
     from studio.imitate.clip_loss import clip_from_args
+    from studio.imitate.expressive import still_expressive
     from studio.imitate.losses import LossConfig
-    from studio.imitate.still import DEFAULT_MODEL, Imitator, still_expressive
+    from studio.imitate.still import DEFAULT_MODEL, Imitator
     from studio.imitate.targets import load_target
     from studio.learn.selfmodel import load_selfmodel
     from studio.review.rerun import log_imitation

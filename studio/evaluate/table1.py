@@ -30,8 +30,9 @@ from studio.evaluate.baselines import (
     TrainingSet,
 )
 from studio.evaluate.report import csv_text, markdown_table, write_report
+from studio.imitate.expressive import still_expressive
 from studio.imitate.losses import ImageLoss
-from studio.imitate.still import Imitator, still_expressive
+from studio.imitate.still import Imitator
 from studio.imitate.targets import IMAGE_SUFFIXES, TargetError, find_target_files
 from studio.learn.inverse import InverseCNN
 from studio.sim.shadow import ShadowRenderer

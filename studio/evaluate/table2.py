@@ -31,8 +31,8 @@ import numpy as np
 from studio.evaluate.report import csv_text, markdown_table, nan_to_none, write_report
 from studio.evaluate.table1 import LOSS_COLUMNS
 from studio.imitate.expressive import expressive_masks
-from studio.imitate.keyframes import KeyframeConfig, cluster_keyframes
-from studio.imitate.sequence import MODES, SequenceConfig, SequenceImitator, keyframe_targets
+from studio.imitate.keyframes import KeyframeConfig, cluster_keyframes, keyframe_targets
+from studio.imitate.sequence import MODES, SequenceConfig, SequenceImitator
 from studio.imitate.targets import IMAGE_SUFFIXES, TargetError
 from studio.imitate.transitions import TransitionConfig
 from studio.imitate.video import VideoConfig, load_video

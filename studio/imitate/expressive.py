@@ -1,4 +1,4 @@
-"""Expressive regions of a mask sequence: what moves, plus every hole (DESIGN §4).
+"""Expressive regions of a mask sequence: what moves, plus every hole (DESIGN §4); a still's: its holes.
 
 Frame i's expressive region is its shadow minus the pixels that are shadow in *every* frame of the sequence (the
 static body: :func:`moving_region`), plus its holes (connected components of the inverted mask that do not touch
@@ -65,3 +65,9 @@ def combine(auto: np.ndarray, additions: np.ndarray | None = None, erasures: np.
             raise ValueError(f"{name} of shape {layer.shape} do not fit the expressive masks of shape {auto.shape}")
         out = out | (layer != 0) if name == "additions" else out & ~(layer != 0)
     return out.astype(np.uint8)
+
+
+def still_expressive(target: np.ndarray) -> np.ndarray | None:
+    """The expressive region of a still target ``(S, S)``: its holes (openings), or None when it has none."""
+    holes = find_holes(target)
+    return holes if holes.any() else None

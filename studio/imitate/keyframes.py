@@ -134,3 +134,12 @@ def cluster_keyframes(expressive: np.ndarray, cfg: KeyframeConfig = KeyframeConf
         reps[k] = group[int(np.argmin(np.linalg.norm(e[group] - centre, axis=1)))]
     log.debug("%d frames → %d keyframes (tau %.3f)", len(e), len(members), cfg.tau)
     return Clusters(assignment=assignment, representatives=reps, members=members)
+
+
+def keyframe_targets(
+    masks: np.ndarray, expressive: np.ndarray | None, representatives: np.ndarray
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Frames ``(N, S, S)`` (and their expressive masks) → the keyframes' ``(K, S, S)`` in first-appearance order,
+    ``representatives (K,)`` being :attr:`Clusters.representatives`."""
+    reps = np.asarray(representatives, dtype=np.int64)
+    return np.asarray(masks)[reps], (None if expressive is None else np.asarray(expressive)[reps])

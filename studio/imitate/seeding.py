@@ -1,5 +1,5 @@
 """Seeds for a search from scratch, scored on the exact renderer: the retrieval's first answer, then the block
-sweep of its best poses, and the refinement pool that keeps them.
+sweep of its best poses (the refinement pool keeps them: :func:`~studio.imitate.candidates.rendered_pool`).
 
 The still :class:`~studio.imitate.still.Imitator` seeds every target this way, and a sequence every keyframe it
 searches from scratch (the first one, or all of them when independent). Every score here is the rendered-shadow
@@ -144,18 +144,3 @@ def seed_poses(
                 worker.join()
         timings["sweep"] = swept.seconds
     return Seeds(first, swept, timings)
-
-
-def rendered_pool(
-    refiner: Refiner, loss_fn: ImageLoss, batch_theta: np.ndarray, fallback: np.ndarray,
-    seeds: Retrieved | None = None, theta_prev: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-    """A search batch ``(B, 21)`` scored on the renderer (colliding poses at +inf) with the collision-free
-    ``seeds`` appended → the refinement's pool ``(P, 21)``, its losses ``(P,)`` and its best pose ``(21,)``
-    (``fallback`` when none is collision-free), so the pose kept is never worse than the best seed."""
-    loss = refiner.score(loss_fn, batch_theta, theta_prev)[0]
-    loss[refiner.world.in_collision(batch_theta, check=False)] = np.inf
-    if seeds is not None:
-        batch_theta, loss = np.concatenate([batch_theta, seeds.theta]), np.concatenate([loss, seeds.loss])
-    best = batch_theta[int(np.argmin(loss))] if np.isfinite(loss).any() else fallback
-    return batch_theta, loss, np.array(best, dtype=np.float64)

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from studio.errors import ClosedError
+from studio.imitate.candidates import refine_best, rendered_pool
 from studio.imitate.losses import COMPONENTS, ImageLoss, LossConfig
 from studio.imitate.refine import RefineConfig
 from studio.imitate.search import (
@@ -44,8 +45,7 @@ from studio.imitate.search import (
     SearchConfig,
     gradient_search,
 )
-from studio.imitate.seeding import rendered_pool
-from studio.imitate.still import Imitator, distinct_best
+from studio.imitate.still import Imitator
 from studio.imitate.transitions import TransitionConfig, TransitionReport, transition_success
 from studio.learn.selfmodel import SelfModel
 
@@ -77,16 +77,12 @@ class SequenceConfig:
 
 
 PAPER_SEQUENCE = SequenceConfig()  # the paper's sizes (GPU): first 500 × 3000, next 128 × 1200, 8 × 1000 refinement
-# CPU preset, measured sequential +Exp+Temp with the shipped 128² model (1 torch thread) on the shared DAVIS flamingo
-# (4 keyframes) and blackswan (3): about 15 s a sequence, the first keyframe's search most of it. Refining 4
-# candidates × 500 steps instead of 2 × 150 lowers L_base by up to 0.01 for 10 % more time; a later-keyframe search
-# of 32 × 100 instead of 16 × 60 changes L_base by < 0.003 and doubles the time. benchmarks/bench_sequence.py on the
-# six DAVIS sequences (2–4 keyframes each): 13 s a sequence sequential, 28 s independent (every keyframe 32 × 150).
-# Seeding the keyframes searched from scratch (retrieve: retrieval + block sweep, as a still) and searching them
-# 32 × 50 (STUDIO_SEARCH) instead of 32 × 150, same benchmark: independent L_base + L_expr 0.520 → 0.489 (L_base
-# 0.237 → 0.229), 20.2 → 21.4 s a sequence; sequential 0.569 → 0.563 (L_base 0.241 → 0.236), 10.2 → 11.7 s. Kept
-# at 32 × 150, the seeded search was no better (0.492 / 0.558) and 50–60 % slower; sweeping the inherited poses too
-# (under the temporal term) changed nothing (0.563) for 20 % more time.
+# CPU preset (1 torch thread, shipped 128² model), benchmarks/bench_sequence.py on the six DAVIS sequences: sequential
+# +Exp+Temp L_base + L_expr 0.563 at 11.7 s a sequence, independent 0.489 at 21.4 s. Seeding the keyframes searched
+# from scratch (retrieve) and searching them 32 × 50 instead of 32 × 150 unseeded: 0.569 → 0.563 and 0.520 → 0.489;
+# kept at 32 × 150 the seeded search was no better and 50–60 % slower; sweeping inherited poses too changed nothing.
+# Later keyframes: 32 × 100 instead of 16 × 60 changes L_base by < 0.003 and doubles the time; 4 candidates × 500
+# refinement steps instead of 2 × 150 lower L_base by up to 0.01 for 10 % more time.
 CPU_SEQUENCE = SequenceConfig(
     first=STUDIO_SEARCH,  # 32 × 50: after the seeds, as for a still
     next=SearchConfig(batch=16, iterations=60, lr=0.08),
@@ -279,16 +275,11 @@ class SequenceImitator:
                 self.refiner, loss_fn, search.batch_theta, search.theta, seeds.best, prev_t
             )
         if cfg.refine_enabled:
-            best = None
-            for start in distinct_best(pool_theta, pool_loss, cfg.candidates):
-                r = self.refiner.refine(
-                    loss_fn, start, cfg.refine, stage("refine"), cancel, theta_prev=prev_t, best_pose=best_pose
-                )
-                if r.cancelled:
-                    return None
-                if r.collision_free and (best is None or r.loss < best.loss):
-                    best = r
-            if best is not None:
+            best = refine_best(self.refiner, loss_fn, pool_theta, pool_loss, cfg.candidates, cfg.refine,
+                               stage("refine"), cancel, prev_t, best_pose)  # fmt: skip
+            if cancel is not None and cancel.is_set():
+                return None
+            if best is not None and best.collision_free:
                 theta = best.theta
         t2 = time.perf_counter()
         _, comps = self.refiner.score(loss_fn, theta[None], prev_t)
@@ -325,10 +316,3 @@ def imitate_sequence(
     loads the shipped self-model. Many sequences: keep one ``SequenceImitator`` open instead."""
     with SequenceImitator(model, cfg, loss_cfg=loss_cfg, clip=clip) as seq:
         return seq.imitate(masks, expressive, progress, cancel)
-
-
-def keyframe_targets(masks: np.ndarray, expressive: np.ndarray | None, representatives: np.ndarray):
-    """Frames ``(N, S, S)`` (and their expressive masks) → the keyframes' ``(K, S, S)`` in first-appearance order,
-    ``representatives (K,)`` being :attr:`~studio.imitate.keyframes.Clusters.representatives`."""
-    reps = np.asarray(representatives, dtype=np.int64)
-    return np.asarray(masks)[reps], (None if expressive is None else np.asarray(expressive)[reps])

@@ -17,13 +17,15 @@ import torch
 
 from studio.assets import asset
 from studio.errors import ClosedError
+from studio.imitate.candidates import refine_best, rendered_pool
+from studio.imitate.expressive import still_expressive
 from studio.imitate.losses import ImageLoss, LossConfig
 from studio.imitate.refine import CPU_REFINE, RefineConfig, Refiner, RefineResult
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, Retrieved, cached_index
 from studio.imitate.search import STUDIO_SEARCH, SearchConfig, SearchResult, gradient_search
-from studio.imitate.seeding import Seeds, rendered_pool, seed_poses
+from studio.imitate.seeding import Seeds, seed_poses
 from studio.imitate.sweep import SweepConfig
-from studio.imitate.targets import TargetConfig, find_holes, load_target
+from studio.imitate.targets import TargetConfig, load_target
 from studio.learn.selfmodel import SelfModel, load_selfmodel
 from studio.sim.shadow import Rig, ShadowRenderer
 
@@ -70,22 +72,6 @@ class ImitateConfig:
 
 
 PAPER_IMITATE = ImitateConfig(retrieve=False, select="model")  # sampled search batch, best by the self-model's loss
-
-
-def distinct_best(batch_theta: np.ndarray, batch_loss: np.ndarray, k: int, min_dist: float = 0.3) -> list:
-    """Up to ``k`` of the best poses ``(B, 21)`` by loss, each at least ``min_dist`` rad (max over joints) from
-    those already taken, best first (the batch often converges to a few basins: refine different ones)."""
-    taken: list[np.ndarray] = []
-    if k < 1:
-        return taken
-    for i in np.argsort(batch_loss):
-        if not np.isfinite(batch_loss[i]):
-            continue
-        if all(np.abs(batch_theta[i] - t).max() >= min_dist for t in taken):
-            taken.append(batch_theta[i])
-        if len(taken) == k:
-            break
-    return taken
 
 
 class Imitator:
@@ -201,12 +187,8 @@ class Imitator:
         theta, shadow, comps = unrefined, shadow0, {k: float(v[0]) for k, v in comps0.items()}
         cancelled = search.cancelled
         if refine and not cancelled:
-            for start in distinct_best(pool_theta, pool_loss, self.candidates):
-                if cancel is not None and cancel.is_set():
-                    break
-                r = self.refiner.refine(loss_fn, start, self.refine_cfg, stage("refine"), cancel, best_pose=best_pose)
-                if result is None or r.loss < result.loss:
-                    result = r
+            result = refine_best(self.refiner, loss_fn, pool_theta, pool_loss, self.candidates, self.refine_cfg,
+                                 stage("refine"), cancel, best_pose=best_pose)  # fmt: skip
             if result is not None and result.collision_free:
                 theta, comps = result.theta, result.components
                 shadow = self.renderer.render_one(theta)
@@ -284,12 +266,6 @@ class Imitator:
             return search.batch_theta, search.batch_loss, search.theta
         return rendered_pool(self.refiner, loss_fn, search.batch_theta, search.theta,
                              None if seeds is None else seeds.best)  # fmt: skip
-
-
-def still_expressive(target: np.ndarray) -> np.ndarray | None:
-    """The expressive region of a still target: its holes (openings), or None when it has none (DESIGN §4)."""
-    holes = find_holes(target)
-    return holes if holes.any() else None
 
 
 def imitate_still(

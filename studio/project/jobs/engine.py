@@ -72,7 +72,8 @@ def imitate_keyframe_job(
 
 def _imitate_keyframe(report: Reporter, cancel, *, target, expressive, search, refine, refine_enabled, candidates,
                       sweep, loss_cfg, clip, model_path, target_cfg, preview):  # fmt: skip
-    from studio.imitate.still import ImitateConfig, Imitator, still_expressive
+    from studio.imitate.expressive import still_expressive
+    from studio.imitate.still import ImitateConfig, Imitator
 
     config = ImitateConfig(candidates=candidates)
     with Imitator(None, model_path, loss_cfg, clip, search, refine, config=config, sweep=sweep) as im:
