@@ -105,6 +105,22 @@ def test_pixel_only_is_the_loss_without_clip(targets):
     assert not np.allclose(with_clip(shadows)[0].numpy(), plain(shadows)[0].numpy())
 
 
+def test_with_clip_the_sweep_reports_no_pixel_loss_only_the_full_one(imitator, index, targets):
+    """With CLIP on the sweep ranks its draws by the pixel terms: the progress it reports carries no loss until
+    the swept poses are re-scored, and then the full loss of the best, the number the search goes on from."""
+    loss_fn = ImageLoss(targets[2], LossConfig(use_clip=True, crop_size=32), tiny_clip(seed=0))
+    heard = []
+    seeds = seed_poses(index, imitator.refiner, SWEEP, loss_fn, targets[2], 4, progress=lambda *a: heard.append(a))
+    sweep = [a for a in heard if a[0] == "sweep"]
+    assert len(sweep) >= 3 and all(np.isnan(a[3]) for a in sweep[:-1])
+    assert sweep[-1][3] == pytest.approx(seeds.swept.loss[0]) and sweep[-1][1] == sweep[-1][2]
+    np.testing.assert_allclose(seeds.swept.loss, imitator.refiner.score(loss_fn, seeds.swept.theta)[0], rtol=1e-6)
+    heard.clear()
+    seed_poses(index, imitator.refiner, SWEEP, ImageLoss(targets[2], LOSS), targets[2], 4,
+               progress=lambda *a: heard.append(a))  # fmt: skip
+    assert all(np.isfinite(a[3]) for a in heard)  # without CLIP every report has the loss
+
+
 def _stages(seq, targets, cfg, **kw):
     stages, poses = [], []
     result = seq.imitate(targets, cfg=cfg, progress=lambda s, *a: stages.append(s), best_pose=poses.append, **kw)

@@ -14,6 +14,7 @@ from studio.imitate.refine import RefineConfig
 from studio.imitate.search import SearchConfig
 from studio.imitate.sequence import SequenceConfig
 from studio.project.jobs import JobState, queue_for
+from studio.project.jobs.events import JobEvent
 from studio.project.project import Project
 from widgets.optimise import OptimiseConfig, mask_picture, optimise_panel
 from widgets.state import StudioState
@@ -145,3 +146,23 @@ def test_the_whole_video_is_one_sequence_job_over_the_sources_keyframes(tmp_path
     finally:
         panel.close()
         state.close()
+
+
+def test_the_loss_shown_is_the_newest_stages_best_not_a_minimum_across_stages(state):
+    """A search reports the self-model's loss and a later keyframe has another target: the panel shows each
+    stage's own best, never a lower number left over from an earlier stage."""
+    panel = optimise_panel(state, OptimiseConfig(sequence=TINY))
+
+    def event(seq: int, stage: str, best: float) -> JobEvent:
+        return JobEvent(job_id=7, kind="imitate-video", state=JobState.RUNNING, stage=stage, step=1, total=2,
+                        best=best, shadow=None, elapsed=0.1 * seq, seq=seq)  # fmt: skip
+
+    try:
+        for i, (stage, best) in enumerate([("keyframe 1/2: refine", 0.12), ("keyframe 2/2: search", 0.31)]):
+            panel._draw_event(event(i, stage, best))
+        assert panel.best == 0.31 and "0.3100" in panel.loss.value and "keyframe 2/2: search" in panel.loss.value
+        panel._draw_event(event(2, "keyframe 2/2: refine", float("nan")))  # a stage with no loss keeps the last one
+        assert panel.best == 0.31 and set(panel.bars) == {"keyframe 1/2: refine", "keyframe 2/2: search",
+                                                          "keyframe 2/2: refine"}  # fmt: skip
+    finally:
+        panel.close()

@@ -75,7 +75,7 @@ class OptimisePanel:
         self.report: RunReport | None = None  # the last "stale" run's report
         self.last: JobEvent | None = None  # the newest event drawn
         self.step = 0  # the newest drawn event's step within its stage
-        self.best = math.nan  # the best loss so far of the job followed
+        self.best = math.nan  # the newest stage's best loss so far, of the job followed (stages are not compared)
         self.shown_shadow: np.ndarray | None = None  # the shadow beside the target now (a preview or a result)
         self.bars: dict[str, w.FloatProgress] = {}  # stage → its bar, for the job followed
         self._following: int | None = None
@@ -291,8 +291,8 @@ class OptimisePanel:
                 self.bar_box.children = (*self.bar_box.children, bar)
             bar.value = min(1.0, e.step / e.total)
             bar.description = f"{e.stage} {e.step}/{e.total}"
-        if not math.isnan(e.best):
-            self.best = e.best if math.isnan(self.best) else min(self.best, e.best)
+        if not math.isnan(e.best):  # each stage's own running best: the search's is the self-model's loss, a
+            self.best = e.best  # later keyframe has another target, so a minimum across stages would mislead
             self.loss.value = f"best loss so far: <b>{self.best:.4f}</b> ({html.escape(e.stage)})"
         if e.shadow is not None:
             self.shown_shadow = np.asarray(e.shadow)

@@ -11,6 +11,7 @@ Pure compute over a refiner (renderer + collision world); progress and live prev
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -63,7 +64,8 @@ def sweep(
     ``loss_fn``, best first, each still collision-free. ``progress(step, total, best)`` after every block.
 
     With CLIP on, the thousands of draws are scored by the pixel terms alone (CLIP on every draw would take
-    minutes on a CPU) and the swept poses are then re-scored under the full loss."""
+    minutes on a CPU) and the swept poses are then re-scored under the full loss; ``best`` is then NaN until
+    that last report, which carries the full loss (a pixel loss is not the objective's number)."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(cfg.seed)
     hand = refiner.hand
@@ -87,9 +89,13 @@ def sweep(
         return refiner.world.in_collision(th, check=False)
 
     per_start = cfg.passes * len(blocks)  # the most blocks one start can take; the bar jumps when it stops early
+    pixel = pixel_fn is not loss_fn  # CLIP on: the draws' losses are not the objective's, none is reported
+
+    def shown() -> float:
+        return math.nan if pixel else best[0]
 
     def on_block(k: int) -> Callable[[int], None] | None:
-        return (lambda done: progress(k * per_start + done, n * per_start, best[0])) if progress else None
+        return (lambda done: progress(k * per_start + done, n * per_start, shown())) if progress else None
 
     for k in range(n):
         if cancel is not None and cancel.is_set():
@@ -99,9 +105,11 @@ def sweep(
             on_better, on_block(k),
         )  # fmt: skip
         if progress and not (cancel is not None and cancel.is_set()):
-            progress((k + 1) * per_start, n * per_start, best[0])
-    if pixel_fn is not loss_fn:
+            progress((k + 1) * per_start, n * per_start, shown())
+    if pixel:
         loss = refiner.score(loss_fn, theta, theta_prev)[0]
+        if progress:
+            progress(n * per_start, n * per_start, float(loss.min()))
     order = np.argsort(loss, kind="stable")
     return Retrieved(theta[order], loss[order], time.perf_counter() - t0)
 
