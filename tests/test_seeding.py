@@ -157,6 +157,27 @@ def test_independent_seeds_every_keyframe(imitator, targets):
     assert len(plain.keyframes) == 3
 
 
+def test_a_keyframe_retrieves_as_many_seeds_as_its_own_search_batch(imitator, targets):
+    """The first keyframe's search batch (12 here) is filled with retrieved poses, not the imitator's (8)."""
+    loss_fn = ImageLoss(targets[0], LOSS)
+    assert len(imitator.seed(loss_fn, targets[0]).first.theta) == imitator.search_cfg.batch == 8
+    assert len(imitator.seed(loss_fn, targets[0], k=12).first.theta) == 12
+    cfg = SequenceConfig(**{**SEQ.__dict__, "first": SearchConfig(batch=12, iterations=4, lr=0.08)})
+    asked, seed = [], imitator.seed
+
+    def counted(*a, **kw):  # the real Imitator.seed, its seeds counted
+        seeds = seed(*a, **kw)
+        asked.append(len(seeds.first.theta))
+        return seeds
+
+    imitator.seed = counted
+    try:
+        SequenceImitator(cfg=cfg, imitator=imitator).imitate(targets[:1], cfg=cfg)
+    finally:
+        del imitator.seed
+    assert asked == [12]
+
+
 def test_cancel_during_the_seeds_leaves_no_half_keyframe(imitator, targets):
     cancel = threading.Event()
 

@@ -256,7 +256,7 @@ class SequenceImitator:
             t_seed = time.perf_counter()
             seeds = self.imitator.seed(
                 loss_fn, target, prev_t, (lambda s, i, m, b: progress(f"{name}: {s}", i, m, b)) if progress else None,
-                cancel, best_pose,
+                cancel, best_pose, k=search_cfg.batch,
             )  # fmt: skip
             if cancel is not None and cancel.is_set():
                 return None
