@@ -32,6 +32,7 @@ SEQ = SequenceConfig(
     candidates=1,
     expressive=False,
     retrieve=True,
+    sweep=SWEEP,
 )
 LOSS = LossConfig(use_clip=False, crop_size=32)
 
@@ -155,6 +156,9 @@ def test_independent_seeds_every_keyframe(imitator, targets):
                                SequenceConfig(**{**cfg.__dict__, "retrieve": False}))  # fmt: skip
     assert not any(s.endswith((": retrieve", ": sweep")) for s in stages)  # the paper's sampled batches
     assert len(plain.keyframes) == 3
+    unswept = SequenceConfig(**{**cfg.__dict__, "sweep": SweepConfig(starts=0)})  # the sequence's sweep, not the
+    _, stages, _ = _stages(SequenceImitator(cfg=unswept, imitator=imitator), targets[:1], unswept)  # imitator's
+    assert "keyframe 1/1: retrieve" in stages and not any(s.endswith(": sweep") for s in stages)
 
 
 def test_a_keyframe_retrieves_as_many_seeds_as_its_own_search_batch(imitator, targets):

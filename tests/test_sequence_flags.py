@@ -28,13 +28,15 @@ def test_no_flags_is_the_cpu_preset_and_paper_keeps_every_size_not_given(verb):
     assert cfg.next == replace(PAPER_SEQUENCE.next, iterations=7)
     assert cfg.refine == replace(PAPER_SEQUENCE.refine, restarts=3)
     assert cfg.candidates == 2 and cfg.mode == PAPER_SEQUENCE.mode
+    swept = config(*verb, "--sweep-draws", "64", "--sweep-passes", "1")
+    assert swept == replace(CPU_SEQUENCE, sweep=replace(CPU_SEQUENCE.sweep, draws=64, passes=1))
 
 
 def test_both_verbs_read_the_same_flags_the_same_way():
     (video, table) = VERBS
     assert config(*video, *BUDGET, "--seed", "5") == config(*table, *BUDGET, "--seed", "5")
     cfg = config(*table, "--seed", "5")
-    assert (cfg.first.seed, cfg.next.seed, cfg.refine.seed) == (5, 5, 5)
+    assert (cfg.first.seed, cfg.next.seed, cfg.refine.seed, cfg.sweep.seed) == (5, 5, 5, 5)
 
 
 def test_imitate_video_also_sets_mode_terms_and_refinement():

@@ -1,7 +1,8 @@
 """The flags of a sequence imitation (``imitate-video``, ``evaluate-video``) and the :class:`SequenceConfig` they make.
 
 ``--preset cpu|paper`` picks :data:`CPU_SEQUENCE` (the default) or :data:`PAPER_SEQUENCE`; the budget flags
-(``--first-batch/--first-iters``, ``--next-batch/--next-iters``, ``--refine-steps/--refine-restarts``) and the
+(``--first-batch/--first-iters``, ``--next-batch/--next-iters``, ``--refine-steps/--refine-restarts``,
+``--sweep-starts/--sweep-draws/--sweep-passes`` for the seeds of keyframes searched from scratch) and the
 sequence fields a verb exposes (``--mode``, ``--expressive``, ``--temporal``, ``--candidates``, ``--no-refine``) each
 override one field of it, only when given: ``--help`` shows the CPU preset's values as the defaults, and ``--preset
 paper --first-batch 8`` keeps every other paper size. ``--seed`` (default: the preset's seeds) seeds every search
@@ -18,15 +19,18 @@ import dataclasses
 from collections.abc import Iterable
 
 from studio.cli.flags import add_config_flags, dest_of, given, ranged
+from studio.cli.still_flags import SWEEP_FIELDS
 from studio.imitate.refine import RefineConfig
 from studio.imitate.search import SearchConfig
 from studio.imitate.sequence import CPU_SEQUENCE, MODES, PAPER_SEQUENCE, SequenceConfig
+from studio.imitate.sweep import SweepConfig
 
 PRESETS = {"cpu": CPU_SEQUENCE, "paper": PAPER_SEQUENCE}  # --preset: the search/refine sizes
 BUDGETS = (  # (flag prefix, the preset's field, its config class, the fields with flags)
     ("first-", "first", SearchConfig, ("batch", "iterations")),
     ("next-", "next", SearchConfig, ("batch", "iterations")),
     ("refine-", "refine", RefineConfig, ("steps", "restarts")),
+    ("sweep-", "sweep", SweepConfig, SWEEP_FIELDS),
 )
 
 

@@ -46,6 +46,7 @@ from studio.imitate.search import (
     gradient_search,
 )
 from studio.imitate.still import Imitator
+from studio.imitate.sweep import SweepConfig
 from studio.imitate.transitions import TransitionConfig, TransitionReport, transition_success
 from studio.learn.selfmodel import SelfModel
 
@@ -68,6 +69,7 @@ class SequenceConfig:
     candidates: int = 4  # distinct best search results refined per keyframe, the best kept [1, ∞)
     refine_enabled: bool = True  # False: keep the searched poses (no rendered-shadow refinement)
     retrieve: bool = False  # a keyframe searched from scratch starts from retrieval + block sweep (the still method)
+    sweep: SweepConfig = SweepConfig()  # the block sweep of those seeds (retrieve; starts=0: retrieval alone)
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -256,7 +258,7 @@ class SequenceImitator:
             t_seed = time.perf_counter()
             seeds = self.imitator.seed(
                 loss_fn, target, prev_t, (lambda s, i, m, b: progress(f"{name}: {s}", i, m, b)) if progress else None,
-                cancel, best_pose, k=search_cfg.batch,
+                cancel, best_pose, k=search_cfg.batch, sweep=cfg.sweep,
             )  # fmt: skip
             if cancel is not None and cancel.is_set():
                 return None

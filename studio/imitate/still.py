@@ -225,12 +225,13 @@ class Imitator:
         cancel: threading.Event | None = None,
         best_pose: Callable[[np.ndarray], None] | None = None,
         k: int | None = None,
+        sweep: SweepConfig | None = None,
     ) -> Seeds | None:
         """The seeds of a search from scratch for ``target (R, R)`` under ``loss_fn`` (+ the temporal term against
         ``theta_prev (21,)`` rad): the retrieval's ``k`` best distinct poses (None: this imitator's search batch;
-        stage "retrieve", the first answer), swept by ``self.sweep_cfg`` (stage "sweep"); stage "index" while the
-        index is built, once per machine. None when ``config.retrieve`` is off (the paper's sampled batch) or
-        ``cancel`` stopped the index build. ``timings`` has "index" too."""
+        stage "retrieve", the first answer), swept by ``sweep`` (None: ``self.sweep_cfg``; stage "sweep"); stage
+        "index" while the index is built, once per machine. None when ``config.retrieve`` is off (the paper's
+        sampled batch) or ``cancel`` stopped the index build. ``timings`` has "index" too."""
         if not self.cfg.retrieve:
             return None
         t0 = time.perf_counter()
@@ -239,8 +240,8 @@ class Imitator:
             return None
         t_index = time.perf_counter() - t0
         seeds = seed_poses(
-            index, self.refiner, self.sweep_cfg, loss_fn, target, k or self.search_cfg.batch, theta_prev, progress,
-            cancel, best_pose, beside_sweep=None if self._warmed else self._warm_model,
+            index, self.refiner, sweep or self.sweep_cfg, loss_fn, target, k or self.search_cfg.batch, theta_prev,
+            progress, cancel, best_pose, beside_sweep=None if self._warmed else self._warm_model,
         )  # fmt: skip
         seeds.timings["index"] = t_index
         return seeds
