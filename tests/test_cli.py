@@ -26,6 +26,38 @@ def test_help_lists_verbs():
         assert verb in out.stdout
 
 
+def test_each_verb_is_registered_by_the_module_the_dispatch_names():
+    """main() builds only the module of the verb on the command line: VERBS must name every verb's module."""
+    import importlib
+
+    from studio.cli.flags import CliParser
+    from studio.cli.main import VERB_MODULES, VERBS, verb_modules_for
+
+    registered = {}
+    for name in VERB_MODULES:
+        sub = CliParser(prog="t").add_subparsers(dest="verb")
+        importlib.import_module(name).register(sub)
+        registered |= dict.fromkeys(sub.choices, name)
+    assert registered == VERBS
+    assert verb_modules_for(["-v", "play", "show.json"]) == ("studio.cli.servos",)
+    assert verb_modules_for(["--help"]) == verb_modules_for(["no-such-verb"]) == VERB_MODULES
+
+
+def test_hardware_and_render_verbs_start_without_torch():
+    """Started for `play`, `scan` or `render` (a Raspberry Pi beside the hand), the CLI never imports torch."""
+    code = ("import atexit, sys; atexit.register(lambda: print('torch loaded:', 'torch' in sys.modules)); "
+            "from studio.cli.main import main; sys.exit(main(sys.argv[1:]))")  # fmt: skip
+
+    def start(*argv: str) -> str:
+        out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0 and "usage: shadow-studio" in out.stdout, out.stderr
+        return out.stdout
+
+    for verb in ("scan", "play", "render", "plan"):
+        assert "torch loaded: False" in start(verb, "--help"), verb
+    assert "imitate-video" in start("--help")  # --help still lists every verb
+
+
 def test_render_rest_and_json_pose(tmp_path, hand):
     out = run("render", "rest", "--out", str(tmp_path / "rest.png"), "--resolution", "128")
     assert out.returncode == 0, out.stderr

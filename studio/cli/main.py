@@ -35,6 +35,41 @@ VERB_MODULES = (
 )
 
 
+# Each verb → the module that registers it (tests/test_cli.py checks it against VERB_MODULES): a command builds only
+# its verb's parser, so `play`, `scan` or `render` start without importing torch (~2 s of the 3 s a full parser takes).
+VERBS = {
+    "render": "studio.cli.hand",
+    "gen-urdf": "studio.cli.hand",
+    "collect": "studio.cli.data",
+    "train": "studio.cli.train",
+    "evaluate": "studio.cli.evaluate",
+    "evaluate-video": "studio.cli.evaluate",
+    "train-inverse": "studio.cli.evaluate",
+    "imitate": "studio.cli.imitate",
+    "keyframes": "studio.cli.video",
+    "imitate-video": "studio.cli.imitate_video",
+    "emulate": "studio.cli.servos",
+    "scan": "studio.cli.servos",
+    "calibrate": "studio.cli.servos",
+    "play": "studio.cli.servos",
+    "jog": "studio.cli.servos",
+    "plan": "studio.cli.plan",
+    "validate": "studio.cli.plan",
+    "show-info": "studio.cli.plan",
+    "export-csv": "studio.cli.plan",
+    "project": "studio.cli.project",
+    "demo": "studio.cli.demo",
+    "lab": "studio.cli.lab",
+}
+
+
+def verb_modules_for(argv: list[str]) -> tuple[str, ...]:
+    """The modules a command line needs: its verb's (the first word not starting with "-"; the top level has only
+    flags without values), or all of them for ``--help``, no verb or an unknown one (argparse then lists them)."""
+    verb = next((a for a in argv if not a.startswith("-")), None)
+    return (VERBS[verb],) if verb in VERBS else VERB_MODULES
+
+
 def build_parser(verb_modules: Iterable[str] = VERB_MODULES) -> argparse.ArgumentParser:
     """The ``shadow-studio`` parser with the verbs of ``verb_modules`` (module names, each with ``register``)."""
     parser = CliParser(
@@ -48,9 +83,11 @@ def build_parser(verb_modules: Iterable[str] = VERB_MODULES) -> argparse.Argumen
     return parser
 
 
-def main(argv: list[str] | None = None, verb_modules: Iterable[str] = VERB_MODULES) -> int:
-    """Run ``shadow-studio`` with ``argv`` (default ``sys.argv[1:]``); returns the exit code."""
-    parser = build_parser(verb_modules)
+def main(argv: list[str] | None = None, verb_modules: Iterable[str] | None = None) -> int:
+    """Run ``shadow-studio`` with ``argv`` (default ``sys.argv[1:]``); returns the exit code. ``verb_modules``
+    None: the modules the command line needs (:func:`verb_modules_for`)."""
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    parser = build_parser(verb_modules_for(argv) if verb_modules is None else verb_modules)
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(name)s: %(message)s"
