@@ -20,7 +20,8 @@ from studio.sim.hand import load_hand
 
 CLI = [sys.executable, "-m", "studio.cli.main"]
 SMALL = ["--first-batch", "8", "--first-iters", "30", "--next-batch", "8", "--next-iters", "15",
-         "--refine-steps", "40", "--refine-restarts", "2", "--candidates", "1", "--quiet"]  # fmt: skip
+         "--refine-steps", "40", "--refine-restarts", "2", "--candidates", "1", "--quiet",
+         "--sweep-draws", "96", "--sweep-passes", "1"]  # fmt: skip
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="the emulator needs POSIX pseudo-terminals")
 

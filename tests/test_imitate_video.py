@@ -17,7 +17,8 @@ from studio.imitate.video import DEFAULT_VIDEO
 from studio.review.rerun import read_recording
 
 SMALL = ["--no-clip", "--quiet", "--hz", "4", "--first-batch", "8", "--first-iters", "20", "--next-batch", "4",
-         "--next-iters", "10", "--refine-steps", "20", "--refine-restarts", "2", "--candidates", "1"]  # fmt: skip
+         "--next-iters", "10", "--refine-steps", "20", "--refine-restarts", "2", "--candidates", "1",
+         "--sweep-draws", "96", "--sweep-passes", "1"]  # fmt: skip
 FAST_SERVOS = ["--acceleration", "200", "--jerk", "5000"]  # servos fast enough for a 1.1 s gallop at 4 Hz
 SLOW_SERVOS = ["--velocity-scale", "0.05"]  # far too slow for it
 UNSEEDED = ["--no-retrieve"]  # tests about timing and footage: no seeding sweep (the first fixture run seeds)

@@ -25,7 +25,8 @@ from studio.project.show_timing import ShowLayout
 
 STILL = asset("targets/asl_o.jpeg")
 TINY = ["--first-batch", "8", "--first-iters", "20", "--next-batch", "8", "--next-iters", "10",
-        "--refine-steps", "30", "--refine-restarts", "2", "--candidates", "1"]  # fmt: skip
+        "--refine-steps", "30", "--refine-restarts", "2", "--candidates", "1", "--sweep-draws", "96",
+        "--sweep-passes", "1"]  # fmt: skip
 TINY_SEQUENCE = SequenceConfig(
     first=SearchConfig(batch=8, iterations=20), next=SearchConfig(batch=8, iterations=10, lr=0.08),
     refine=RefineConfig(steps=30, restarts=2), candidates=1,

@@ -44,7 +44,8 @@ TINY = SequenceConfig(
     candidates=1,
 )
 TINY_FLAGS = ["--first-batch", "8", "--first-iters", "15", "--next-batch", "4", "--next-iters", "8",
-              "--refine-steps", "15", "--refine-restarts", "2", "--candidates", "1"]  # fmt: skip
+              "--refine-steps", "15", "--refine-restarts", "2", "--candidates", "1",
+              "--sweep-draws", "96", "--sweep-passes", "1"]  # fmt: skip
 
 
 def test_rows_are_the_papers_six():
