@@ -51,9 +51,9 @@ from studio.motion.timing import TimingConfig
 def imitate_frames(model, video, seq_cfg, key_cfg, clip, bars: StageBars, cancel) -> tuple:
     """Expressive masks → keyframes → imitation: ``(expressive, clusters, result, seq)``, the imitator left open."""
     from studio.imitate.expressive import expressive_masks
-    from studio.imitate.keyframes import cluster_keyframes
+    from studio.imitate.keyframes import cluster_keyframes, keyframe_targets
     from studio.imitate.losses import LossConfig
-    from studio.imitate.sequence import SequenceImitator, keyframe_targets
+    from studio.imitate.sequence import SequenceImitator
 
     expressive = expressive_masks(video.masks)
     clusters = cluster_keyframes(expressive, key_cfg)
