@@ -224,18 +224,19 @@ def test_imitate_cli_writes_everything(tmp_path):
     assert np.allclose(loaded.positions[-1], [pose["pose"][n] for n in loaded.joint_names], atol=1e-9)
 
 
-def test_imitate_cli_errors(tmp_path):
+def test_imitate_cli_errors(tmp_path, in_process):
     bad = tmp_path / "empty.png"
     import cv2
 
     cv2.imwrite(str(bad), np.zeros((32, 32), np.uint8))
-    for args, message in (
+    for i, (args, message) in enumerate((
         ((str(tmp_path / "absent.png"),), "not found"),
         ((str(bad),), "no shadow"),
         ((str(bad), "--model", str(tmp_path / "none.pt")), "checkpoint not found"),
-    ):
-        proc = subprocess.run([sys.executable, "-m", "studio.cli", "imitate", *args, "--out", str(tmp_path / "o"),
-                               "--no-clip"], capture_output=True, text=True, timeout=300)  # fmt: skip
+    )):  # fmt: skip
+        argv = ["imitate", *args, "--out", str(tmp_path / "o"), "--no-clip"]
+        proc = (subprocess.run([sys.executable, "-m", "studio.cli", *argv], capture_output=True, text=True, timeout=300)
+                if i == 0 else in_process(*argv))  # one real start, the rest in this process  # fmt: skip
         assert proc.returncode == 2 and message in proc.stderr.lower() and "Traceback" not in proc.stderr, proc.stderr
 
 

@@ -179,13 +179,14 @@ def _one_line_error(proc: subprocess.CompletedProcess, *words: str) -> None:
         assert w in lines[0], lines[0]
 
 
-def test_bad_input_is_one_line_and_exit_2(tmp_path):
+def test_bad_input_is_one_line_and_exit_2(tmp_path, in_process):
     _one_line_error(
         cli("imitate-video", tmp_path / "missing.gif", "--out", tmp_path / "o", "--no-clip", "--quiet"), "not found"
     )
+    run = in_process  # the rest in this process (the one start above proves the console script)
     junk = tmp_path / "junk.gif"
     junk.write_bytes(b"not a gif at all")
-    _one_line_error(cli("imitate-video", junk, "--out", tmp_path / "o", "--no-clip", "--quiet"), "junk.gif")
+    _one_line_error(run("imitate-video", junk, "--out", tmp_path / "o", "--no-clip", "--quiet"), "junk.gif")
     colour = tmp_path / "colour.avi"
     writer = cv2.VideoWriter(str(colour), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 48))
     rng = np.random.default_rng(0)
@@ -193,7 +194,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
         writer.write(rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
     writer.release()
     _one_line_error(
-        cli("imitate-video", colour, "--out", tmp_path / "o", "--no-clip", "--quiet"), "colour footage", "--box"
+        run("imitate-video", colour, "--out", tmp_path / "o", "--no-clip", "--quiet"), "colour footage", "--box"
     )
-    _one_line_error(cli("imitate-video", DEFAULT_VIDEO, "--out", tmp_path / "o", "--hz", "0"), "hz")
+    _one_line_error(run("imitate-video", DEFAULT_VIDEO, "--out", tmp_path / "o", "--hz", "0"), "hz")
     assert not (tmp_path / "o").exists()

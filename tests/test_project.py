@@ -426,17 +426,18 @@ def test_project_verbs_end_to_end(tmp_path, shared_targets, hand):
     assert info["results"]["current"] == len(info["keyframes"]) and info["show"]["stale"] is False
 
 
-def test_project_verbs_report_bad_input_in_one_line(tmp_path, sources):
+def test_project_verbs_report_bad_input_in_one_line(tmp_path, sources, in_process, monkeypatch):
     r = cli("project", "new", "x.shadow", "--source", str(tmp_path / "nothing.png"), cwd=tmp_path)
     assert r.returncode == 2 and "source not found" in r.stderr and len(r.stderr.strip().splitlines()) == 1
-    r = cli("project", "info", "nope.shadow", cwd=tmp_path)
+    monkeypatch.chdir(tmp_path)  # the rest in this process (the start above proves the console script)
+    r = in_process("project", "info", "nope.shadow")
     assert r.returncode == 2 and "not a project" in r.stderr
     p = make(tmp_path, sources)
     doc = json.loads((p.path / "project.json").read_text())
     (p.path / "project.json").write_text(json.dumps(doc | {"version": 2}))
-    r = cli("project", "info", str(p.path), cwd=tmp_path)
+    r = in_process("project", "info", str(p.path))
     assert r.returncode == 2 and "version 2" in r.stderr and len(r.stderr.strip().splitlines()) == 1
-    r = cli("project", "new", "t.shadow", "--source", str(sources[1]), "--still-threshold", "300", cwd=tmp_path)
+    r = in_process("project", "new", "t.shadow", "--source", str(sources[1]), "--still-threshold", "300")
     assert r.returncode == 2 and "still-threshold" in r.stderr
 
 
