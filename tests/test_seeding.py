@@ -9,7 +9,7 @@ import threading
 import numpy as np
 import pytest
 
-from studio.imitate.candidates import rendered_pool
+from studio.imitate.candidates import distinct_best, refine_best, rendered_pool
 from studio.imitate.clip_loss import tiny_clip
 from studio.imitate.losses import ImageLoss, LossConfig
 from studio.imitate.refine import RefineConfig
@@ -93,6 +93,30 @@ def test_rendered_pool_keeps_the_seeds_and_drops_colliding_poses(imitator, index
     np.testing.assert_array_equal(best, seeds.first.theta[0])
     _, _, fallback = rendered_pool(imitator.refiner, loss_fn, colliding, colliding[0])
     np.testing.assert_array_equal(fallback, colliding[0])  # nothing collision-free: the caller's fallback
+
+
+def test_refine_best_keeps_the_lowest_loss_and_stops_on_cancel(imitator, index, targets):
+    """Every distinct candidate is refined and the lowest loss kept; a cancel stops before the next candidate."""
+    loss_fn = ImageLoss(targets[0], LOSS)
+    pool = seed_poses(index, imitator.refiner, SweepConfig(starts=0), loss_fn, targets[0], 6).first
+    cfg = RefineConfig(method="cmaes", restarts=1, steps=4, popsize=6)
+
+    best = refine_best(imitator.refiner, loss_fn, pool.theta, pool.loss, 3, cfg)
+    each = [imitator.refiner.refine(loss_fn, t, cfg) for t in distinct_best(pool.theta, pool.loss, 3)]
+    assert len(each) == 3 and best.loss == min(r.loss for r in each) and best.collision_free
+    assert best.loss <= pool.loss[0] + 1e-12  # refinement never returns worse than its start
+    cancel, calls = threading.Event(), []
+
+    def stop_after_first(step, total, b):
+        calls.append(step)
+        cancel.set()
+
+    first = refine_best(imitator.refiner, loss_fn, pool.theta, pool.loss, 3, cfg, stop_after_first, cancel)
+    one = []
+    imitator.refiner.refine(loss_fn, distinct_best(pool.theta, pool.loss, 1)[0], cfg, lambda *a: one.append(a))
+    assert first is not None and np.array_equal(first.theta, each[0].theta) and len(calls) == len(one)  # one only
+    assert refine_best(imitator.refiner, loss_fn, pool.theta, pool.loss, 3, cfg, cancel=cancel) is None
+    assert refine_best(imitator.refiner, loss_fn, pool.theta[:0], pool.loss[:0], 3, cfg) is None
 
 
 def test_pixel_only_is_the_loss_without_clip(targets):
