@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
 import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 
@@ -47,3 +49,36 @@ def in_process(capsys):
         return subprocess.CompletedProcess(list(args), code, out.out, out.err)
 
     return run
+
+
+def _write_frames(folder: Path, n: int = 8, seed: int = 0) -> Path:
+    """A frame folder of n binary 64² masks: a static body and an arm that swings through three positions."""
+    folder.mkdir(parents=True, exist_ok=True)
+    yy, xx = np.mgrid[:64, :64]
+    for i in range(n):
+        m = ((yy - 40) ** 2 + (xx - 32) ** 2 < 12**2).astype(np.uint8)
+        ang = [-0.8, 0.0, 0.8][(i // 3) % 3]
+        cx, cy = 32 + 20 * math.sin(ang), 40 - 20 * math.cos(ang)
+        m |= ((yy - cy) ** 2 + (xx - cx) ** 2 < 6**2).astype(np.uint8)
+        Image.fromarray(m * 255).save(folder / f"{i:05d}.png")
+    return folder
+
+
+def _write_still(path: Path) -> Path:
+    """A ring (its hole is the expressive region) on black."""
+    yy, xx = np.mgrid[:64, :64]
+    r2 = (yy - 32) ** 2 + (xx - 32) ** 2
+    Image.fromarray(((r2 < 24**2) & (r2 > 10**2)).astype(np.uint8) * 255).save(path)
+    return path
+
+
+@pytest.fixture(scope="session")
+def write_sources():
+    """``write_sources(folder)`` → two project sources written there: a frame folder of 8 binary masks (a static
+    body, an arm swinging through three positions) and a ring still (its hole is the expressive region)."""
+    return lambda folder: [_write_frames(Path(folder) / "clip"), _write_still(Path(folder) / "ring.png")]
+
+
+@pytest.fixture
+def sources(tmp_path, write_sources) -> list[Path]:
+    return write_sources(tmp_path / "src")

@@ -1,12 +1,11 @@
 """Projects (studio.project.project): round trips, crash safety, undo/redo laws, missing and changed sources,
-format versions, staleness, and the ``project new/info/export`` verbs end to end."""
+format versions, staleness, colour footage (the ``project`` verbs: tests/test_project_cli.py)."""
 
 from __future__ import annotations
 
 import json
 import logging
 import math
-import os
 import shutil
 import signal
 import subprocess
@@ -21,9 +20,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from PIL import Image
-from studio.assets import asset
 
-from studio.imitate.targets import TargetConfig
 from studio.imitate.video import VideoConfig
 from studio.motion.show import Show, load_show
 from studio.project.project import Project, ProjectError
@@ -32,32 +29,6 @@ S = 32  # mask side: small and fast
 VIDEO = VideoConfig(size=S, fps=8.0, hz=8.0)
 CLI = [sys.executable, "-m", "studio.cli.main"]
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def write_frames(folder: Path, n: int = 8, seed: int = 0) -> Path:
-    """A frame folder of n binary 64² masks: a static body and an arm that swings through three positions."""
-    folder.mkdir(parents=True, exist_ok=True)
-    yy, xx = np.mgrid[:64, :64]
-    for i in range(n):
-        m = ((yy - 40) ** 2 + (xx - 32) ** 2 < 12**2).astype(np.uint8)
-        ang = [-0.8, 0.0, 0.8][(i // 3) % 3]
-        cx, cy = 32 + 20 * math.sin(ang), 40 - 20 * math.cos(ang)
-        m |= ((yy - cy) ** 2 + (xx - cx) ** 2 < 6**2).astype(np.uint8)
-        Image.fromarray(m * 255).save(folder / f"{i:05d}.png")
-    return folder
-
-
-def write_still(path: Path) -> Path:
-    """A ring (its hole is the expressive region) on black."""
-    yy, xx = np.mgrid[:64, :64]
-    r2 = (yy - 32) ** 2 + (xx - 32) ** 2
-    Image.fromarray(((r2 < 24**2) & (r2 > 10**2)).astype(np.uint8) * 255).save(path)
-    return path
-
-
-@pytest.fixture
-def sources(tmp_path) -> list[Path]:
-    return [write_frames(tmp_path / "src" / "clip"), write_still(tmp_path / "src" / "ring.png")]
 
 
 def make(tmp_path: Path, sources: list[Path], name: str = "p.shadow") -> Project:
@@ -189,9 +160,8 @@ EDITS = st.lists(
 
 
 @pytest.fixture(scope="module")
-def base_project(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("undo")
-    return make(tmp, [write_frames(tmp / "clip"), write_still(tmp / "ring.png")]).path
+def base_project(tmp_path_factory, write_sources):
+    return make(tmp_path_factory.mktemp("undo"), write_sources(tmp_path_factory.mktemp("undo_src"))).path
 
 
 def apply(p: Project, op: str, x: int) -> None:
@@ -382,73 +352,6 @@ def test_export_writes_the_current_show(tmp_path, sources, hand):
     assert load_show(out).equals(p.show)
     p.set_hold(p.keyframes[0].id, True)
     assert p.is_show_stale()
-
-
-# ---------------------------------------------------------------- verbs
-
-
-def cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=300, cwd=cwd)
-
-
-def test_project_verbs_end_to_end(tmp_path, shared_targets, hand):
-    davis = shared_targets / "davis" / "blackswan"
-    if not davis.is_dir():
-        pytest.skip(f"DAVIS masks not found at {davis}")
-    still = asset("targets/asl_o.jpeg")
-    r = cli("project", "new", "swan.shadow", "--source", str(davis), str(still), "--hz", "2", "--size", "48",
-            "--tau", "0.39", cwd=tmp_path)  # fmt: skip
-    assert r.returncode == 0, r.stderr
-    new = json.loads(r.stdout.strip().splitlines()[-1])
-    assert new["size"] == 48 and new["hz"] == 2.0 and [s["kind"] for s in new["sources"]] == ["folder", "still"]
-    assert new["frames"] == sum(s["frames"] for s in new["sources"]) and new["sources"][1]["frames"] == 1
-    assert new["results"] == {"current": 0, "stale": 0, "missing": len(new["keyframes"])}
-    assert "keyframe 0: frame" in r.stdout and new["show"] is None
-
-    r = cli("project", "info", "swan.shadow", cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
-    info = json.loads(r.stdout.strip().splitlines()[-1])
-    assert info["keyframes"] == new["keyframes"] and "show: none planned yet" in r.stdout
-
-    r = cli("project", "export", "swan.shadow", "--out", "show.json", cwd=tmp_path)
-    assert r.returncode == 2 and "no planned show" in r.stderr and len(r.stderr.strip().splitlines()) == 1
-
-    p = Project.open(tmp_path / "swan.shadow")
-    for kf in p.keyframes:
-        p.set_result(kf.id, hand.rest_pose(), {"total": 0.2}, p.keyframe_masks(kf.id)[0])
-    p.set_show(rest_show(hand, 3.0))
-    r = cli("project", "export", "swan.shadow", "--out", "show.json", cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
-    assert json.loads(r.stdout.strip().splitlines()[-1])["duration_s"] == 3.0
-    assert load_show(tmp_path / "show.json").equals(p.show)
-    r = cli("project", "info", "swan.shadow", cwd=tmp_path)
-    info = json.loads(r.stdout.strip().splitlines()[-1])
-    assert info["results"]["current"] == len(info["keyframes"]) and info["show"]["stale"] is False
-
-
-def test_project_verbs_report_bad_input_in_one_line(tmp_path, sources, in_process, monkeypatch):
-    r = cli("project", "new", "x.shadow", "--source", str(tmp_path / "nothing.png"), cwd=tmp_path)
-    assert r.returncode == 2 and "source not found" in r.stderr and len(r.stderr.strip().splitlines()) == 1
-    monkeypatch.chdir(tmp_path)  # the rest in this process (the start above proves the console script)
-    r = in_process("project", "info", "nope.shadow")
-    assert r.returncode == 2 and "not a project" in r.stderr
-    p = make(tmp_path, sources)
-    doc = json.loads((p.path / "project.json").read_text())
-    (p.path / "project.json").write_text(json.dumps(doc | {"version": 2}))
-    r = in_process("project", "info", str(p.path))
-    assert r.returncode == 2 and "version 2" in r.stderr and len(r.stderr.strip().splitlines()) == 1
-    r = in_process("project", "new", "t.shadow", "--source", str(sources[1]), "--still-threshold", "300")
-    assert r.returncode == 2 and "still-threshold" in r.stderr
-
-
-def test_still_threshold_and_otsu_flags_reach_the_configs(tmp_path, sources):
-    r = cli("project", "new", "t.shadow", "--source", str(sources[1]), "--still-threshold", "60", "--otsu",
-            "--size", "32", cwd=tmp_path)  # fmt: skip
-    assert r.returncode == 0, r.stderr
-    p = Project.open(tmp_path / "t.shadow")
-    assert p.state.still == TargetConfig(threshold=60.0)
-    assert p.state.video.threshold is None and p.state.video.size == 32
-    assert os.path.isabs(p.sources[0].absolute)
 
 
 def test_colour_footage_needs_and_uses_a_first_frame_box(tmp_path):

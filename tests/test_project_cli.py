@@ -1,0 +1,87 @@
+"""The ``project new/info/export`` verbs as a user runs them: a real console script end to end, bad input as one
+line with exit code 2, the still-target flags reaching the project's configs."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from studio.assets import asset
+
+from studio.imitate.targets import TargetConfig
+from studio.imitate.video import VideoConfig
+from studio.motion.show import Show, load_show
+from studio.project.project import Project
+
+VIDEO = VideoConfig(size=32, fps=8.0, hz=8.0)
+CLI = [sys.executable, "-m", "studio.cli.main"]
+
+
+def cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=300, cwd=cwd)
+
+
+def test_project_verbs_end_to_end(tmp_path, shared_targets, hand):
+    davis = shared_targets / "davis" / "blackswan"
+    if not davis.is_dir():
+        pytest.skip(f"DAVIS masks not found at {davis}")
+    still = asset("targets/asl_o.jpeg")
+    r = cli("project", "new", "swan.shadow", "--source", str(davis), str(still), "--hz", "2", "--size", "48",
+            "--tau", "0.39", cwd=tmp_path)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    new = json.loads(r.stdout.strip().splitlines()[-1])
+    assert new["size"] == 48 and new["hz"] == 2.0 and [s["kind"] for s in new["sources"]] == ["folder", "still"]
+    assert new["frames"] == sum(s["frames"] for s in new["sources"]) and new["sources"][1]["frames"] == 1
+    assert new["results"] == {"current": 0, "stale": 0, "missing": len(new["keyframes"])}
+    assert "keyframe 0: frame" in r.stdout and new["show"] is None
+
+    r = cli("project", "info", "swan.shadow", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    info = json.loads(r.stdout.strip().splitlines()[-1])
+    assert info["keyframes"] == new["keyframes"] and "show: none planned yet" in r.stdout
+
+    r = cli("project", "export", "swan.shadow", "--out", "show.json", cwd=tmp_path)
+    assert r.returncode == 2 and "no planned show" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+    p = Project.open(tmp_path / "swan.shadow")
+    for kf in p.keyframes:
+        p.set_result(kf.id, hand.rest_pose(), {"total": 0.2}, p.keyframe_masks(kf.id)[0])
+    rest = np.stack([hand.rest_pose(), hand.rest_pose()])
+    p.set_show(Show.from_samples(hand, np.array([0.0, 3.0]), rest, title="test"))
+    r = cli("project", "export", "swan.shadow", "--out", "show.json", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout.strip().splitlines()[-1])["duration_s"] == 3.0
+    assert load_show(tmp_path / "show.json").equals(p.show)
+    r = cli("project", "info", "swan.shadow", cwd=tmp_path)
+    info = json.loads(r.stdout.strip().splitlines()[-1])
+    assert info["results"]["current"] == len(info["keyframes"]) and info["show"]["stale"] is False
+
+
+def test_project_verbs_report_bad_input_in_one_line(tmp_path, sources, in_process, monkeypatch):
+    r = cli("project", "new", "x.shadow", "--source", str(tmp_path / "nothing.png"), cwd=tmp_path)
+    assert r.returncode == 2 and "source not found" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    monkeypatch.chdir(tmp_path)  # the rest in this process (the start above proves the console script)
+    r = in_process("project", "info", "nope.shadow")
+    assert r.returncode == 2 and "not a project" in r.stderr
+    p = Project.create(tmp_path / "p.shadow", sources=[str(s) for s in sources], video=VIDEO)
+    doc = json.loads((p.path / "project.json").read_text())
+    (p.path / "project.json").write_text(json.dumps(doc | {"version": 2}))
+    r = in_process("project", "info", str(p.path))
+    assert r.returncode == 2 and "version 2" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    r = in_process("project", "new", "t.shadow", "--source", str(sources[1]), "--still-threshold", "300")
+    assert r.returncode == 2 and "still-threshold" in r.stderr
+
+
+def test_still_threshold_and_otsu_flags_reach_the_configs(tmp_path, sources):
+    r = cli("project", "new", "t.shadow", "--source", str(sources[1]), "--still-threshold", "60", "--otsu",
+            "--size", "32", cwd=tmp_path)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    p = Project.open(tmp_path / "t.shadow")
+    assert p.state.still == TargetConfig(threshold=60.0)
+    assert p.state.video.threshold is None and p.state.video.size == 32
+    assert os.path.isabs(p.sources[0].absolute)
