@@ -30,11 +30,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from studio.evaluate.table1 import gather_targets
+from studio.imitate.config import CPU_SEARCH, LossConfig, SearchConfig
 from studio.imitate.expressive import still_expressive
-from studio.imitate.losses import ImageLoss, LossConfig
-from studio.imitate.search import CPU_SEARCH, SearchConfig, gradient_search
-from studio.imitate.targets import load_target
+from studio.imitate.losses import ImageLoss
+from studio.imitate.search import gradient_search
+from studio.imitate.targets import gather_targets, load_target
 from studio.learn.checkpoint import CheckpointError, read_checkpoint
 from studio.learn.config import TrainConfig
 from studio.learn.selfmodel import load_selfmodel

@@ -79,8 +79,7 @@ def stats(late: np.ndarray) -> dict:
 def run_worker(worker: str, args) -> dict:
     from studio.assets import asset
 
-    from studio.imitate.refine import RefineConfig
-    from studio.imitate.search import CPU_SEARCH
+    from studio.imitate.config import CPU_SEARCH, RefineConfig
     from studio.project.jobs import JobQueue, JobState, imitate_keyframe_job
 
     target = asset("targets/asl_v.jpeg")
@@ -88,7 +87,7 @@ def run_worker(worker: str, args) -> dict:
         search = replace(CPU_SEARCH, iterations=1_000_000)
         job = imitate_keyframe_job(target, None, search=search, refine_enabled=False)
     elif args.stage == "sweep":  # every retrieved pose swept until a pass finds nothing: outlasts the window
-        from studio.imitate.sweep import SweepConfig
+        from studio.imitate.config import SweepConfig
 
         sweep = SweepConfig(starts=CPU_SEARCH.batch, passes=1_000)
         job = imitate_keyframe_job(target, None, search=replace(CPU_SEARCH, iterations=20), sweep=sweep,

@@ -23,11 +23,18 @@ import numpy as np
 import torch
 
 from studio.evaluate.reachable import ReachableConfig, reach_summary, reachable_targets
+from studio.imitate.config import (
+    CPU_REFINE,
+    CPU_SEARCH,
+    PAPER_IMITATE,
+    PAPER_REFINE,
+    PAPER_SWEEP,
+    STUDIO_SEARCH,
+    ImitateConfig,
+    SweepConfig,
+)
 from studio.imitate.expressive import still_expressive
-from studio.imitate.refine import CPU_REFINE, PAPER_REFINE
-from studio.imitate.search import CPU_SEARCH, STUDIO_SEARCH
-from studio.imitate.still import PAPER_IMITATE, ImitateConfig, Imitator
-from studio.imitate.sweep import PAPER_SWEEP, SweepConfig
+from studio.imitate.still import Imitator
 
 METHODS = {  # name → (search, refine, imitate, sweep): `--method studio|paper`, and the studio's before the sweep
     "studio": (STUDIO_SEARCH, CPU_REFINE, ImitateConfig(), SweepConfig()),

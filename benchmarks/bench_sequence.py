@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from studio.imitate.config import CPU_SEQUENCE, LossConfig
 from studio.imitate.expressive import expressive_masks
 from studio.imitate.keyframes import cluster_keyframes, keyframe_targets
-from studio.imitate.losses import LossConfig
-from studio.imitate.sequence import CPU_SEQUENCE, SequenceImitator
+from studio.imitate.sequence import SequenceImitator
 from studio.imitate.still import DEFAULT_MODEL
 from studio.imitate.transitions import TransitionConfig
 from studio.imitate.video import VideoConfig, load_video

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from studio.imitate.cmaes import CMAES
-from studio.imitate.losses import ImageLoss, LossConfig
-from studio.imitate.refine import CPU_REFINE, RefineConfig, Refiner
+from studio.imitate.config import CPU_REFINE, LossConfig, RefineConfig
+from studio.imitate.losses import ImageLoss
+from studio.imitate.refine import Refiner
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import sample_poses
 from studio.sim.shadow import Rig, ShadowRenderer

@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from studio.errors import ShardError
-from studio.learn.dataset import MANIFEST, CollectConfig, OnTheFlyBatches, ShardStream, collect
+from studio.learn.config import CollectConfig
+from studio.learn.dataset import MANIFEST, OnTheFlyBatches, ShardStream, collect
 from studio.learn.shards import list_shards, read_shard, shard_path, write_shard
 from studio.sim.shadow import Rig, ShadowRenderer
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from studio.cli.flags import CliParser, Range, add_config_flags, config_from_args, field_docs, given, ranged
-from studio.imitate.search import CPU_SEARCH, SearchConfig
+from studio.imitate.config import CPU_SEARCH, SearchConfig
 
 THROWAWAY = '''
 from __future__ import annotations
@@ -118,7 +118,7 @@ def test_only_flagged_fields_are_read_back() -> None:
 
 
 def test_ranges_for_configs_whose_source_gives_none() -> None:
-    from studio.learn.dataset import CollectConfig
+    from studio.learn.config import CollectConfig
 
     p = _parser(CollectConfig, fields=("n",), ranges={"n": "[1, ∞)"})
     with pytest.raises(SystemExit):

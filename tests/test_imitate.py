@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 import torch
 
-from studio.imitate.losses import ImageLoss, LossConfig
-from studio.imitate.refine import RefineConfig, Refiner
-from studio.imitate.search import CPU_SEARCH, SearchConfig, gradient_search, initial_poses
-from studio.imitate.still import DEFAULT_MODEL, ImitateConfig, Imitator
+from studio.imitate.config import CPU_SEARCH, ImitateConfig, LossConfig, RefineConfig, SearchConfig
+from studio.imitate.losses import ImageLoss
+from studio.imitate.refine import Refiner
+from studio.imitate.search import gradient_search, initial_poses
+from studio.imitate.still import DEFAULT_MODEL, Imitator
 from studio.imitate.targets import SAMPLE_DIR
 from studio.learn.selfmodel import SelfModel, SelfModelConfig, load_selfmodel
 from studio.sim.physics import CollisionWorld

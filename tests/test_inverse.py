@@ -11,8 +11,8 @@ from studio.assets import asset
 
 from studio.cli.main import main
 from studio.learn.checkpoint import CheckpointError, save_model
-from studio.learn.config import InverseConfig, InverseTrainConfig
-from studio.learn.dataset import CollectConfig, collect
+from studio.learn.config import CollectConfig, InverseConfig, InverseTrainConfig
+from studio.learn.dataset import collect
 from studio.learn.inverse import InverseCNN, load_inverse, train_inverse
 from studio.sim.shadow import Rig, ShadowRenderer
 

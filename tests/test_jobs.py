@@ -14,8 +14,7 @@ import numpy as np
 import pytest
 from studio.assets import asset
 
-from studio.imitate.refine import RefineConfig
-from studio.imitate.search import SearchConfig
+from studio.imitate.config import RefineConfig, SearchConfig
 from studio.project.jobs import (
     Job,
     JobQueue,
@@ -183,7 +182,7 @@ def test_a_completed_jobs_apply_runs_once_with_its_result():
 
 
 def test_imitate_video_job_runs_every_keyframe():
-    from studio.imitate.sequence import CPU_SEQUENCE
+    from studio.imitate.config import CPU_SEQUENCE
     from studio.imitate.targets import load_target
 
     masks = np.stack([load_target(asset(f"targets/{n}.jpeg"), size=128) for n in ("asl_v", "asl_y")])
@@ -316,7 +315,7 @@ def snapshot(project) -> tuple:
 
 
 def test_project_jobs_apply_on_completion_and_nothing_on_cancel_or_failure(project, tmp_path, hand):
-    from studio.imitate.sequence import CPU_SEQUENCE
+    from studio.imitate.config import CPU_SEQUENCE
     from studio.project.jobs.project_jobs import keyframe_job, queue_for, video_job
 
     k = project.keyframes[0].id

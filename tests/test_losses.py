@@ -14,17 +14,17 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from studio.cli.clip_flags import add_clip_arguments, clip_from_args
 from studio.errors import StudioError
 from studio.imitate.clip_loss import (
     TINY_CLIP_CFG,
     ClipWeightsError,
-    add_clip_arguments,
     cache_candidates,
-    clip_from_args,
     load_clip,
     tiny_clip,
 )
-from studio.imitate.losses import COMPONENTS, ImageLoss, LossConfig, mae, soft_iou, temporal_loss
+from studio.imitate.config import COMPONENTS, LossConfig
+from studio.imitate.losses import ImageLoss, mae, soft_iou, temporal_loss
 from studio.imitate.targets import find_holes, load_target, shadow_box, square_frame
 from studio.sim.crop import align, as_image_batch, pad_pixels, square_boxes
 

@@ -12,25 +12,16 @@ import pytest
 import torch
 
 from studio.cli.main import main
-from studio.evaluate.baselines import InverseBaseline, NearestNeighbour, NNConfig, RandomImage, TrainingSet
-from studio.evaluate.table1 import (
-    EXTRA_COLUMNS,
-    LOSS_COLUMNS,
-    METHODS,
-    EvalConfig,
-    Evaluator,
-    gather_targets,
-    summarise,
-    to_markdown,
-    write_table,
-)
+from studio.evaluate.baselines import InverseBaseline, NearestNeighbour, RandomImage, TrainingSet
+from studio.evaluate.config import EvalConfig, NNConfig
+from studio.evaluate.table1 import EXTRA_COLUMNS, LOSS_COLUMNS, METHODS, Evaluator, summarise, to_markdown, write_table
 from studio.imitate.clip_loss import tiny_clip
-from studio.imitate.refine import RefineConfig
-from studio.imitate.search import SearchConfig
+from studio.imitate.config import RefineConfig, SearchConfig
 from studio.imitate.still import Imitator
-from studio.imitate.targets import TargetError, find_holes
+from studio.imitate.targets import TargetError, find_holes, gather_targets
 from studio.learn.checkpoint import save_model
-from studio.learn.dataset import CollectConfig, collect
+from studio.learn.config import CollectConfig
+from studio.learn.dataset import collect
 from studio.learn.inverse import InverseCNN, InverseConfig
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
 

@@ -14,9 +14,7 @@ import pytest
 from studio.assets import asset
 
 from studio.cli.main import main
-from studio.imitate.refine import RefineConfig
-from studio.imitate.search import SearchConfig
-from studio.imitate.sequence import SequenceConfig
+from studio.imitate.config import RefineConfig, SearchConfig, SequenceConfig
 from studio.imitate.video import DEFAULT_VIDEO
 from studio.motion.show import load_show
 from studio.project.jobs import RunConfig, run_project

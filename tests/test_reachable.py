@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from studio.evaluate.reachable import ReachableConfig, reach_summary, reachable_targets
-from studio.imitate.losses import ImageLoss, LossConfig
+from studio.imitate.config import LossConfig
+from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import RenderedLoss
 from studio.imitate.targets import TargetConfig, shadow_box
 from studio.sim.physics import CollisionWorld

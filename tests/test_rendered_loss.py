@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from studio.imitate.losses import COMPONENTS, ImageLoss, LossConfig
+from studio.imitate.config import COMPONENTS, LossConfig
+from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import PARALLEL_FROM, RenderedLoss, crop_batch, fast_loss
 from studio.imitate.targets import find_holes
 from studio.sim.crop import align, pad_pixels

@@ -8,13 +8,11 @@ import threading
 import numpy as np
 import pytest
 
-from studio.imitate.losses import ImageLoss, LossConfig
-from studio.imitate.refine import RefineConfig
+from studio.imitate.config import ImitateConfig, LossConfig, RefineConfig, SearchConfig, SweepConfig
+from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import RenderedLoss, crop_batch
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, cached_index, index_key, pack_crops
-from studio.imitate.search import SearchConfig
-from studio.imitate.still import ImitateConfig, Imitator
-from studio.imitate.sweep import SweepConfig
+from studio.imitate.still import Imitator
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
 from studio.sim.crop import pad_pixels
 from studio.sim.physics import CollisionWorld

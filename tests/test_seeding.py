@@ -11,14 +11,12 @@ import pytest
 
 from studio.imitate.candidates import distinct_best, refine_best, rendered_pool
 from studio.imitate.clip_loss import tiny_clip
-from studio.imitate.losses import ImageLoss, LossConfig
-from studio.imitate.refine import RefineConfig
+from studio.imitate.config import ImitateConfig, LossConfig, RefineConfig, SearchConfig, SequenceConfig, SweepConfig
+from studio.imitate.losses import ImageLoss
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex
-from studio.imitate.search import SearchConfig
 from studio.imitate.seeding import seed_poses
-from studio.imitate.sequence import SequenceConfig, SequenceImitator
-from studio.imitate.still import ImitateConfig, Imitator
-from studio.imitate.sweep import SweepConfig
+from studio.imitate.sequence import SequenceImitator
+from studio.imitate.still import Imitator
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import sample_poses

@@ -13,17 +13,11 @@ import pytest
 import torch
 
 from studio.errors import ClosedError
+from studio.imitate.config import CPU_SEQUENCE, PAPER_SEQUENCE, LossConfig, RefineConfig, SearchConfig, SequenceConfig
 from studio.imitate.expressive import expressive_masks
 from studio.imitate.keyframes import keyframe_targets
-from studio.imitate.losses import ImageLoss, LossConfig
-from studio.imitate.refine import RefineConfig
-from studio.imitate.search import SearchConfig
-from studio.imitate.sequence import (
-    CPU_SEQUENCE,
-    PAPER_SEQUENCE,
-    SequenceConfig,
-    SequenceImitator,
-)
+from studio.imitate.losses import ImageLoss
+from studio.imitate.sequence import SequenceImitator
 from studio.imitate.still import DEFAULT_MODEL
 from studio.imitate.transitions import TransitionConfig, transition_success
 from studio.learn.selfmodel import load_selfmodel

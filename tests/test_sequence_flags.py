@@ -9,7 +9,7 @@ import pytest
 
 from studio.cli.main import build_parser
 from studio.cli.sequence_flags import sequence_config_from_args
-from studio.imitate.sequence import CPU_SEQUENCE, PAPER_SEQUENCE
+from studio.imitate.config import CPU_SEQUENCE, PAPER_SEQUENCE
 
 VERBS = (["imitate-video", "clip.gif", "--out", "o"], ["evaluate-video", "clip.gif", "--out", "o"])
 BUDGET = ["--preset", "paper", "--first-batch", "8", "--next-iters", "7", "--refine-restarts", "3", "--candidates", "2"]

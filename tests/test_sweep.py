@@ -6,9 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from studio.imitate.losses import ImageLoss, LossConfig
+from studio.imitate.config import LossConfig, SweepConfig
+from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import RenderedLoss
-from studio.imitate.sweep import SweepConfig, block_candidates, block_sweep, joint_blocks
+from studio.imitate.sweep import block_candidates, block_sweep, joint_blocks
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import finger_joint_indices
 from studio.sim.shadow import Rig, ShadowRenderer

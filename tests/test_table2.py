@@ -26,11 +26,9 @@ from studio.evaluate.table2 import (
     to_markdown,
     write_table,
 )
+from studio.imitate.config import CPU_SEQUENCE, PAPER_SEQUENCE, LossConfig, RefineConfig, SearchConfig, SequenceConfig
 from studio.imitate.keyframes import KeyframeConfig
-from studio.imitate.losses import LossConfig
-from studio.imitate.refine import RefineConfig
-from studio.imitate.search import SearchConfig
-from studio.imitate.sequence import CPU_SEQUENCE, PAPER_SEQUENCE, SequenceConfig, SequenceImitator
+from studio.imitate.sequence import SequenceImitator
 from studio.imitate.still import DEFAULT_MODEL
 from studio.imitate.targets import TargetError
 from studio.learn.selfmodel import load_selfmodel

@@ -10,9 +10,7 @@ import numpy as np
 import pytest
 from studio.assets import asset
 
-from studio.imitate.refine import RefineConfig
-from studio.imitate.search import SearchConfig
-from studio.imitate.sequence import SequenceConfig
+from studio.imitate.config import RefineConfig, SearchConfig, SequenceConfig
 from studio.project.jobs import JobState, queue_for
 from studio.project.jobs.events import JobEvent
 from studio.project.project import Project

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from studio.assets import asset
 
-from studio.imitate.losses import LossConfig
+from studio.imitate.config import LossConfig
 from studio.project.project import Project
 from widgets.state import StudioState
 from widgets.weights import CLIP_FIELDS, SLIDERS, paper_weights, weights_panel

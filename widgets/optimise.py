@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import ipywidgets as w
 import numpy as np
 
-from studio.imitate.sequence import CPU_SEQUENCE, SequenceConfig
+from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
 from studio.project.jobs import Job, JobEvent, JobState, RunConfig, RunReport, keyframe_job, run_project, video_job
 from widgets.images import Messages, grey_rgb, png, title, upscale
 from widgets.state import StudioState

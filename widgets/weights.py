@@ -1,5 +1,5 @@
 """The Weights panel: a slider per loss weight (MAE, IoU, CLIP, Exp. IoU, Exp. CLIP, temporal) with the paper's
-defaults (:class:`studio.imitate.losses.LossConfig`), and a reset button. Every change is one project edit
+defaults (:class:`studio.imitate.config.LossConfig`), and a reset button. Every change is one project edit
 (``project.set_weights``, undoable); a slider applies when it is released (``continuous_update=False``), so a drag
 is one edit, not fifty.
 
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import ipywidgets as w
 
-from studio.imitate.losses import LossConfig
+from studio.imitate.config import LossConfig
 from widgets.images import Messages, title
 from widgets.state import StudioState
 

@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from studio.cli.flags import add_config_flags, config_from_args
-from studio.learn.dataset import CollectConfig
+from studio.learn.config import CollectConfig
 
 # CollectConfig's comments give no ranges: they are stated here
 COLLECT_RANGES = {"n": "[1, ∞)", "shard_size": "[1, ∞)", "seed": "[0, ∞)", "resolution": "[8, ∞)", "window": "(0, ∞)"}

@@ -20,7 +20,8 @@ from studio.cli.imitate import add_target_flags, target_config_from_args
 from studio.cli.progress import CountBar, StageBars, add_quiet_flag, ctrl_c_cancels
 from studio.cli.sequence_flags import add_sequence_flags, sequence_config_from_args
 from studio.cli.still_flags import add_still_flags, still_configs
-from studio.imitate.search import SearchConfig
+from studio.imitate.config import SearchConfig
+from studio.imitate.targets import gather_targets
 
 DEFAULT_INVERSE = asset("models/inverse_cpu128.pt", must_exist=False)
 
@@ -36,18 +37,19 @@ def _train_inverse(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    files = gather_targets(args.targets, args.per_folder, args.per_class)  # a bad path fails before torch loads
     with torch_threads(args.threads):
-        return _run_evaluation(args)
+        return _run_evaluation(args, files)
 
 
-def _run_evaluation(args: argparse.Namespace) -> int:
-    from studio.evaluate.table1 import EvalConfig, Evaluator, gather_targets, write_table
-    from studio.imitate.clip_loss import clip_from_args
+def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
+    from studio.cli.clip_flags import clip_from_args
+    from studio.evaluate.config import EvalConfig
+    from studio.evaluate.table1 import Evaluator, write_table
     from studio.imitate.still import DEFAULT_MODEL, Imitator
     from studio.imitate.targets import load_target
     from studio.learn.selfmodel import load_selfmodel
 
-    files = gather_targets(args.targets, args.per_folder, args.per_class)
     target_cfg = target_config_from_args(args)
     search, refine, config, sweep = still_configs(args, args.seed)
     model, _ = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
@@ -82,10 +84,10 @@ def _run_video_evaluation(args: argparse.Namespace) -> int:
 
     import torch
 
+    from studio.cli.clip_flags import clip_from_args
     from studio.evaluate.table2 import ROWS, VideoEvaluator, gather_sequences, json_rows, prepare_sequence, write_table
-    from studio.imitate.clip_loss import clip_from_args
+    from studio.imitate.config import LossConfig
     from studio.imitate.keyframes import KeyframeConfig
-    from studio.imitate.losses import LossConfig
     from studio.imitate.sequence import SequenceImitator
     from studio.imitate.still import DEFAULT_MODEL
     from studio.imitate.transitions import TransitionConfig
@@ -131,8 +133,8 @@ def _run_video_evaluation(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from studio.evaluate.table1 import EvalConfig
-    from studio.imitate.clip_loss import add_clip_arguments
+    from studio.cli.clip_flags import add_clip_arguments
+    from studio.evaluate.config import EvalConfig
 
     p = sub.add_parser("evaluate", help="Table 1: baselines and ours on a set of still targets (Markdown + CSV)")
     p.add_argument("targets", nargs="+", help="target image files and/or folders (sub-folders: see --per-folder)")

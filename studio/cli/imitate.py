@@ -24,7 +24,7 @@ from studio.cli.device_flags import add_device_flags, torch_threads
 from studio.cli.flags import add_config_flags, config_from_args, given, ranged
 from studio.cli.progress import StageBars, add_quiet_flag, ctrl_c_cancels
 from studio.cli.still_flags import add_still_flags, still_configs
-from studio.imitate.search import SearchConfig
+from studio.imitate.config import SearchConfig
 from studio.imitate.targets import TargetConfig
 
 
@@ -70,10 +70,10 @@ def _imitate(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from studio.cli.clip_flags import clip_from_args
     from studio.cli.hand import write_shadow_png
-    from studio.imitate.clip_loss import clip_from_args
+    from studio.imitate.config import LossConfig
     from studio.imitate.expressive import still_expressive
-    from studio.imitate.losses import LossConfig
     from studio.imitate.still import DEFAULT_MODEL, Imitator
     from studio.imitate.targets import load_target
     from studio.learn.selfmodel import load_selfmodel
@@ -130,7 +130,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from studio.imitate.clip_loss import add_clip_arguments
+    from studio.cli.clip_flags import add_clip_arguments
 
     p = sub.add_parser("imitate", help="find a collision-free hand pose whose shadow matches a still target")
     p.add_argument("target", help="target image (PNG, JPEG, GIF, BMP): a silhouette, either polarity")

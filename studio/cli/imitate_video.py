@@ -50,9 +50,9 @@ from studio.motion.timing import TimingConfig
 
 def imitate_frames(model, video, seq_cfg, key_cfg, clip, bars: StageBars, cancel) -> tuple:
     """Expressive masks → keyframes → imitation: ``(expressive, clusters, result, seq)``, the imitator left open."""
+    from studio.imitate.config import LossConfig
     from studio.imitate.expressive import expressive_masks
     from studio.imitate.keyframes import cluster_keyframes, keyframe_targets
-    from studio.imitate.losses import LossConfig
     from studio.imitate.sequence import SequenceImitator
 
     expressive = expressive_masks(video.masks)
@@ -77,7 +77,7 @@ def _imitate_video(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace, bars: StageBars) -> int:
     from studio.atomic import write_json
-    from studio.imitate.clip_loss import clip_from_args
+    from studio.cli.clip_flags import clip_from_args
     from studio.imitate.still import DEFAULT_MODEL
     from studio.learn.selfmodel import load_selfmodel
     from studio.motion.show import save_show
@@ -154,7 +154,7 @@ def _run(args: argparse.Namespace, bars: StageBars) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from studio.imitate.clip_loss import add_clip_arguments
+    from studio.cli.clip_flags import add_clip_arguments
 
     p = sub.add_parser("imitate-video", help="a video end to end: keyframes, poses and a show at the video's clock")
     p.add_argument("src", help="video file (mp4, avi, mov, webm, GIF) or folder of frames (PNG/JPEG)")

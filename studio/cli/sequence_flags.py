@@ -20,10 +20,15 @@ from collections.abc import Iterable
 
 from studio.cli.flags import add_config_flags, dest_of, given, ranged
 from studio.cli.still_flags import SWEEP_FIELDS
-from studio.imitate.refine import RefineConfig
-from studio.imitate.search import SearchConfig
-from studio.imitate.sequence import CPU_SEQUENCE, MODES, PAPER_SEQUENCE, SequenceConfig
-from studio.imitate.sweep import SweepConfig
+from studio.imitate.config import (
+    CPU_SEQUENCE,
+    MODES,
+    PAPER_SEQUENCE,
+    RefineConfig,
+    SearchConfig,
+    SequenceConfig,
+    SweepConfig,
+)
 
 PRESETS = {"cpu": CPU_SEQUENCE, "paper": PAPER_SEQUENCE}  # --preset: the search/refine sizes
 BUDGETS = (  # (flag prefix, the preset's field, its config class, the fields with flags)

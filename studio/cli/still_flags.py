@@ -15,10 +15,19 @@ import dataclasses
 from typing import NamedTuple
 
 from studio.cli.flags import add_config_flags, dest_of, given
-from studio.imitate.refine import CPU_REFINE, METHODS, PAPER_REFINE, RefineConfig
-from studio.imitate.search import CPU_SEARCH, STUDIO_SEARCH, SearchConfig
-from studio.imitate.still import PAPER_IMITATE, ImitateConfig
-from studio.imitate.sweep import PAPER_SWEEP, SweepConfig
+from studio.imitate.config import (
+    CPU_REFINE,
+    CPU_SEARCH,
+    METHODS,
+    PAPER_IMITATE,
+    PAPER_REFINE,
+    PAPER_SWEEP,
+    STUDIO_SEARCH,
+    ImitateConfig,
+    RefineConfig,
+    SearchConfig,
+    SweepConfig,
+)
 
 
 class Preset(NamedTuple):

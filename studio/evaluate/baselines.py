@@ -19,7 +19,9 @@ import numpy as np
 import torch
 
 from studio.errors import ClosedError
-from studio.imitate.losses import ImageLoss, LossConfig, mae, soft_iou
+from studio.evaluate.config import NNConfig
+from studio.imitate.config import LossConfig
+from studio.imitate.losses import ImageLoss, mae, soft_iou
 from studio.learn.dataset import SPLITS
 from studio.learn.inverse import InverseCNN
 from studio.learn.shards import list_shards, read_shard
@@ -27,16 +29,6 @@ from studio.sim.crop import align
 from studio.sim.hand import Hand, load_hand
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import ShadowRenderer
-
-
-@dataclass(frozen=True)
-class NNConfig:
-    """How Nearest Neighbour searches the training images."""
-
-    rank_size: int = 64  # side of the aligned crops every training image is ranked at, pixels
-    shortlist: int = 32  # best-ranked images re-scored exactly by the target's ImageLoss (base loss)
-    batch: int = 4096  # training crops ranked per batch
-    chunk: int = 2048  # training images unpacked and aligned at once while precomputing
 
 
 @dataclass

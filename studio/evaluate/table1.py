@@ -21,41 +21,21 @@ import numpy as np
 import torch
 
 from studio.errors import ClosedError
-from studio.evaluate.baselines import (
-    BaselineOutput,
-    InverseBaseline,
-    NearestNeighbour,
-    NNConfig,
-    RandomImage,
-    TrainingSet,
-)
+from studio.evaluate.baselines import BaselineOutput, InverseBaseline, NearestNeighbour, RandomImage, TrainingSet
+from studio.evaluate.config import EvalConfig
 from studio.evaluate.report import csv_text, markdown_table, write_report
 from studio.imitate.expressive import still_expressive
 from studio.imitate.losses import ImageLoss
 from studio.imitate.still import Imitator
-from studio.imitate.targets import IMAGE_SUFFIXES, TargetError, find_target_files
 from studio.learn.inverse import InverseCNN
 from studio.sim.shadow import ShadowRenderer
 
 METHODS = ("Random", "Inverse CNN", "Nearest Neighbour", "Ours, first answer", "Ours w/o refinement", "Ours")
-LOSS_COLUMNS = {  # Table 1 header → loss component (studio.imitate.losses.COMPONENTS)
+LOSS_COLUMNS = {  # Table 1 header → loss component (studio.imitate.config.COMPONENTS)
     "Total": "total", "Base": "base", "CLIP": "clip", "MAE": "mae", "IoU loss": "iou_loss",
     "Exp. IoU": "exp_iou", "Exp. CLIP": "exp_clip",
 }  # fmt: skip
 EXTRA_COLUMNS = {"In collision (%)": "collide_pct", "Seconds / target": "seconds"}
-
-
-@dataclass(frozen=True)
-class EvalConfig:
-    """How ``evaluate`` runs the baselines (ours is configured by the :class:`~studio.imitate.still.Imitator`)."""
-
-    seed: int = 0  # seed of the Random baseline's draws
-    nn: NNConfig = field(default_factory=NNConfig)  # Nearest Neighbour search settings
-    score_resolution: int = 0  # render and score every method's pose at this side, pixels (0: the model's; paper 256)
-
-    def __post_init__(self) -> None:
-        if self.score_resolution and self.score_resolution < 8:
-            raise ValueError(f"score_resolution must be 0 (the model's) or ≥ 8 pixels, got {self.score_resolution}")
 
 
 @dataclass
@@ -66,46 +46,6 @@ class EvalResult:
     records: list[dict]  # one per (target, method): target, method, loss components, collides, seconds
     notes: list[str]  # how the table was measured (printed under it)
     settings: dict = field(default_factory=dict)  # model, losses, search and refinement settings
-
-
-def first_per_class(files: Sequence[Path], n: int) -> list[Path]:
-    """The first ``n`` files (in the given order) of each class, the class being the name before its last ``-``
-    (MPEG-7's ``camel-1.gif``, ``rat-01.gif``); a name without ``-`` is its own class."""
-    seen: dict[str, int] = {}
-    out = []
-    for f in files:
-        cls = f.stem.rsplit("-", 1)[0]
-        if seen.get(cls, 0) < n:
-            seen[cls] = seen.get(cls, 0) + 1
-            out.append(f)
-    return out
-
-
-def gather_targets(
-    paths: Sequence[str | Path], per_folder: int | None = None, per_class: int | None = None
-) -> list[Path]:
-    """Target files from files and folders: a folder gives its images and those of each sub-folder (first
-    ``per_folder`` of each, by name; of those, the first ``per_class`` of each :func:`first_per_class` class).
-    Raises :class:`TargetError` for a missing path or when nothing is found."""
-    if per_folder is not None and per_folder < 1:
-        raise ValueError("--per-folder must be at least 1")
-    if per_class is not None and per_class < 1:
-        raise ValueError("--per-class must be at least 1")
-    out: list[Path] = []
-    for p in map(Path, paths):
-        if p.is_file():
-            out.append(p)
-            continue
-        if not p.is_dir():
-            raise TargetError(f"target file or folder not found: {p}")
-        folders = [p, *sorted(d for d in p.iterdir() if d.is_dir())]
-        found = [f for d in folders for f in find_target_files(d)[:per_folder]]
-        if per_class is not None:
-            found = first_per_class(found, per_class)
-        if not found:
-            raise TargetError(f"no target images ({', '.join(IMAGE_SUFFIXES)}) in {p} or its sub-folders")
-        out += found
-    return out
 
 
 @torch.no_grad()

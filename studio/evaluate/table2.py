@@ -1,7 +1,7 @@
 """The paper's Table 2 (DESIGN §4): the video ablation, six rows over a set of sequences, measured the same way.
 
-Rows: Independent / Sequential (:data:`studio.imitate.sequence.MODES`) × Base / +Exp / +Exp+Temp (the expressive
-and temporal switches of :class:`~studio.imitate.sequence.SequenceConfig`). Each sequence is prepared once
+Rows: Independent / Sequential (:data:`studio.imitate.config.MODES`) × Base / +Exp / +Exp+Temp (the expressive
+and temporal switches of :class:`~studio.imitate.config.SequenceConfig`). Each sequence is prepared once
 (:func:`prepare_sequence`: sampled frames, expressive masks, keyframes, in first-appearance order) and the same
 keyframe targets go to all six rows, with the same seeds.
 
@@ -30,9 +30,10 @@ import numpy as np
 
 from studio.evaluate.report import csv_text, markdown_table, nan_to_none, write_report
 from studio.evaluate.table1 import LOSS_COLUMNS
+from studio.imitate.config import MODES, SequenceConfig
 from studio.imitate.expressive import expressive_masks
 from studio.imitate.keyframes import KeyframeConfig, cluster_keyframes, keyframe_targets
-from studio.imitate.sequence import MODES, SequenceConfig, SequenceImitator
+from studio.imitate.sequence import SequenceImitator
 from studio.imitate.targets import IMAGE_SUFFIXES, TargetError
 from studio.imitate.transitions import TransitionConfig
 from studio.imitate.video import VideoConfig, load_video

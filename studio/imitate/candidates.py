@@ -20,8 +20,9 @@ from collections.abc import Callable
 
 import numpy as np
 
+from studio.imitate.config import RefineConfig
 from studio.imitate.losses import ImageLoss
-from studio.imitate.refine import RefineConfig, Refiner, RefineResult
+from studio.imitate.refine import Refiner, RefineResult
 from studio.imitate.retrieval import Retrieved
 
 

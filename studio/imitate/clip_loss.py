@@ -12,7 +12,6 @@ to provide, or to run with ``--no-clip``. :func:`tiny_clip` builds a small rando
 
 from __future__ import annotations
 
-import argparse
 import logging
 import os
 from pathlib import Path
@@ -199,17 +198,3 @@ def load_clip(
     mean, std = tag.get("mean", OPENAI_MEAN), tag.get("std", OPENAI_STD)
     log.info("CLIP %s loaded from %s", model_name, path)
     return ClipImageEncoder(model.visual, image_size, mean, std, invert, name=f"{model_name}:{path}").to(device)
-
-
-def add_clip_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add ``--clip-weights PATH``, ``--clip-model NAME`` and ``--no-clip`` to a verb's parser."""
-    parser.add_argument("--clip-weights", type=Path, default=None, help="local CLIP checkpoint file (never downloaded)")
-    parser.add_argument("--clip-model", default="ViT-B-32", help="open_clip model name of the weights")
-    parser.add_argument("--no-clip", action="store_true", help="leave the CLIP loss terms out (recorded in outputs)")
-
-
-def clip_from_args(args: argparse.Namespace, device: str | torch.device = "cpu") -> ClipImageEncoder | None:
-    """The encoder the options of :func:`add_clip_arguments` ask for; None with ``--no-clip``."""
-    if args.no_clip:
-        return None
-    return load_clip(args.clip_model, weights=args.clip_weights, device=device)

@@ -18,36 +18,15 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import asdict, dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 import torch
 
 from studio.errors import StudioError
 from studio.imitate.clip_loss import ClipImageEncoder
+from studio.imitate.config import COMPONENTS, LossConfig
 from studio.sim.crop import as_image_batch, crop_boxes, square_boxes
-
-COMPONENTS = ("total", "base", "mae", "iou_loss", "clip", "expr", "exp_iou", "exp_clip", "temporal")
-
-
-@dataclass(frozen=True)
-class LossConfig:
-    """Weights and crop settings of the image losses (paper defaults, DESIGN §4)."""
-
-    w_mae: float = 0.06  # base: weight of the mean absolute error of the crops
-    w_iou: float = 0.4  # base: weight of 1 − soft IoU of the crops
-    w_clip: float = 0.02  # base: weight of 1 − cosine of the CLIP embeddings of the crops
-    w_exp_iou: float = 1.0  # expressive: weight of 1 − soft IoU inside the expressive region M
-    w_exp_clip: float = 0.05  # expressive: weight of 1 − cosine of the CLIP embeddings of M⊙pred and M⊙target
-    w_temporal: float = 0.2  # temporal: weight of ‖θ_i − θ*_{i−1}‖² (rad²)
-    use_clip: bool = True  # False: leave both CLIP terms out (reported as NaN); no CLIP model needed
-    crop_size: int = 256  # side of the aligned crops, pixels (paper 256; e.g. 64-128 on CPU)
-    pad: float = 5.0  # padding around each shadow box, pixels of a 256-pixel image (scaled with the image side)
-    box_threshold: float = 0.5  # prediction pixels above this probability define its box
-    eps: float = 1e-6  # keeps the soft IoU finite on empty images
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 def mae(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

@@ -24,37 +24,11 @@ import torch
 
 from studio.errors import ClosedError
 from studio.imitate.cmaes import CMAES
+from studio.imitate.config import RefineConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import RenderedLoss, fast_loss
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import ShadowRenderer
-
-
-@dataclass(frozen=True)
-class RefineConfig:
-    """Hill-climbing schedule (paper defaults)."""
-
-    method: str = "hill"  # "hill": the paper's hill climbing; "cmaes": CMA-ES (studio.imitate.cmaes) per restart
-    restarts: int = 8  # hill: chains (the paper's restarts), run in parallel; cmaes: runs, one after another [1, ∞)
-    steps: int = 1000  # hill: proposals per chain; cmaes: generations per run [0, ∞)
-    popsize: int = 16  # cmaes: candidates per generation [2, ∞)
-    restart_noise: float = 0.25  # std, rad, of the chains' start around the best pose (chain 0 on it) [0, ∞)
-    sigma0: float = 0.08  # initial proposal std (cmaes: initial step size), rad (0, ∞)
-    decay: float = 0.995  # hill: σ multiplier per step (0, 1]
-    sigma_min: float = 0.01  # hill: σ floor, rad [0, ∞)
-    seed: int = 0  # proposal noise seed [0, ∞)
-    log_every: int = 10  # record the best loss every this many steps [1, ∞)
-
-    def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"refinement method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        if self.restarts < 1 or self.steps < 0 or self.popsize < 2:
-            raise ValueError("refinement needs restarts ≥ 1, steps ≥ 0 and popsize ≥ 2")
-
-
-METHODS = ("hill", "cmaes")  # RefineConfig.method
-PAPER_REFINE = RefineConfig()  # the paper's schedule: 8 hill-climbing chains × 1000 isotropic proposals
-CPU_REFINE = RefineConfig(method="cmaes", restarts=1, steps=150, popsize=16, sigma0=0.1)  # the studio's default
 
 
 @dataclass

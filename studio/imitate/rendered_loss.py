@@ -147,7 +147,7 @@ class RenderedLoss:
     """``ImageLoss`` (no CLIP, one target) for binary shadows ``(B, H, W)`` uint8, returning numpy.
 
     ``loss(shadows, theta=None, theta_prev=None) -> (total (B,), {component: (B,)})`` with the components of
-    :data:`studio.imitate.losses.COMPONENTS` (NaN = not computed), as float64 arrays.
+    :data:`studio.imitate.config.COMPONENTS` (NaN = not computed), as float64 arrays.
     """
 
     def __init__(self, loss_fn: ImageLoss):

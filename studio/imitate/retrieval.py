@@ -28,7 +28,7 @@ import numpy as np
 
 from studio.atomic import write_with
 from studio.home import cache_dir
-from studio.imitate.losses import LossConfig
+from studio.imitate.config import LossConfig
 from studio.imitate.rendered_loss import crop_batch
 from studio.sim.crop import pad_pixels
 from studio.sim.hand import Hand

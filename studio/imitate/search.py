@@ -15,29 +15,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from studio.imitate.config import SearchConfig
 from studio.imitate.losses import ImageLoss
 from studio.learn.selfmodel import SelfModel
 from studio.sim.hand import Hand
 from studio.sim.sampling import sample_poses
-
-
-@dataclass(frozen=True)
-class SearchConfig:
-    """Gradient search settings (paper defaults; see ``CPU_SEARCH`` for the quick CPU preset)."""
-
-    batch: int = 256  # joint vectors optimised together [1, ∞)
-    iterations: int = 2000  # gradient steps [1, ∞)
-    lr: float = 0.05  # Adam step size on the unconstrained parameters φ (0, ∞)
-    init_noise: float = 0.05  # std (rad) around a given initial pose (sequence frames after the first) [0, ∞)
-    include_rest: bool = True  # one sample of the batch starts at the rest pose
-    seed: int = 0  # initialisation seed [0, ∞)
-    log_every: int = 10  # record the loss curve every this many steps [1, ∞)
-
-
-CPU_SEARCH = SearchConfig(batch=32, iterations=150, lr=0.08)  # seconds on 2 CPU cores with the 128² model
-STUDIO_SEARCH = SearchConfig(batch=32, iterations=50, lr=0.08)  # stills after the block sweep (studio preset)
-PAPER_SEQUENCE_FIRST = SearchConfig(batch=500, iterations=3000)  # first frame of a sequence
-PAPER_SEQUENCE_NEXT = SearchConfig(batch=128, iterations=1200)  # later frames, from the previous optimum
 
 
 @dataclass

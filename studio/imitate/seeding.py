@@ -19,10 +19,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from studio.imitate.config import SweepConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
 from studio.imitate.retrieval import RetrievalIndex, Retrieved
-from studio.imitate.sweep import SweepConfig, block_sweep, joint_blocks
+from studio.imitate.sweep import block_sweep, joint_blocks
 
 Progress = Callable[[str, int, int, float], None]  # (stage, step, total, best loss)
 

@@ -36,62 +36,16 @@ import numpy as np
 
 from studio.errors import ClosedError
 from studio.imitate.candidates import refine_best, rendered_pool
-from studio.imitate.losses import COMPONENTS, ImageLoss, LossConfig
-from studio.imitate.refine import RefineConfig
-from studio.imitate.search import (
-    PAPER_SEQUENCE_FIRST,
-    PAPER_SEQUENCE_NEXT,
-    STUDIO_SEARCH,
-    SearchConfig,
-    gradient_search,
-)
+from studio.imitate.config import COMPONENTS, CPU_SEQUENCE, LossConfig, SequenceConfig
+from studio.imitate.losses import ImageLoss
+from studio.imitate.search import gradient_search
 from studio.imitate.still import Imitator
-from studio.imitate.sweep import SweepConfig
 from studio.imitate.transitions import TransitionConfig, TransitionReport, transition_success
 from studio.learn.selfmodel import SelfModel
 
 log = logging.getLogger(__name__)
 
 Progress = Callable[[str, int, int, float], None]  # (stage, step, total, best loss)
-MODES = ("independent", "sequential")
-
-
-@dataclass(frozen=True)
-class SequenceConfig:
-    """How a sequence of keyframes is optimised (paper sizes: the GPU preset; ``CPU_SEQUENCE`` for 2 CPU cores)."""
-
-    mode: str = "sequential"  # "independent" (each keyframe from scratch) | "sequential" (from the previous optimum)
-    expressive: bool = True  # add the expressive term L_expr on each keyframe's expressive region
-    temporal: bool = True  # add L_temp = w_temporal·‖θ − θ*_{k−1}‖² (LossConfig) to search and refinement, k ≥ 1
-    first: SearchConfig = PAPER_SEQUENCE_FIRST  # search of the first keyframe (every keyframe when independent)
-    next: SearchConfig = PAPER_SEQUENCE_NEXT  # sequential, later keyframes: from θ*_{k−1} + N(0, init_noise)
-    refine: RefineConfig = RefineConfig()  # hill climbing of each keyframe on the rendered shadow
-    candidates: int = 4  # distinct best search results refined per keyframe, the best kept [1, ∞)
-    refine_enabled: bool = True  # False: keep the searched poses (no rendered-shadow refinement)
-    retrieve: bool = False  # a keyframe searched from scratch starts from retrieval + block sweep (the still method)
-    sweep: SweepConfig = SweepConfig()  # the block sweep of those seeds (retrieve; starts=0: retrieval alone)
-
-    def __post_init__(self) -> None:
-        if self.mode not in MODES:
-            raise ValueError(f"mode must be 'independent' or 'sequential', not {self.mode!r}")
-        if self.candidates < 1:
-            raise ValueError(f"candidates must be ≥ 1 (distinct search results to refine), got {self.candidates}")
-
-
-PAPER_SEQUENCE = SequenceConfig()  # the paper's sizes (GPU): first 500 × 3000, next 128 × 1200, 8 × 1000 refinement
-# CPU preset (1 torch thread, shipped 128² model), benchmarks/bench_sequence.py on the six DAVIS sequences: sequential
-# +Exp+Temp L_base + L_expr 0.563 at 11.7 s a sequence, independent 0.489 at 21.4 s. Seeding the keyframes searched
-# from scratch (retrieve) and searching them 32 × 50 instead of 32 × 150 unseeded: 0.569 → 0.563 and 0.520 → 0.489;
-# kept at 32 × 150 the seeded search was no better and 50–60 % slower; sweeping inherited poses too changed nothing.
-# Later keyframes: 32 × 100 instead of 16 × 60 changes L_base by < 0.003 and doubles the time; 4 candidates × 500
-# refinement steps instead of 2 × 150 lower L_base by up to 0.01 for 10 % more time.
-CPU_SEQUENCE = SequenceConfig(
-    first=STUDIO_SEARCH,  # 32 × 50: after the seeds, as for a still
-    next=SearchConfig(batch=16, iterations=60, lr=0.08),
-    refine=RefineConfig(steps=500),
-    candidates=4,
-    retrieve=True,  # keyframes searched from scratch start from retrieval + block sweep, as still targets do
-)
 
 
 @dataclass
@@ -101,7 +55,7 @@ class KeyframeResult:
     index: int  # keyframe number k (first-appearance order)
     theta: np.ndarray  # (21,) rad, final pose (within the joint limits)
     shadow: np.ndarray  # (R, R) uint8 rendered shadow of the final pose, 1 = shadow
-    loss: dict[str, float]  # components of the objective this row optimised (losses.COMPONENTS; NaN = not computed)
+    loss: dict[str, float]  # components of the objective this row optimised (config.COMPONENTS; NaN = not computed)
     evaluation: dict[str, float]  # components under the common measure (module doc), total incl. temporal
     collision_free: bool  # the final pose does not penetrate itself
     search_loss: float  # the self-model loss of the searched pose

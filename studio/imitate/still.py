@@ -18,13 +18,21 @@ import torch
 from studio.assets import asset
 from studio.errors import ClosedError
 from studio.imitate.candidates import refine_best, rendered_pool
+from studio.imitate.config import (
+    CPU_REFINE,
+    STUDIO_SEARCH,
+    ImitateConfig,
+    LossConfig,
+    RefineConfig,
+    SearchConfig,
+    SweepConfig,
+)
 from studio.imitate.expressive import still_expressive
-from studio.imitate.losses import ImageLoss, LossConfig
-from studio.imitate.refine import CPU_REFINE, RefineConfig, Refiner, RefineResult
+from studio.imitate.losses import ImageLoss
+from studio.imitate.refine import Refiner, RefineResult
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, Retrieved, cached_index
-from studio.imitate.search import STUDIO_SEARCH, SearchConfig, SearchResult, gradient_search
+from studio.imitate.search import SearchResult, gradient_search
 from studio.imitate.seeding import Seeds, seed_poses
-from studio.imitate.sweep import SweepConfig
 from studio.imitate.targets import TargetConfig, load_target
 from studio.learn.selfmodel import SelfModel, load_selfmodel
 from studio.sim.shadow import Rig, ShadowRenderer
@@ -53,25 +61,6 @@ class ImitationResult:
     cancelled: bool = False  # the cancel event stopped the search or refinement: the best pose found so far
     first: Retrieved | None = None  # the retrieval's distinct best poses (first answer: row 0); None when off
     swept: Retrieved | None = None  # those poses after the block sweep, best first (seconds: the sweep's); None: off
-
-
-@dataclass(frozen=True)
-class ImitateConfig:
-    """What ``Imitator.imitate`` does around the search and the refinement (defaults: the studio's method;
-    :data:`PAPER_IMITATE`: the paper's)."""
-
-    candidates: int = 4  # distinct best poses refined, each with the full refinement schedule [1, ∞)
-    retrieve: bool = True  # answer first from the retrieval index and seed the search with its best distinct poses
-    select: str = "rendered"  # pick the unrefined pose and the candidates by "rendered" shadow loss or "model" loss
-
-    def __post_init__(self) -> None:
-        if self.candidates < 1:
-            raise ValueError(f"candidates must be ≥ 1 (distinct search results to refine), got {self.candidates}")
-        if self.select not in ("rendered", "model"):
-            raise ValueError(f'select must be "rendered" or "model", got {self.select!r}')
-
-
-PAPER_IMITATE = ImitateConfig(retrieve=False, select="model")  # sampled search batch, best by the self-model's loss
 
 
 class Imitator:

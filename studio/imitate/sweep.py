@@ -15,35 +15,12 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
+from studio.imitate.config import SweepConfig
 from studio.sim.hand import Hand
 from studio.sim.sampling import finger_joint_indices
-
-
-@dataclass(frozen=True)
-class SweepConfig:
-    """How many poses are swept and how hard (the studio's defaults; ``starts=0`` turns the sweep off)."""
-
-    starts: int = 4  # distinct retrieved poses swept, best first (0: no sweep, the paper's method) [0, ∞)
-    draws: int = 1024  # settings drawn for a finger's joints per block [1, ∞)
-    wrist_draws: int = 256  # settings drawn for the wrist (one joint) per pass [1, ∞)
-    local_share: float = 0.25  # share of the draws taken near the block's current setting, not uniform [0, 1]
-    local_sigma: float = 0.15  # std, rad, of those local draws (clipped to the limits) (0, ∞)
-    passes: int = 3  # at most this many passes over all blocks; stops after a pass that improves nothing [1, ∞)
-    checks: int = 16  # a block's best improving draws checked for collisions, best first, before moving on [1, ∞)
-    seed: int = 0  # seed of the draws [0, ∞)
-
-    def __post_init__(self) -> None:
-        if self.starts < 0 or self.draws < 1 or self.wrist_draws < 1 or self.passes < 1 or self.checks < 1:
-            raise ValueError("sweep needs starts ≥ 0 and draws, wrist_draws, passes, checks ≥ 1")
-        if not 0.0 <= self.local_share <= 1.0 or self.local_sigma <= 0:
-            raise ValueError("sweep local_share must be in [0, 1] and local_sigma > 0")
-
-
-PAPER_SWEEP = SweepConfig(starts=0)  # the paper has no sweep
 
 
 def joint_blocks(hand: Hand) -> list[np.ndarray]:

@@ -21,12 +21,14 @@ The steps, each a config field with a default that loads every target in ``share
    black backdrop and stays. In binary images every hole pixel is core, so only the area counts.
 
 :func:`square_frame` turns a mask into the square ``size × size`` frame the optimiser works in, and
-:func:`find_holes` gives the holes of a single mask (the hole part of the expressive region, DESIGN §4).
+:func:`find_holes` gives the holes of a single mask (the hole part of the expressive region, DESIGN §4);
+:func:`gather_targets` lists the target files of files and folders (first per folder, first per class).
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -259,3 +261,43 @@ def find_target_files(folder: str | Path) -> list[Path]:
     if not folder.is_dir():
         raise TargetError(f"target folder not found: {folder}")
     return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+
+
+def first_per_class(files: Sequence[Path], n: int) -> list[Path]:
+    """The first ``n`` files (in the given order) of each class, the class being the name before its last ``-``
+    (MPEG-7's ``camel-1.gif``, ``rat-01.gif``); a name without ``-`` is its own class."""
+    seen: dict[str, int] = {}
+    out = []
+    for f in files:
+        cls = f.stem.rsplit("-", 1)[0]
+        if seen.get(cls, 0) < n:
+            seen[cls] = seen.get(cls, 0) + 1
+            out.append(f)
+    return out
+
+
+def gather_targets(
+    paths: Sequence[str | Path], per_folder: int | None = None, per_class: int | None = None
+) -> list[Path]:
+    """Target files from files and folders: a folder gives its images and those of each sub-folder (first
+    ``per_folder`` of each, by name; of those, the first ``per_class`` of each :func:`first_per_class` class).
+    Raises :class:`TargetError` for a missing path or when nothing is found."""
+    if per_folder is not None and per_folder < 1:
+        raise ValueError("--per-folder must be at least 1")
+    if per_class is not None and per_class < 1:
+        raise ValueError("--per-class must be at least 1")
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_file():
+            out.append(p)
+            continue
+        if not p.is_dir():
+            raise TargetError(f"target file or folder not found: {p}")
+        folders = [p, *sorted(d for d in p.iterdir() if d.is_dir())]
+        found = [f for d in folders for f in find_target_files(d)[:per_folder]]
+        if per_class is not None:
+            found = first_per_class(found, per_class)
+        if not found:
+            raise TargetError(f"no target images ({', '.join(IMAGE_SUFFIXES)}) in {p} or its sub-folders")
+        out += found
+    return out

@@ -1,4 +1,5 @@
-"""The learning stage's configs: networks (architecture) and training, each field a flag of its verb.
+"""The learning stage's configs: self-exploration data, networks (architecture) and training, each field a flag
+of its verb.
 
 Plain dataclasses with no torch import, so the command line builds its flags from them quickly
 (``studio.cli.flags``: a field's trailing comment is its help and may end with its range).
@@ -8,6 +9,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from studio.sim.shadow import Rig
 
 
 @dataclass(frozen=True)
@@ -123,3 +128,27 @@ class InverseTrainConfig(TrainerConfig):
         super().__post_init__()
         if self.resolution < 16:
             raise ValueError(f"resolution must be ≥ 16, got {self.resolution}")
+
+
+@dataclass(frozen=True)
+class CollectConfig:
+    """What ``shadow-studio collect`` makes."""
+
+    n: int = 20000  # total number of (pose, shadow) pairs
+    shard_size: int = 5000  # samples per shard file
+    seed: int = 0  # shard k is drawn from the seed sequence (seed, k)
+    resolution: int = 256  # shadow image side, pixels
+    window: float = 0.6  # backdrop window side, metres (see studio.sim.shadow.Rig)
+
+    def __post_init__(self) -> None:
+        if self.n < 1 or self.shard_size < 1:
+            raise ValueError("--n and --shard-size must be positive")
+
+    @property
+    def num_shards(self) -> int:
+        return (self.n + self.shard_size - 1) // self.shard_size
+
+    def rig(self) -> Rig:
+        from studio.sim.shadow import Rig
+
+        return Rig(window=self.window, resolution=self.resolution)

@@ -13,7 +13,7 @@ import json
 import logging
 import threading
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +22,7 @@ from torch.utils.data import IterableDataset, get_worker_info
 
 from studio.atomic import write_json
 from studio.errors import ShardError
+from studio.learn.config import CollectConfig
 from studio.learn.shards import SHARD_FORMAT, Shard, list_shards, pack_masks, read_shard, shard_path, write_shard
 from studio.sim.hand import Hand, load_hand
 from studio.sim.sampling import SamplerConfig, sample_poses
@@ -30,28 +31,6 @@ from studio.sim.shadow import Rig, ShadowRenderer
 log = logging.getLogger(__name__)
 MANIFEST = "dataset.json"
 SPLITS = {"train": (0.0, 0.7), "val": (0.7, 0.9), "test": (0.9, 1.0), "all": (0.0, 1.0)}  # share of each shard
-
-
-@dataclass(frozen=True)
-class CollectConfig:
-    """What ``shadow-studio collect`` makes."""
-
-    n: int = 20000  # total number of (pose, shadow) pairs
-    shard_size: int = 5000  # samples per shard file
-    seed: int = 0  # shard k is drawn from the seed sequence (seed, k)
-    resolution: int = 256  # shadow image side, pixels
-    window: float = 0.6  # backdrop window side, metres (see studio.sim.shadow.Rig)
-
-    def __post_init__(self) -> None:
-        if self.n < 1 or self.shard_size < 1:
-            raise ValueError("--n and --shard-size must be positive")
-
-    @property
-    def num_shards(self) -> int:
-        return (self.n + self.shard_size - 1) // self.shard_size
-
-    def rig(self) -> Rig:
-        return Rig(window=self.window, resolution=self.resolution)
 
 
 def _manifest(cfg: CollectConfig, hand: Hand, sampler: SamplerConfig) -> dict:

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from studio.imitate.losses import LossConfig
+from studio.imitate.config import LossConfig
 from studio.imitate.targets import read_grey
 from studio.motion.show import Show
 from studio.project import edits

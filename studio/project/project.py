@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from studio.imitate.config import LossConfig
 from studio.imitate.keyframes import KeyframeConfig
-from studio.imitate.losses import LossConfig
 from studio.imitate.targets import TargetConfig
 from studio.imitate.video import VideoConfig
 from studio.motion.show import Show, save_show

@@ -42,8 +42,8 @@ import numpy as np
 from PIL import Image
 
 from studio.atomic import write_json, write_with
+from studio.imitate.config import LossConfig
 from studio.imitate.keyframes import KeyframeConfig
-from studio.imitate.losses import LossConfig
 from studio.imitate.targets import TargetConfig
 from studio.imitate.video import VideoConfig
 from studio.motion.show import Show, load_show, save_show

@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from studio.errors import StudioError
+from studio.imitate.config import LossConfig
 from studio.imitate.keyframes import KeyframeConfig
-from studio.imitate.losses import LossConfig
 from studio.imitate.targets import TargetConfig
 from studio.imitate.video import VideoConfig
 from studio.motion.show import Show
@@ -80,7 +80,7 @@ class PoseResult:
     """An optimisation result of one keyframe and the inputs it was computed from."""
 
     pose: dict[str, float]  # joint name → rad
-    loss: dict[str, float]  # loss components (studio.imitate.losses.COMPONENTS; NaN = not computed)
+    loss: dict[str, float]  # loss components (studio.imitate.config.COMPONENTS; NaN = not computed)
     shadow: np.ndarray  # (R, R) uint8 {0, 1}, the rendered shadow of the pose
     inputs: str  # fingerprint of the inputs (studio.project.inputs.keyframe_inputs) it was computed from
     evaluation: dict[str, float] = field(default_factory=dict)  # components under the common measure, if any

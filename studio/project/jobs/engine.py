@@ -23,11 +23,7 @@ from studio.project.jobs.events import PosePreview, Reporter
 from studio.project.jobs.queue import Job
 
 if TYPE_CHECKING:
-    from studio.imitate.losses import LossConfig
-    from studio.imitate.refine import RefineConfig
-    from studio.imitate.search import SearchConfig
-    from studio.imitate.sequence import SequenceConfig
-    from studio.imitate.sweep import SweepConfig
+    from studio.imitate.config import LossConfig, RefineConfig, SearchConfig, SequenceConfig, SweepConfig
     from studio.imitate.targets import TargetConfig
     from studio.motion.plan import Keyframes, PlanConfig
     from studio.motion.show import Show
@@ -72,8 +68,9 @@ def imitate_keyframe_job(
 
 def _imitate_keyframe(report: Reporter, cancel, *, target, expressive, search, refine, refine_enabled, candidates,
                       sweep, loss_cfg, clip, model_path, target_cfg, preview):  # fmt: skip
+    from studio.imitate.config import ImitateConfig
     from studio.imitate.expressive import still_expressive
-    from studio.imitate.still import ImitateConfig, Imitator
+    from studio.imitate.still import Imitator
 
     config = ImitateConfig(candidates=candidates)
     with Imitator(None, model_path, loss_cfg, clip, search, refine, config=config, sweep=sweep) as im:
@@ -125,7 +122,8 @@ def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg
                    previous=None):  # fmt: skip
     from dataclasses import replace
 
-    from studio.imitate.sequence import CPU_SEQUENCE, SequenceImitator
+    from studio.imitate.config import CPU_SEQUENCE
+    from studio.imitate.sequence import SequenceImitator
     from studio.imitate.still import Imitator
 
     cfg = cfg or CPU_SEQUENCE

@@ -25,10 +25,7 @@ from studio.project.jobs.engine import imitate_keyframe_job, imitate_video_job, 
 from studio.project.jobs.queue import DEFAULT_WORKER, Job, JobQueue
 
 if TYPE_CHECKING:
-    from studio.imitate.losses import LossConfig
-    from studio.imitate.refine import RefineConfig
-    from studio.imitate.search import SearchConfig
-    from studio.imitate.sequence import SequenceConfig
+    from studio.imitate.config import LossConfig, RefineConfig, SearchConfig, SequenceConfig
     from studio.motion.plan import Keyframes, PlanConfig
     from studio.project.project import Project
 

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from studio.imitate.sequence import CPU_SEQUENCE, SequenceConfig
+from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
 from studio.imitate.transitions import TransitionConfig, transition_success
 from studio.motion.plan import PlanConfig
 from studio.project.jobs.engine import _plan

@@ -1,0 +1,29 @@
+"""The evaluation stage's configs: how Table 1 runs its baselines (torch-free, so ``evaluate`` builds its flags
+quickly; the engine: :mod:`studio.evaluate.table1` and :mod:`studio.evaluate.baselines`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class NNConfig:
+    """How Nearest Neighbour searches the training images."""
+
+    rank_size: int = 64  # side of the aligned crops every training image is ranked at, pixels
+    shortlist: int = 32  # best-ranked images re-scored exactly by the target's ImageLoss (base loss)
+    batch: int = 4096  # training crops ranked per batch
+    chunk: int = 2048  # training images unpacked and aligned at once while precomputing
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """How ``evaluate`` runs the baselines (ours is configured by the :class:`~studio.imitate.still.Imitator`)."""
+
+    seed: int = 0  # seed of the Random baseline's draws
+    nn: NNConfig = field(default_factory=NNConfig)  # Nearest Neighbour search settings
+    score_resolution: int = 0  # render and score every method's pose at this side, pixels (0: the model's; paper 256)
+
+    def __post_init__(self) -> None:
+        if self.score_resolution and self.score_resolution < 8:
+            raise ValueError(f"score_resolution must be 0 (the model's) or ≥ 8 pixels, got {self.score_resolution}")

@@ -1,0 +1,162 @@
+"""The imitation stage's configs and presets: losses, gradient search, refinement, block sweep, stills, sequences.
+
+Plain dataclasses with no torch import, so the command line builds its flags from them without loading the engine
+(``studio.cli.flags``: a field's trailing comment is its help and may end with its range). The engine modules that
+use them: :mod:`studio.imitate.losses`, :mod:`~studio.imitate.search`, :mod:`~studio.imitate.refine`,
+:mod:`~studio.imitate.sweep`, :mod:`~studio.imitate.still` and :mod:`~studio.imitate.sequence`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+COMPONENTS = ("total", "base", "mae", "iou_loss", "clip", "expr", "exp_iou", "exp_clip", "temporal")
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """Weights and crop settings of the image losses (paper defaults, DESIGN §4)."""
+
+    w_mae: float = 0.06  # base: weight of the mean absolute error of the crops
+    w_iou: float = 0.4  # base: weight of 1 − soft IoU of the crops
+    w_clip: float = 0.02  # base: weight of 1 − cosine of the CLIP embeddings of the crops
+    w_exp_iou: float = 1.0  # expressive: weight of 1 − soft IoU inside the expressive region M
+    w_exp_clip: float = 0.05  # expressive: weight of 1 − cosine of the CLIP embeddings of M⊙pred and M⊙target
+    w_temporal: float = 0.2  # temporal: weight of ‖θ_i − θ*_{i−1}‖² (rad²)
+    use_clip: bool = True  # False: leave both CLIP terms out (reported as NaN); no CLIP model needed
+    crop_size: int = 256  # side of the aligned crops, pixels (paper 256; e.g. 64-128 on CPU)
+    pad: float = 5.0  # padding around each shadow box, pixels of a 256-pixel image (scaled with the image side)
+    box_threshold: float = 0.5  # prediction pixels above this probability define its box
+    eps: float = 1e-6  # keeps the soft IoU finite on empty images
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """Gradient search settings (paper defaults; see ``CPU_SEARCH`` for the quick CPU preset)."""
+
+    batch: int = 256  # joint vectors optimised together [1, ∞)
+    iterations: int = 2000  # gradient steps [1, ∞)
+    lr: float = 0.05  # Adam step size on the unconstrained parameters φ (0, ∞)
+    init_noise: float = 0.05  # std (rad) around a given initial pose (sequence frames after the first) [0, ∞)
+    include_rest: bool = True  # one sample of the batch starts at the rest pose
+    seed: int = 0  # initialisation seed [0, ∞)
+    log_every: int = 10  # record the loss curve every this many steps [1, ∞)
+
+
+CPU_SEARCH = SearchConfig(batch=32, iterations=150, lr=0.08)  # seconds on 2 CPU cores with the 128² model
+STUDIO_SEARCH = SearchConfig(batch=32, iterations=50, lr=0.08)  # stills after the block sweep (studio preset)
+PAPER_SEQUENCE_FIRST = SearchConfig(batch=500, iterations=3000)  # first frame of a sequence
+PAPER_SEQUENCE_NEXT = SearchConfig(batch=128, iterations=1200)  # later frames, from the previous optimum
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    """Hill-climbing schedule (paper defaults)."""
+
+    method: str = "hill"  # "hill": the paper's hill climbing; "cmaes": CMA-ES (studio.imitate.cmaes) per restart
+    restarts: int = 8  # hill: chains (the paper's restarts), run in parallel; cmaes: runs, one after another [1, ∞)
+    steps: int = 1000  # hill: proposals per chain; cmaes: generations per run [0, ∞)
+    popsize: int = 16  # cmaes: candidates per generation [2, ∞)
+    restart_noise: float = 0.25  # std, rad, of the chains' start around the best pose (chain 0 on it) [0, ∞)
+    sigma0: float = 0.08  # initial proposal std (cmaes: initial step size), rad (0, ∞)
+    decay: float = 0.995  # hill: σ multiplier per step (0, 1]
+    sigma_min: float = 0.01  # hill: σ floor, rad [0, ∞)
+    seed: int = 0  # proposal noise seed [0, ∞)
+    log_every: int = 10  # record the best loss every this many steps [1, ∞)
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"refinement method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.restarts < 1 or self.steps < 0 or self.popsize < 2:
+            raise ValueError("refinement needs restarts ≥ 1, steps ≥ 0 and popsize ≥ 2")
+
+
+METHODS = ("hill", "cmaes")  # RefineConfig.method
+PAPER_REFINE = RefineConfig()  # the paper's schedule: 8 hill-climbing chains × 1000 isotropic proposals
+CPU_REFINE = RefineConfig(method="cmaes", restarts=1, steps=150, popsize=16, sigma0=0.1)  # the studio's default
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """How many poses are swept and how hard (the studio's defaults; ``starts=0`` turns the sweep off)."""
+
+    starts: int = 4  # distinct retrieved poses swept, best first (0: no sweep, the paper's method) [0, ∞)
+    draws: int = 1024  # settings drawn for a finger's joints per block [1, ∞)
+    wrist_draws: int = 256  # settings drawn for the wrist (one joint) per pass [1, ∞)
+    local_share: float = 0.25  # share of the draws taken near the block's current setting, not uniform [0, 1]
+    local_sigma: float = 0.15  # std, rad, of those local draws (clipped to the limits) (0, ∞)
+    passes: int = 3  # at most this many passes over all blocks; stops after a pass that improves nothing [1, ∞)
+    checks: int = 16  # a block's best improving draws checked for collisions, best first, before moving on [1, ∞)
+    seed: int = 0  # seed of the draws [0, ∞)
+
+    def __post_init__(self) -> None:
+        if self.starts < 0 or self.draws < 1 or self.wrist_draws < 1 or self.passes < 1 or self.checks < 1:
+            raise ValueError("sweep needs starts ≥ 0 and draws, wrist_draws, passes, checks ≥ 1")
+        if not 0.0 <= self.local_share <= 1.0 or self.local_sigma <= 0:
+            raise ValueError("sweep local_share must be in [0, 1] and local_sigma > 0")
+
+
+PAPER_SWEEP = SweepConfig(starts=0)  # the paper has no sweep
+
+
+@dataclass(frozen=True)
+class ImitateConfig:
+    """What ``Imitator.imitate`` does around the search and the refinement (defaults: the studio's method;
+    :data:`PAPER_IMITATE`: the paper's)."""
+
+    candidates: int = 4  # distinct best poses refined, each with the full refinement schedule [1, ∞)
+    retrieve: bool = True  # answer first from the retrieval index and seed the search with its best distinct poses
+    select: str = "rendered"  # pick the unrefined pose and the candidates by "rendered" shadow loss or "model" loss
+
+    def __post_init__(self) -> None:
+        if self.candidates < 1:
+            raise ValueError(f"candidates must be ≥ 1 (distinct search results to refine), got {self.candidates}")
+        if self.select not in ("rendered", "model"):
+            raise ValueError(f'select must be "rendered" or "model", got {self.select!r}')
+
+
+PAPER_IMITATE = ImitateConfig(retrieve=False, select="model")  # sampled search batch, best by the self-model's loss
+
+
+MODES = ("independent", "sequential")
+
+
+@dataclass(frozen=True)
+class SequenceConfig:
+    """How a sequence of keyframes is optimised (paper sizes: the GPU preset; ``CPU_SEQUENCE`` for 2 CPU cores)."""
+
+    mode: str = "sequential"  # "independent" (each keyframe from scratch) | "sequential" (from the previous optimum)
+    expressive: bool = True  # add the expressive term L_expr on each keyframe's expressive region
+    temporal: bool = True  # add L_temp = w_temporal·‖θ − θ*_{k−1}‖² (LossConfig) to search and refinement, k ≥ 1
+    first: SearchConfig = PAPER_SEQUENCE_FIRST  # search of the first keyframe (every keyframe when independent)
+    next: SearchConfig = PAPER_SEQUENCE_NEXT  # sequential, later keyframes: from θ*_{k−1} + N(0, init_noise)
+    refine: RefineConfig = RefineConfig()  # hill climbing of each keyframe on the rendered shadow
+    candidates: int = 4  # distinct best search results refined per keyframe, the best kept [1, ∞)
+    refine_enabled: bool = True  # False: keep the searched poses (no rendered-shadow refinement)
+    retrieve: bool = False  # a keyframe searched from scratch starts from retrieval + block sweep (the still method)
+    sweep: SweepConfig = SweepConfig()  # the block sweep of those seeds (retrieve; starts=0: retrieval alone)
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be 'independent' or 'sequential', not {self.mode!r}")
+        if self.candidates < 1:
+            raise ValueError(f"candidates must be ≥ 1 (distinct search results to refine), got {self.candidates}")
+
+
+PAPER_SEQUENCE = SequenceConfig()  # the paper's sizes (GPU): first 500 × 3000, next 128 × 1200, 8 × 1000 refinement
+# CPU preset (1 torch thread, shipped 128² model), benchmarks/bench_sequence.py on the six DAVIS sequences: sequential
+# +Exp+Temp L_base + L_expr 0.563 at 11.7 s a sequence, independent 0.489 at 21.4 s. Seeding the keyframes searched
+# from scratch (retrieve) and searching them 32 × 50 instead of 32 × 150 unseeded: 0.569 → 0.563 and 0.520 → 0.489;
+# kept at 32 × 150 the seeded search was no better and 50–60 % slower; sweeping inherited poses too changed nothing.
+# Later keyframes: 32 × 100 instead of 16 × 60 changes L_base by < 0.003 and doubles the time; 4 candidates × 500
+# refinement steps instead of 2 × 150 lower L_base by up to 0.01 for 10 % more time.
+CPU_SEQUENCE = SequenceConfig(
+    first=STUDIO_SEARCH,  # 32 × 50: after the seeds, as for a still
+    next=SearchConfig(batch=16, iterations=60, lr=0.08),
+    refine=RefineConfig(steps=500),
+    candidates=4,
+    retrieve=True,  # keyframes searched from scratch start from retrieval + block sweep, as still targets do
+)
