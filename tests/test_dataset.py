@@ -10,7 +10,7 @@ import torch
 
 from studio.errors import ShardError
 from studio.learn.config import CollectConfig
-from studio.learn.dataset import MANIFEST, OnTheFlyBatches, ShardStream, collect
+from studio.learn.dataset import MANIFEST, OnTheFlyBatches, ShardStream, batch_loader, collect
 from studio.learn.shards import list_shards, read_shard, shard_path, write_shard
 from studio.sim.shadow import Rig, ShadowRenderer
 
@@ -146,7 +146,7 @@ def _samples(batches) -> dict[tuple, bytes]:
 @pytest.mark.filterwarnings("ignore:This DataLoader will create 4 worker processes")
 @pytest.mark.parametrize("workers", [2, 4])  # 3 shards: 2 workers split the shards, 4 split each shard's rows
 def test_dataloader_workers_read_each_sample_exactly_once(small_dataset, hand, workers):
-    from torch.utils.data import DataLoader, IterableDataset
+    from torch.utils.data import IterableDataset
 
     out, _, _ = small_dataset
     for split, n in (("train", 175), ("val", 50), ("test", 25)):
@@ -154,7 +154,7 @@ def test_dataloader_workers_read_each_sample_exactly_once(small_dataset, hand, w
         assert isinstance(stream, IterableDataset)
         single = _samples(ShardStream(out, split, batch_size=16, shuffle=False, hand=hand))
         assert len(single) == n
-        loader = DataLoader(stream, batch_size=None, num_workers=workers)
+        loader = batch_loader(stream, num_workers=workers)
         orders = []
         for epoch in (0, 1):
             stream.set_epoch(epoch)
@@ -166,10 +166,10 @@ def test_dataloader_workers_read_each_sample_exactly_once(small_dataset, hand, w
 
 
 def test_on_the_fly_workers_do_not_repeat_each_other(hand):
-    from torch.utils.data import DataLoader
-
+    """Also after this process has rendered on numba's OpenMP pool, which kills plainly forked workers."""
+    ShadowRenderer(hand, Rig(resolution=32)).render(np.zeros((256, 21)))
     stream = OnTheFlyBatches(batch_size=4, resolution=32, num_batches=5, hand=hand)
-    batches = list(DataLoader(stream, batch_size=None, num_workers=2))
+    batches = list(batch_loader(stream, num_workers=2))
     assert len(batches) == 5 and len(_samples(batches)) == 20
 
 

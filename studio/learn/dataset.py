@@ -1,6 +1,6 @@
 """Self-exploration data: collect (sample poses → render shadows → shards), stream shards to torch, or render
-batches on the fly. Both streams are torch ``IterableDataset``s of whole batches (``DataLoader(stream,
-batch_size=None, num_workers=W)``) whose workers share the work instead of repeating it.
+batches on the fly. Both streams are torch ``IterableDataset``s of whole batches whose DataLoader workers share the
+work instead of repeating it; :func:`batch_loader` makes that DataLoader (workers started safely after rendering).
 
 A dataset folder holds ``dataset.json`` (the collection config, rig and hand hash) and ``shard_#####.npz``
 files (``studio.learn.shards``). Collection is resumable: shard ``k`` is drawn from the seed ``(seed, k)``, finished
@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import logging
+import multiprocessing as mp
 import threading
 from collections.abc import Callable, Iterator
 from dataclasses import asdict
@@ -18,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.data import IterableDataset, get_worker_info
+from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from studio.atomic import write_json
 from studio.errors import ShardError
@@ -128,7 +129,7 @@ class ShardStream(IterableDataset):
     ``split`` takes the 0.7 / 0.2 / 0.1 train / val / test share of every shard (``"all"`` takes everything);
     shards are read one at a time, so memory stays at one shard (per worker). ``len()`` counts samples, not batches.
 
-    A torch ``IterableDataset`` of whole batches: ``DataLoader(stream, batch_size=None, num_workers=W)``. An epoch
+    A torch ``IterableDataset`` of whole batches (:func:`batch_loader` with ``num_workers=W``). An epoch
     yields every sample of the split exactly once however many workers read it: with at least ``W`` shards each
     worker reads whole shards (every ``W``-th of the epoch's shard order), with fewer every worker reads every shard
     and keeps every ``W``-th of its rows. Epoch ``k`` is shuffled from the seed ``(seed, k)``; iterating advances
@@ -214,3 +215,21 @@ class OnTheFlyBatches(IterableDataset):
             masks = self.renderer.render(theta, check=False)
             yield torch.from_numpy(theta.astype(np.float32)), torch.from_numpy(masks.astype(np.float32))[:, None]
             k += 1
+
+
+def batch_loader(batches: IterableDataset, num_workers: int = 0, **kwargs) -> DataLoader:
+    """A DataLoader over a stream of whole batches (:class:`ShardStream`, :class:`OnTheFlyBatches`) read by
+    ``num_workers`` worker processes (0: in this process); ``kwargs`` go to the DataLoader.
+
+    Workers start from a fork server (spawn where there is none), never by a plain fork: once this process has
+    rendered, numba's OpenMP pool terminates every child forked from it ("fork() called from a process already using
+    GNU OpenMP, this is unsafe"), which ``DataLoader(stream, num_workers=W)`` meets as a dead worker. The server
+    imports this module once, so each worker starts in a fraction of a second.
+    """
+    context = None
+    if num_workers:
+        method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
+        context = mp.get_context(method)
+        if method == "forkserver":
+            context.set_forkserver_preload([__name__])
+    return DataLoader(batches, batch_size=None, num_workers=num_workers, multiprocessing_context=context, **kwargs)
