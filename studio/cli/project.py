@@ -26,7 +26,7 @@ import sys
 from pathlib import Path
 
 from studio.cli.flags import add_config_flags, config_from_args
-from studio.cli.imitate_video import parse_box
+from studio.cli.footage import parse_box
 from studio.imitate.keyframes import KeyframeConfig
 from studio.imitate.targets import TargetConfig
 from studio.imitate.video import VideoConfig
