@@ -231,11 +231,12 @@ def test_imitate_cli_errors(tmp_path, in_process):
 
     cv2.imwrite(str(bad), np.zeros((32, 32), np.uint8))
     for i, (args, message) in enumerate((
-        ((str(tmp_path / "absent.png"),), "not found"),
-        ((str(bad),), "no shadow"),
-        ((str(bad), "--model", str(tmp_path / "none.pt")), "checkpoint not found"),
+        ((str(tmp_path / "absent.png"), "--no-clip"), "not found"),
+        ((str(bad), "--no-clip"), "no shadow"),
+        ((str(bad),), "no shadow"),  # a bad target is named before CLIP weights are looked for
+        ((str(bad), "--model", str(tmp_path / "none.pt"), "--no-clip"), "checkpoint not found"),
     )):  # fmt: skip
-        argv = ["imitate", *args, "--out", str(tmp_path / "o"), "--no-clip"]
+        argv = ["imitate", *args, "--out", str(tmp_path / "o")]
         proc = (subprocess.run([sys.executable, "-m", "studio.cli", *argv], capture_output=True, text=True, timeout=300)
                 if i == 0 else in_process(*argv))  # one real start, the rest in this process  # fmt: skip
         assert proc.returncode == 2 and message in proc.stderr.lower() and "Traceback" not in proc.stderr, proc.stderr

@@ -82,9 +82,9 @@ def _run(args: argparse.Namespace) -> int:
     target_path = Path(args.target)
     target_cfg = target_config_from_args(args)
     model, info = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
-    clip = clip_from_args(args, device=next(model.parameters()).device)
     search, refine, config, sweep = still_configs(args, args.seed)
-    target = load_target(target_path, size=model.cfg.resolution, cfg=target_cfg)  # before the slow set-up
+    target = load_target(target_path, size=model.cfg.resolution, cfg=target_cfg)  # before CLIP and the slow set-up
+    clip = clip_from_args(args, device=next(model.parameters()).device)
     loss_cfg = LossConfig(use_clip=clip is not None, crop_size=model.cfg.resolution)
     imitator = Imitator(model, loss_cfg=loss_cfg, clip=clip, search=search, refine=refine, config=config, sweep=sweep)
     expressive = still_expressive(target)  # a still target's openings (as `evaluate` does)
