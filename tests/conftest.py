@@ -28,6 +28,24 @@ def shared_targets() -> Path:
     return path
 
 
+@pytest.fixture(scope="session")
+def free_poses(hand):
+    """``free_poses(n, seed)`` → ``(n, 21)`` collision-free poses of the self-exploration sampler, from ``seed``."""
+    from studio.sim.physics import CollisionWorld
+    from studio.sim.sampling import sample_poses
+
+    def draw(n: int, seed: int) -> np.ndarray:
+        rng, out = np.random.default_rng(seed), []
+        with CollisionWorld(hand) as world:
+            while len(out) < n:
+                q = sample_poses(hand, 1, rng)[0][0]
+                if not world.in_collision(q)[0]:
+                    out.append(q)
+        return np.stack(out)
+
+    return draw
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)

@@ -291,8 +291,8 @@ class OptimisePanel:
                 self.bar_box.children = (*self.bar_box.children, bar)
             bar.value = min(1.0, e.step / e.total)
             bar.description = f"{e.stage} {e.step}/{e.total}"
-        if not math.isnan(e.best):  # each stage's own running best: the search's is the self-model's loss, a
-            self.best = e.best  # later keyframe has another target, so a minimum across stages would mislead
+        if not math.isnan(e.best):  # the rendered loss of the pose on show (studio.imitate.live_best), which only
+            self.best = e.best  # falls within a target; a later keyframe has another target, so it is not a minimum
             self.loss.value = f"best loss so far: <b>{self.best:.4f}</b> ({html.escape(e.stage)})"
         if e.shadow is not None:
             self.shown_shadow = np.asarray(e.shadow)

@@ -29,14 +29,19 @@ from studio.imitate.retrieval import Retrieved
 def rendered_pool(
     refiner: Refiner, loss_fn: ImageLoss, batch_theta: np.ndarray, fallback: np.ndarray,
     seeds: Retrieved | None = None, theta_prev: np.ndarray | None = None,
+    shown: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """A search batch ``(B, 21)`` scored on the renderer (colliding poses at +inf) with the collision-free
-    ``seeds`` appended → the refinement's pool ``(P, 21)``, its losses ``(P,)`` and its best pose ``(21,)``
-    (``fallback`` when none is collision-free), so the pose kept is never worse than the best seed."""
+    ``seeds`` and ``shown`` poses ``(M, 21)`` / losses ``(M,)`` (:meth:`LiveBest.shown
+    <studio.imitate.live_best.LiveBest.shown>`) appended → the refinement's pool ``(P, 21)``, its losses ``(P,)``
+    and its best pose ``(21,)`` (``fallback`` when none is collision-free), so the pose kept is never worse than
+    the best seed or the best pose shown."""
     loss = refiner.score(loss_fn, batch_theta, theta_prev)[0]
     loss[refiner.world.in_collision(batch_theta, check=False)] = np.inf
-    if seeds is not None:
-        batch_theta, loss = np.concatenate([batch_theta, seeds.theta]), np.concatenate([loss, seeds.loss])
+    for extra_theta, extra_loss in ([(seeds.theta, seeds.loss)] if seeds is not None else []) + (
+        [shown] if shown else []
+    ):
+        batch_theta, loss = np.concatenate([batch_theta, extra_theta]), np.concatenate([loss, extra_loss])
     best = batch_theta[int(np.argmin(loss))] if np.isfinite(loss).any() else fallback
     return batch_theta, loss, np.array(best, dtype=np.float64)
 

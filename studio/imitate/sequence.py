@@ -37,6 +37,7 @@ import numpy as np
 from studio.errors import ClosedError
 from studio.imitate.candidates import refine_best, rendered_pool
 from studio.imitate.config import COMPONENTS, CPU_SEQUENCE, LossConfig, SequenceConfig
+from studio.imitate.live_best import LiveBest
 from studio.imitate.losses import ImageLoss
 from studio.imitate.search import gradient_search
 from studio.imitate.still import Imitator
@@ -153,7 +154,8 @@ class SequenceImitator:
         ".. : index" while the retrieval index is built, once per machine; see ``Imitator.imitate``).
         Setting ``cancel`` returns within a search or refinement step, with the keyframes finished before it and
         ``cancelled=True`` (a keyframe interrupted half-way is left out). ``cfg`` overrides this object's config
-        for this call. ``best_pose(θ (21,) rad)`` gets the pose of each reported best loss (live previews).
+        for this call. ``best_pose(θ (21,) rad)`` gets each keyframe's improving collision-free poses and every
+        report's best is the rendered loss of the pose last given there (live previews, as ``Imitator.imitate``).
         ``previous (21,) rad``: the pose of the keyframe before ``masks[0]`` (continuing a sequence: the first one
         is then searched from it when sequential and held to it by the temporal term); None: from scratch.
         """
@@ -206,33 +208,33 @@ class SequenceImitator:
         inherit = cfg.mode == "sequential" and prev is not None
         search_cfg = replace(cfg.next if inherit else cfg.first, seed=(cfg.next if inherit else cfg.first).seed + k)
         name = f"keyframe {k + 1}/{n}"
-        stage = (lambda s: lambda i, m, b: progress(f"{name}: {s}", i, m, b)) if progress else (lambda s: None)
+        live = LiveBest(self.refiner, loss_fn, progress, best_pose, prev_t)  # what is shown: only ever better
         seeds, seed_s = None, 0.0
         if cfg.retrieve and not inherit:  # retrieval's first answer, then the block sweep of its best poses
             t_seed = time.perf_counter()
             seeds = self.imitator.seed(
-                loss_fn, target, prev_t, (lambda s, i, m, b: progress(f"{name}: {s}", i, m, b)) if progress else None,
-                cancel, best_pose, k=search_cfg.batch, sweep=cfg.sweep,
+                loss_fn, target, prev_t, lambda s, i, m, b: live.report(f"{name}: {s}", i, m, b), cancel, live.pose,
+                k=search_cfg.batch, sweep=cfg.sweep,
             )  # fmt: skip
             if cancel is not None and cancel.is_set():
                 return None
             seed_s = time.perf_counter() - t_seed
         t_search = time.perf_counter()
         search = gradient_search(
-            self.model, loss_fn, search_cfg, prev if inherit else None, prev_t, stage("search"), cancel, best_pose,
-            starts=None if seeds is None else seeds.best.theta,
+            self.model, loss_fn, search_cfg, prev if inherit else None, prev_t, live.stage(f"{name}: search"), cancel,
+            live.pose, starts=None if seeds is None else seeds.best.theta,
         )  # fmt: skip
         t1 = time.perf_counter()
         if search.cancelled:
             return None
         pool_theta, pool_loss, theta = search.batch_theta, search.batch_loss, search.theta
-        if seeds is not None:  # ranked on the renderer, the seeds kept: never worse than the best seed
+        if seeds is not None:  # ranked on the renderer, the seeds and the poses shown kept: never worse than those
             pool_theta, pool_loss, theta = rendered_pool(
-                self.refiner, loss_fn, search.batch_theta, search.theta, seeds.best, prev_t
+                self.refiner, loss_fn, search.batch_theta, search.theta, seeds.best, prev_t, live.shown()
             )
         if cfg.refine_enabled:
             best = refine_best(self.refiner, loss_fn, pool_theta, pool_loss, cfg.candidates, cfg.refine,
-                               stage("refine"), cancel, prev_t, best_pose)  # fmt: skip
+                               live.stage(f"{name}: refine"), cancel, prev_t, live.pose)  # fmt: skip
             if cancel is not None and cancel.is_set():
                 return None
             if best is not None and best.collision_free:

@@ -28,6 +28,7 @@ from studio.imitate.config import (
     SweepConfig,
 )
 from studio.imitate.expressive import still_expressive
+from studio.imitate.live_best import LiveBest
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner, RefineResult
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, Retrieved, cached_index
@@ -142,8 +143,10 @@ class Imitator:
     ) -> ImitationResult:
         """Retrieve, search, then (optionally) refine. ``progress(stage, step, total, best_loss)`` with stages
         "index" (building the retrieval index, once per machine), "retrieve" (the first answer), "sweep" (the block
-        sweep of the best retrieved poses), "search" and "refine"; ``best_pose(θ (21,) rad)`` gets the pose of each
-        reported best loss (the first answer, the sweep's, then the search's and refinement's) for live previews.
+        sweep of the best retrieved poses), "search" and "refine"; ``best_pose(θ (21,) rad)`` gets each pose that is
+        collision-free and better than every one before it (the first answer, then the sweep's, the search's and the
+        refinement's, :class:`~studio.imitate.live_best.LiveBest`), for live previews, and every report's best loss
+        is the rendered loss of the pose last given there (NaN before the first).
 
         Setting ``cancel`` stops early: the result is then flagged ``cancelled`` and holds the best pose found so
         far (the searched pose when refinement had not started or found no collision-free pose).
@@ -152,18 +155,18 @@ class Imitator:
             raise ClosedError("this Imitator was closed; make a new one (or imitate inside its `with` block)")
         t0 = time.perf_counter()
         loss_fn = self.loss_fn(target, expressive)
-        stage = (lambda name: lambda s, n, b: progress(name, s, n, b)) if progress else (lambda name: None)
+        live = LiveBest(self.refiner, loss_fn, progress, best_pose)  # what is shown: only ever better
         timings: dict[str, float] = {}
-        seeds = self.seed(loss_fn, target, progress=progress, cancel=cancel, best_pose=best_pose)
+        seeds = self.seed(loss_fn, target, progress=live.report, cancel=cancel, best_pose=live.pose)
         if seeds is not None:
             timings |= seeds.timings  # index, first_answer, sweep
         first, swept = (seeds.first, seeds.swept) if seeds is not None else (None, None)
         t_s = time.perf_counter()
         search = gradient_search(
-            self.model, loss_fn, self.search_cfg, progress=stage("search"), cancel=cancel, best_pose=best_pose,
+            self.model, loss_fn, self.search_cfg, progress=live.stage("search"), cancel=cancel, best_pose=live.pose,
             starts=None if seeds is None else seeds.best.theta,
         )  # fmt: skip
-        pool_theta, pool_loss, unrefined = self._select(loss_fn, search, seeds)
+        pool_theta, pool_loss, unrefined = self._select(loss_fn, search, seeds, live)
         t1 = time.perf_counter()
         timings["search"] = t1 - t_s
         with torch.no_grad():
@@ -177,7 +180,7 @@ class Imitator:
         cancelled = search.cancelled
         if refine and not cancelled:
             result = refine_best(self.refiner, loss_fn, pool_theta, pool_loss, self.candidates, self.refine_cfg,
-                                 stage("refine"), cancel, best_pose=best_pose)  # fmt: skip
+                                 live.stage("refine"), cancel, best_pose=live.pose)  # fmt: skip
             if result is not None and result.collision_free:
                 theta, comps = result.theta, result.components
                 shadow = self.renderer.render_one(theta)
@@ -246,17 +249,18 @@ class Imitator:
         self._warmed = True
 
     def _select(
-        self, loss_fn: ImageLoss, search: SearchResult, seeds: Seeds | None
+        self, loss_fn: ImageLoss, search: SearchResult, seeds: Seeds | None, live: LiveBest
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The refinement's candidate pool ``(P, 21)`` with its losses ``(P,)``, and the unrefined pose ``(21,)``.
 
         ``select="model"`` (the paper): the search batch by its self-model loss, the unrefined pose its best.
-        ``"rendered"``: the search batch scored on the renderer (colliding poses excluded) and the seeds
-        (collision-free) form the pool; the unrefined pose is its best (so never worse than the first answer)."""
+        ``"rendered"``: the search batch scored on the renderer (colliding poses excluded), the seeds and every
+        pose shown so far (all collision-free) form the pool; the unrefined pose is its best (so never worse than
+        the first answer or any pose the caller was shown)."""
         if self.cfg.select == "model":
             return search.batch_theta, search.batch_loss, search.theta
         return rendered_pool(self.refiner, loss_fn, search.batch_theta, search.theta,
-                             None if seeds is None else seeds.best)  # fmt: skip
+                             None if seeds is None else seeds.best, shown=live.shown())  # fmt: skip
 
 
 def imitate_still(
