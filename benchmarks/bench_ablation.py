@@ -31,16 +31,16 @@ import numpy as np
 import torch
 
 from studio.imitate.config import CPU_SEARCH, LossConfig, SearchConfig
-from studio.imitate.expressive import still_expressive
 from studio.imitate.losses import ImageLoss
 from studio.imitate.search import gradient_search
-from studio.imitate.targets import gather_targets, load_target
 from studio.learn.checkpoint import CheckpointError, read_checkpoint
 from studio.learn.config import TrainConfig
 from studio.learn.selfmodel import load_selfmodel
 from studio.learn.train import train
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import Rig, ShadowRenderer
+from studio.targets.expressive import still_expressive
+from studio.targets.images import gather_targets, load_target
 
 ROOT = Path(__file__).resolve().parent.parent
 ASL = ROOT.parent / "shared" / "targets" / "asl"

@@ -80,7 +80,7 @@ def run_worker(worker: str, args) -> dict:
     from studio.assets import asset
 
     from studio.imitate.config import CPU_SEARCH, RefineConfig
-    from studio.project.jobs import JobQueue, JobState, imitate_keyframe_job
+    from studio.jobs import JobQueue, JobState, imitate_keyframe_job
 
     target = asset("targets/asl_v.jpeg")
     if args.stage == "search":

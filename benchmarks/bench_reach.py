@@ -33,8 +33,8 @@ from studio.imitate.config import (
     ImitateConfig,
     SweepConfig,
 )
-from studio.imitate.expressive import still_expressive
 from studio.imitate.still import Imitator
+from studio.targets.expressive import still_expressive
 
 METHODS = {  # name → (search, refine, imitate, sweep): `--method studio|paper`, and the studio's before the sweep
     "studio": (STUDIO_SEARCH, CPU_REFINE, ImitateConfig(), SweepConfig()),

@@ -31,7 +31,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from studio.imitate.segment import SegmentConfig, segment_video
+from studio.targets.segment import segment_video
+from studio.targets.segment_config import SegmentConfig
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "targets"
 

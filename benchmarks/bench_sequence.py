@@ -24,13 +24,13 @@ import numpy as np
 import torch
 
 from studio.imitate.config import CPU_SEQUENCE, LossConfig
-from studio.imitate.expressive import expressive_masks
-from studio.imitate.keyframes import cluster_keyframes, keyframe_targets
 from studio.imitate.sequence import SequenceImitator
 from studio.imitate.still import DEFAULT_MODEL
 from studio.imitate.transitions import TransitionConfig
-from studio.imitate.video import VideoConfig, load_video
 from studio.learn.selfmodel import load_selfmodel
+from studio.targets.expressive import expressive_masks
+from studio.targets.keyframes import cluster_keyframes, keyframe_targets
+from studio.targets.video import VideoConfig, load_video
 
 DAVIS = Path(__file__).resolve().parents[2] / "shared" / "targets" / "davis"
 MODES = {

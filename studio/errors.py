@@ -13,3 +13,7 @@ class ShardError(StudioError):
 
 class ClosedError(StudioError):
     """An object was used after ``close()`` (or the end of its ``with`` block) released what it held."""
+
+
+class TargetError(StudioError):
+    """A target or footage file is missing, unreadable, not an image or video, or holds no usable shadow."""

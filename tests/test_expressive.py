@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from studio.imitate.expressive import combine, expressive_masks, holes_region, moving_region
+from studio.targets.expressive import combine, expressive_masks, holes_region, moving_region
 
 S = 32
 

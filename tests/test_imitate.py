@@ -16,11 +16,11 @@ from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
 from studio.imitate.search import gradient_search, initial_poses
 from studio.imitate.still import DEFAULT_MODEL, Imitator
-from studio.imitate.targets import SAMPLE_DIR
 from studio.learn.selfmodel import SelfModel, SelfModelConfig, load_selfmodel
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import sample_poses
 from studio.sim.shadow import Rig, ShadowRenderer, iou
+from studio.targets.images import SAMPLE_DIR
 
 if not DEFAULT_MODEL.is_file():
     pytest.skip(f"shipped self-model missing: {DEFAULT_MODEL}", allow_module_level=True)
@@ -294,8 +294,8 @@ def _imitate_cli(*args: str, **kw) -> subprocess.CompletedProcess:
 def test_imitate_at_zero_uses_the_opening_and_plans_to_a_held_pose(tmp_path):
     """The default target (ASL "o") has an opening: it is the expressive region, so Exp. IoU is computed; the
     single keyframe at t = 0 plans to a show that holds the pose (this used to raise IndexError in timing)."""
-    from studio.imitate.targets import DEFAULT_TARGET
     from studio.motion.show import load_show
+    from studio.targets.images import DEFAULT_TARGET
 
     out = tmp_path / "o"
     proc = _imitate_cli(str(DEFAULT_TARGET), "--out", str(out), "--no-clip", "--quiet", "--at", "0",
@@ -322,7 +322,7 @@ def test_imitate_threshold_flags_reach_the_target(tmp_path):
 
     from studio.cli.imitate import target_config_from_args
     from studio.cli.main import build_parser
-    from studio.imitate.targets import TargetConfig
+    from studio.targets.images import TargetConfig
 
     def cfg(*flags: str) -> TargetConfig:
         return target_config_from_args(build_parser().parse_args(["imitate", "t.png", "--out", "o", *flags]))

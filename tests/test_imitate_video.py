@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 import pytest
 
-from studio.imitate.video import DEFAULT_VIDEO
 from studio.review.rerun import read_recording
+from studio.targets.video import DEFAULT_VIDEO
 
 SMALL = ["--no-clip", "--quiet", "--hz", "4", "--first-batch", "8", "--first-iters", "20", "--next-batch", "4",
          "--next-iters", "10", "--refine-steps", "20", "--refine-restarts", "2", "--candidates", "1",

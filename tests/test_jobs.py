@@ -15,7 +15,7 @@ import pytest
 from studio.assets import asset
 
 from studio.imitate.config import RefineConfig, SearchConfig
-from studio.project.jobs import (
+from studio.jobs import (
     Job,
     JobQueue,
     JobState,
@@ -24,8 +24,8 @@ from studio.project.jobs import (
     imitate_keyframe_job,
     imitate_video_job,
     plan_job,
-    play_job,
 )
+from studio.project.play import play_job
 
 TARGET = asset("targets/asl_v.jpeg")
 TINY = SearchConfig(batch=4, iterations=20, lr=0.08, log_every=5)
@@ -183,7 +183,7 @@ def test_a_completed_jobs_apply_runs_once_with_its_result():
 
 def test_imitate_video_job_runs_every_keyframe():
     from studio.imitate.config import CPU_SEQUENCE
-    from studio.imitate.targets import load_target
+    from studio.targets.images import load_target
 
     masks = np.stack([load_target(asset(f"targets/{n}.jpeg"), size=128) for n in ("asl_v", "asl_y")])
     cfg = replace(CPU_SEQUENCE, first=TINY, next=replace(TINY, iterations=10), refine=RefineConfig(steps=5),
@@ -316,7 +316,7 @@ def snapshot(project) -> tuple:
 
 def test_project_jobs_apply_on_completion_and_nothing_on_cancel_or_failure(project, tmp_path, hand):
     from studio.imitate.config import CPU_SEQUENCE
-    from studio.project.jobs.project_jobs import keyframe_job, queue_for, video_job
+    from studio.project.jobs import keyframe_job, queue_for, video_job
 
     k = project.keyframes[0].id
     before = snapshot(project)
@@ -354,7 +354,7 @@ def test_project_jobs_apply_on_completion_and_nothing_on_cancel_or_failure(proje
 
 def test_project_results_from_changed_inputs_are_stale_and_the_show_is_set(project, hand):
     from studio.motion.plan import Keyframes
-    from studio.project.jobs.project_jobs import keyframe_job, queue_for, show_job
+    from studio.project.jobs import keyframe_job, queue_for, show_job
 
     k = project.keyframes[0].id
     with queue_for(project) as queue:

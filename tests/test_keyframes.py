@@ -14,8 +14,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from studio.imitate.expressive import expressive_masks
-from studio.imitate.keyframes import KeyframeConfig, cluster_keyframes, embed, merge_clusters
+from studio.targets.expressive import expressive_masks
+from studio.targets.keyframes import KeyframeConfig, cluster_keyframes, embed, merge_clusters
 
 S = 32
 DAVIS = ("bear", "blackswan", "camel", "cows", "dog", "flamingo")  # the paper's six videos
@@ -126,7 +126,7 @@ def test_merging_hundreds_of_frames_is_fast():
 
 
 def load_davis(folder, hz: float = 4.0) -> np.ndarray:
-    from studio.imitate.video import VideoConfig, load_video
+    from studio.targets.video import VideoConfig, load_video
 
     return load_video(folder, VideoConfig(hz=hz)).masks
 

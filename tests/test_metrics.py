@@ -12,18 +12,19 @@ import pytest
 import torch
 
 from studio.cli.main import main
+from studio.errors import TargetError
 from studio.evaluate.baselines import InverseBaseline, NearestNeighbour, RandomImage, TrainingSet
 from studio.evaluate.config import EvalConfig, NNConfig
 from studio.evaluate.table1 import EXTRA_COLUMNS, LOSS_COLUMNS, METHODS, Evaluator, summarise, to_markdown, write_table
 from studio.imitate.clip_loss import tiny_clip
 from studio.imitate.config import RefineConfig, SearchConfig
 from studio.imitate.still import Imitator
-from studio.imitate.targets import TargetError, find_holes, gather_targets
 from studio.learn.checkpoint import save_model
 from studio.learn.config import CollectConfig
 from studio.learn.dataset import collect
 from studio.learn.inverse import InverseCNN, InverseConfig
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
+from studio.targets.images import find_holes, gather_targets
 
 RES = 32
 TINY_MODEL = SelfModelConfig(resolution=RES, hidden=64, channels=16, min_channels=8, res_blocks=1)

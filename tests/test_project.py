@@ -21,9 +21,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from studio.imitate.video import VideoConfig
 from studio.motion.show import Show, load_show
 from studio.project.project import Project, ProjectError
+from studio.project.project_format import state_doc
+from studio.targets.video import VideoConfig
 
 S = 32  # mask side: small and fast
 VIDEO = VideoConfig(size=S, fps=8.0, hz=8.0)
@@ -77,7 +78,7 @@ def test_round_trip_keeps_every_field_and_masks_bit_exact(tmp_path, sources, han
     p.set_result(new, theta, {"total": 0.25, "clip": math.nan}, shadow, evaluation={"base": 0.2}, seconds=1.5)
     p.set_show(rest_show(hand))
     q = Project.open(p.path)
-    assert q.state.doc() == p.state.doc()
+    assert state_doc(q.state) == state_doc(p.state)
     for name in ("targets", "auto"):
         assert np.array_equal(getattr(q.state, name), getattr(p.state, name))
         assert getattr(q.state, name).dtype == np.uint8
@@ -98,7 +99,7 @@ def test_round_trip_keeps_every_field_and_masks_bit_exact(tmp_path, sources, han
 
 def test_a_save_killed_before_its_json_leaves_the_previous_project(tmp_path, sources):
     p = make(tmp_path, sources)
-    before = p.state.doc()
+    before = state_doc(p.state)
     script = textwrap.dedent(f"""
         import os, numpy as np
         import studio.project.project_format as fmt
@@ -114,7 +115,7 @@ def test_a_save_killed_before_its_json_leaves_the_previous_project(tmp_path, sou
     masks = list((p.path / "masks").iterdir())
     assert any(m.name.startswith("add-") for m in masks)  # the new mask was written …
     q = Project.open(p.path)
-    assert q.state.doc() == before and not q.state.additions  # … but the project is the previous one
+    assert state_doc(q.state) == before and not q.state.additions  # … but the project is the previous one
     q.set_hold(q.keyframes[0].id, True)  # the next save removes what the killed one left
     assert not any(m.name.startswith("add-") for m in (p.path / "masks").iterdir())
 
@@ -140,7 +141,7 @@ def test_sigkill_during_a_loop_of_saves_leaves_a_readable_project(tmp_path, sour
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=30)
         q = Project.open(p.path)  # every file it names is there and matches its hash
-        seen.add(json.dumps(q.state.doc(), sort_keys=True))
+        seen.add(json.dumps(state_doc(q.state), sort_keys=True))
         assert q.state.additions and len(q.frames) == 9
     assert len(seen) == 3  # each kill left a different (later) saved state
 
@@ -202,29 +203,29 @@ def test_undo_and_redo_laws(base_project, edits):
         path = Path(tmp) / "p.shadow"
         shutil.copytree(base_project, path)
         p = Project.open(path)
-        start = p.state.doc()
+        start = state_doc(p.state)
         changed = 0
         for op, x in edits:
-            before = p.state.doc()
+            before = state_doc(p.state)
             try:
                 apply(p, op, x)
             except ProjectError:  # an edit that cannot be made records nothing and changes nothing
-                assert p.state.doc() == before
+                assert state_doc(p.state) == before
                 continue
-            changed += p.state.doc() != before
-        end = p.state.doc()
+            changed += state_doc(p.state) != before
+        end = state_doc(p.state)
         assert len(p.history) == changed and not p.can_redo
         if changed:  # undo then redo returns the end state
             p.undo()
             p.redo()
-            assert p.state.doc() == end and Project.open(path).state.doc() == end
+            assert state_doc(p.state) == end and state_doc(Project.open(path).state) == end
         for _ in range(changed):  # as many undos return the start, on disk too
             assert p.undo() is not None
-        assert p.state.doc() == start and not p.can_undo and p.undo() is None
-        assert Project.open(path).state.doc() == start
+        assert state_doc(p.state) == start and not p.can_undo and p.undo() is None
+        assert state_doc(Project.open(path).state) == start
         while p.can_redo:
             p.redo()
-        assert p.state.doc() == end
+        assert state_doc(p.state) == end
 
 
 def test_keyframe_edits_keep_every_frame_in_one_keyframe_of_its_source(tmp_path, sources):
@@ -377,4 +378,4 @@ def test_colour_footage_needs_and_uses_a_first_frame_box(tmp_path):
     p.set_segmentation(0, first_mask=first)
     q = Project.open(p.path)
     assert q.sources[0].box is None and np.array_equal(q.sources[0].first_mask, first)
-    assert q.state.doc() == p.state.doc()
+    assert state_doc(q.state) == state_doc(p.state)

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from studio.assets import asset
 
-from studio.imitate.targets import TargetConfig
-from studio.imitate.video import VideoConfig
 from studio.motion.show import Show, load_show
 from studio.project.project import Project
+from studio.targets.images import TargetConfig
+from studio.targets.video import VideoConfig
 
 VIDEO = VideoConfig(size=32, fps=8.0, hz=8.0)
 CLI = [sys.executable, "-m", "studio.cli.main"]

@@ -1,5 +1,5 @@
 """``shadow-studio project run`` and what it stands on: a project's keyframes on the show clock
-(studio.project.show_timing) and run_project (studio.project.jobs.project_run): missing or stale keyframes
+(studio.project.show_timing) and run_project (studio.project.run): missing or stale keyframes
 optimised, current ones never recomputed, the show planned, failures and cancels leaving the project as it was."""
 
 from __future__ import annotations
@@ -15,11 +15,11 @@ from studio.assets import asset
 
 from studio.cli.main import main
 from studio.imitate.config import RefineConfig, SearchConfig, SequenceConfig
-from studio.imitate.video import DEFAULT_VIDEO
 from studio.motion.show import load_show
-from studio.project.jobs import RunConfig, run_project
 from studio.project.project import Project, ProjectError
+from studio.project.run import RunConfig, run_project
 from studio.project.show_timing import ShowLayout
+from studio.targets.video import DEFAULT_VIDEO
 
 STILL = asset("targets/asl_o.jpeg")
 TINY = ["--first-batch", "8", "--first-iters", "20", "--next-batch", "8", "--next-iters", "10",

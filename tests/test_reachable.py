@@ -10,9 +10,9 @@ from studio.evaluate.reachable import ReachableConfig, reach_summary, reachable_
 from studio.imitate.config import LossConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import RenderedLoss
-from studio.imitate.targets import TargetConfig, shadow_box
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import Rig, ShadowRenderer
+from studio.targets.images import TargetConfig, shadow_box
 
 
 @pytest.fixture(scope="module")

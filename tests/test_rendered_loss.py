@@ -9,10 +9,10 @@ import torch
 from studio.imitate.config import COMPONENTS, LossConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import PARALLEL_FROM, RenderedLoss, crop_batch, fast_loss
-from studio.imitate.targets import find_holes
 from studio.sim.crop import align, pad_pixels
 from studio.sim.sampling import sample_poses
 from studio.sim.shadow import Rig, ShadowRenderer
+from studio.targets.images import find_holes
 
 
 @pytest.fixture(scope="module")

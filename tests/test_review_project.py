@@ -226,7 +226,7 @@ def _received(proc: subprocess.Popen, out: Path, entity: str, timeout: float = 1
 
 @needs_rerun
 def test_live_stream_reaches_a_running_viewer(tmp_path, scene_data):
-    from studio.project.jobs import Job, JobQueue
+    from studio.jobs import Job, JobQueue
 
     def engine(report, cancel):  # a job's search then refinement, reporting as the engine does
         for step in range(0, 31, 5):
@@ -316,8 +316,8 @@ def test_notebook_viewer_assets_are_inline_unless_the_user_chose():
 
 
 def test_log_project_reads_a_real_project(tmp_path):
-    from studio.imitate.video import VideoConfig
     from studio.project.project import Project
+    from studio.targets.video import VideoConfig
 
     folder = tmp_path / "clip"
     folder.mkdir()

@@ -1,4 +1,4 @@
-"""Segmentation of raw footage (studio.imitate.segment): a synthetic blob, a real DAVIS clip, bad input, SAM absent."""
+"""Segmentation of raw footage (studio.targets.segment): a synthetic blob, a real DAVIS clip, bad input, SAM absent."""
 
 from __future__ import annotations
 
@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from studio.imitate import segment_sam
-from studio.imitate.segment import SegmentConfig, segment_video
-from studio.imitate.segment_cues import graph_cut
-from studio.imitate.targets import TargetError
+from studio.errors import TargetError
+from studio.targets import segment_sam
+from studio.targets.segment import segment_video
+from studio.targets.segment_config import SegmentConfig
+from studio.targets.segment_cues import graph_cut
 
 # Measured J of the first 10 frames of DAVIS blackswan from the first ground-truth mask's box: 0.895 (default config)
 BLACKSWAN_10_FLOOR = 0.80

@@ -14,8 +14,6 @@ import torch
 
 from studio.errors import ClosedError
 from studio.imitate.config import CPU_SEQUENCE, PAPER_SEQUENCE, LossConfig, RefineConfig, SearchConfig, SequenceConfig
-from studio.imitate.expressive import expressive_masks
-from studio.imitate.keyframes import keyframe_targets
 from studio.imitate.losses import ImageLoss
 from studio.imitate.sequence import SequenceImitator
 from studio.imitate.still import DEFAULT_MODEL
@@ -23,6 +21,8 @@ from studio.imitate.transitions import TransitionConfig, transition_success
 from studio.learn.selfmodel import load_selfmodel
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import sample_poses
+from studio.targets.expressive import expressive_masks
+from studio.targets.keyframes import keyframe_targets
 
 TINY = SequenceConfig(
     first=SearchConfig(batch=16, iterations=40, lr=0.08),

@@ -15,6 +15,7 @@ import torch
 
 from studio.cli.evaluate import sequence_config_from_args
 from studio.cli.main import build_parser, main
+from studio.errors import TargetError
 from studio.evaluate.table1 import LOSS_COLUMNS
 from studio.evaluate.table2 import (
     EXTRA_COLUMNS,
@@ -27,13 +28,12 @@ from studio.evaluate.table2 import (
     write_table,
 )
 from studio.imitate.config import CPU_SEQUENCE, PAPER_SEQUENCE, LossConfig, RefineConfig, SearchConfig, SequenceConfig
-from studio.imitate.keyframes import KeyframeConfig
 from studio.imitate.sequence import SequenceImitator
 from studio.imitate.still import DEFAULT_MODEL
-from studio.imitate.targets import TargetError
 from studio.learn.selfmodel import load_selfmodel
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import sample_poses
+from studio.targets.keyframes import KeyframeConfig
 
 TINY = SequenceConfig(
     first=SearchConfig(batch=8, iterations=15, lr=0.08),

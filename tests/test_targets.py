@@ -1,4 +1,4 @@
-"""studio.imitate.targets: real targets load cleanly, openings survive hole filling, bad files raise TargetError."""
+"""studio.targets.images: real targets load cleanly, openings survive hole filling, bad files raise TargetError."""
 
 from __future__ import annotations
 
@@ -11,12 +11,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from studio.errors import StudioError
-from studio.imitate.targets import (
+from studio.errors import StudioError, TargetError
+from studio.targets.images import (
     DEFAULT_TARGET,
     SAMPLE_DIR,
     TargetConfig,
-    TargetError,
     fill_holes,
     find_holes,
     find_target_files,

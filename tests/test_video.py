@@ -1,4 +1,4 @@
-"""studio.imitate.video: sampling arithmetic, every shared sequence loads, one square frame, bad input is clear."""
+"""studio.targets.video: sampling arithmetic, every shared sequence loads, one square frame, bad input is clear."""
 
 from __future__ import annotations
 
@@ -13,9 +13,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from studio.imitate.cleanup import clean_shadow, remove_specks, ruled_lines, run_lengths
-from studio.imitate.targets import TargetError, detect_polarity
-from studio.imitate.video import (
+from studio.errors import TargetError
+from studio.targets.cleanup import clean_shadow, remove_specks, ruled_lines, run_lengths
+from studio.targets.footage import gif_sample, natural_key
+from studio.targets.images import detect_polarity
+from studio.targets.video import (
     DEFAULT_VIDEO,
     SegmentationNeeded,
     VideoConfig,
@@ -26,7 +28,6 @@ from studio.imitate.video import (
     sample_times,
     video_from_masks,
 )
-from studio.imitate.video_read import gif_sample, natural_key
 
 SMALL = VideoConfig(size=32)
 

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from studio.assets import asset
 
+from studio.jobs import JobState
 from studio.motion.show import load_show
 from studio.motion.show_info import show_info_lines
-from studio.project.jobs import JobState, queue_for
+from studio.project.jobs import queue_for
 from studio.project.project import Project
 from studio.project.show_timing import ShowLayout
 from studio.sim.shadow import Rig, ShadowRenderer

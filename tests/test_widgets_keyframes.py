@@ -8,10 +8,11 @@ import shutil
 import numpy as np
 import pytest
 
-from studio.imitate.keyframes import KeyframeConfig, cluster_keyframes
-from studio.imitate.video import DEFAULT_VIDEO, VideoConfig
 from studio.project.jobs import queue_for
 from studio.project.project import Project
+from studio.project.project_format import state_doc
+from studio.targets.keyframes import KeyframeConfig, cluster_keyframes
+from studio.targets.video import DEFAULT_VIDEO, VideoConfig
 from widgets.keyframes import KeyframesPanel, keyframes_panel
 from widgets.state import StudioState
 
@@ -38,7 +39,7 @@ def test_tau_counts_live_and_edits_only_when_applied(state):
     assert "Keyframes" in keyframes_panel(state).children[0].value
     panel = KeyframesPanel(state)
     p = state.project
-    before, n_frames = p.state.doc(), len(p.frames)
+    before, n_frames = state_doc(p.state), len(p.frames)
     assert n_frames == 9 and panel.live_count == len(p.keyframes) == 4
     assert len(panel.strip.children) == len(p.keyframes)
     last = p.keyframes[-1]
@@ -55,18 +56,18 @@ def test_tau_counts_live_and_edits_only_when_applied(state):
     panel.tau.value = 0.0
     assert panel.live_count == 1 < high == 9  # one cluster per source at τ 0, every frame its own at τ 0.99
     assert f"{panel.live_count} keyframes" in panel.count.value
-    assert p.state.doc() == before and not p.can_undo  # the project is untouched
+    assert state_doc(p.state) == before and not p.can_undo  # the project is untouched
     state.edit("paint", 0, additions=np.ones(p.state.auto.shape[1:], np.uint8))  # the masks change: recounted
     panel.tau.value = 0.3
     assert panel.live_count == len(cluster_keyframes(p.combined_masks(), KeyframeConfig(tau=0.3)).members) == 2
     state.undo()
-    before = p.state.doc()
+    before = state_doc(p.state)
     panel.tau.value = 0.99
     panel.apply_tau.click()
     assert len(p.keyframes) == high and p.state.clustering.tau == 0.99
     assert len(panel.strip.children) == high
     panel.undo.click()
-    assert p.state.doc() == before and panel.undo.disabled and not panel.redo.disabled
+    assert state_doc(p.state) == before and panel.undo.disabled and not panel.redo.disabled
     panel.redo.click()
     assert len(p.keyframes) == high
 

@@ -10,9 +10,9 @@ import pytest
 from PIL import Image
 from studio.assets import asset
 
-from studio.imitate.video import VideoConfig
 from studio.project.jobs import queue_for
 from studio.project.project import Project
+from studio.targets.video import VideoConfig
 from widgets.masks import MasksPanel, masks_panel
 from widgets.state import StudioState
 

@@ -11,8 +11,9 @@ import pytest
 from studio.assets import asset
 
 from studio.imitate.config import RefineConfig, SearchConfig, SequenceConfig
-from studio.project.jobs import JobState, queue_for
-from studio.project.jobs.events import JobEvent
+from studio.jobs import JobState
+from studio.jobs.events import JobEvent
+from studio.project.jobs import queue_for
 from studio.project.project import Project
 from widgets.optimise import OptimiseConfig, mask_picture, optimise_panel
 from widgets.state import StudioState
@@ -127,7 +128,7 @@ def test_the_writer_redraws_on_its_own_at_most_ten_times_a_second(state):
 
 
 def test_the_whole_video_is_one_sequence_job_over_the_sources_keyframes(tmp_path):
-    from studio.imitate.video import DEFAULT_VIDEO
+    from studio.targets.video import DEFAULT_VIDEO
 
     project = Project.create(tmp_path / "two.shadow", sources=[asset("targets/asl_o.jpeg"), DEFAULT_VIDEO])
     state = StudioState(project, queue_for(project))

@@ -12,10 +12,11 @@ import pytest
 from PIL import Image
 from studio.assets import asset
 
-from studio.imitate.targets import TargetConfig
-from studio.imitate.video import VideoConfig
-from studio.project.jobs import JobState, queue_for
+from studio.jobs import JobState
+from studio.project.jobs import queue_for
 from studio.project.project import Project
+from studio.targets.images import TargetConfig
+from studio.targets.video import VideoConfig
 from widgets.keyframes import KeyframesPanel
 from widgets.masks import MasksPanel
 from widgets.state import StudioState

@@ -24,10 +24,12 @@ from pathlib import Path
 import ipywidgets as w
 
 from hardware.player import PlayerConfig
+from studio.jobs import Job, JobEvent, JobState
 from studio.motion.plan import PlanConfig
 from studio.motion.show import Show, export_csv, load_show
 from studio.motion.show_info import show_info_lines
-from studio.project.jobs import Job, JobEvent, JobState, play_job, show_job
+from studio.project.jobs import show_job
+from studio.project.play import play_job
 from studio.project.show_timing import ShowLayout
 from studio.project.state import ProjectError
 from studio.sim.hand import Hand, load_hand

@@ -14,8 +14,8 @@ from dataclasses import replace
 import ipywidgets as w
 import numpy as np
 
-from studio.imitate.keyframes import cluster_keyframes
 from studio.project.state import Keyframe
+from studio.targets.keyframes import cluster_keyframes
 from widgets.images import MASK_RGB, Messages, frame_in_view, grey_rgb, png, tint, title, upscale
 from widgets.state import StudioState
 

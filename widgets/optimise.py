@@ -28,7 +28,9 @@ import ipywidgets as w
 import numpy as np
 
 from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
-from studio.project.jobs import Job, JobEvent, JobState, RunConfig, RunReport, keyframe_job, run_project, video_job
+from studio.jobs import Job, JobEvent, JobState
+from studio.project.jobs import keyframe_job, video_job
+from studio.project.run import RunConfig, RunReport, run_project
 from widgets.images import Messages, grey_rgb, png, title, upscale
 from widgets.state import StudioState
 

@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from studio.project.jobs import JobQueue, queue_for
+from studio.jobs import JobQueue
+from studio.project.jobs import queue_for
 from studio.project.project import Project
 
 log = logging.getLogger(__name__)

@@ -18,11 +18,11 @@ import ipywidgets as w
 import numpy as np
 from studio.assets import asset
 
-from studio.imitate.targets import read_grey, shadowness
-from studio.imitate.video import crop_square, read_frames
-from studio.project.jobs import Job
+from studio.jobs import Job
 from studio.project.sources import locate, source_kind
 from studio.project.state import ProjectError
+from studio.targets.images import read_grey, shadowness
+from studio.targets.video import crop_square, read_frames
 from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, png, tint, title
 from widgets.state import StudioState
 

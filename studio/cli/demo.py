@@ -1,6 +1,6 @@
 """``shadow-studio demo --out DIR``: the bundled default end to end, without a browser.
 
-A bundled still (:data:`DEMO_STILL`, the ASL "o") and the bundled video (``studio.imitate.video.DEFAULT_VIDEO``, the
+A bundled still (:data:`DEMO_STILL`, the ASL "o") and the bundled video (``studio.targets.video.DEFAULT_VIDEO``, the
 Muybridge horse) become the project ``DIR/demo.shadow`` (frames, expressive masks, keyframes), whose keyframes are
 optimised (search through the self-model, refinement on the renderer, collision checked; sequential within the
 video, the CPU preset unless the budget flags say otherwise, no CLIP unless ``--clip-weights``) and whose show is
@@ -34,9 +34,9 @@ PROJECT_NAME = "demo.shadow"  # the project folder inside --out
 
 def _project(out: Path, force: bool):
     """The demo's project in ``out``: reused when there, made fresh (``force``: after removing the old one)."""
-    from studio.imitate.video import DEFAULT_VIDEO
     from studio.project.project import Project, ProjectError
     from studio.project.project_format import DOC
+    from studio.targets.video import DEFAULT_VIDEO
 
     path = out / PROJECT_NAME
     if path.exists() and force:
@@ -70,7 +70,9 @@ def _self_model(model_path: Path | None):
 def _play(project, show, quiet: bool):
     """Play ``show`` on the emulator as a job of the project's queue (a bar, Ctrl-C cancels) → the finished job."""
     from studio.cli.progress import ctrl_c_cancels
-    from studio.project.jobs import TqdmBars, play_job, queue_for
+    from studio.jobs import TqdmBars
+    from studio.project.jobs import queue_for
+    from studio.project.play import play_job
 
     queue = queue_for(project)
     bars = TqdmBars(disable=quiet)

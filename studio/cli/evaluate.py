@@ -21,7 +21,7 @@ from studio.cli.progress import CountBar, StageBars, add_quiet_flag, ctrl_c_canc
 from studio.cli.sequence_flags import add_sequence_flags, sequence_config_from_args
 from studio.cli.still_flags import add_still_flags, still_configs
 from studio.imitate.config import SearchConfig
-from studio.imitate.targets import gather_targets
+from studio.targets.images import gather_targets
 
 DEFAULT_INVERSE = asset("models/inverse_cpu128.pt", must_exist=False)
 
@@ -47,8 +47,8 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
     from studio.evaluate.config import EvalConfig
     from studio.evaluate.table1 import Evaluator, write_table
     from studio.imitate.still import DEFAULT_MODEL, Imitator
-    from studio.imitate.targets import load_target
     from studio.learn.selfmodel import load_selfmodel
+    from studio.targets.images import load_target
 
     target_cfg = target_config_from_args(args)
     search, refine, config, sweep = still_configs(args, args.seed)
@@ -87,12 +87,12 @@ def _run_video_evaluation(args: argparse.Namespace) -> int:
     from studio.cli.clip_flags import clip_from_args
     from studio.evaluate.table2 import ROWS, VideoEvaluator, gather_sequences, json_rows, prepare_sequence, write_table
     from studio.imitate.config import LossConfig
-    from studio.imitate.keyframes import KeyframeConfig
     from studio.imitate.sequence import SequenceImitator
     from studio.imitate.still import DEFAULT_MODEL
     from studio.imitate.transitions import TransitionConfig
-    from studio.imitate.video import VideoConfig
     from studio.learn.selfmodel import load_selfmodel
+    from studio.targets.keyframes import KeyframeConfig
+    from studio.targets.video import VideoConfig
 
     t0 = time.perf_counter()
     sources = gather_sequences(args.sources)
@@ -161,9 +161,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_clip_arguments(p)
     p.set_defaults(func=_evaluate)
 
-    from studio.imitate.keyframes import KeyframeConfig
     from studio.imitate.transitions import TransitionConfig
-    from studio.imitate.video import VideoConfig
+    from studio.targets.keyframes import KeyframeConfig
+    from studio.targets.video import VideoConfig
 
     v = sub.add_parser("evaluate-video", help="Table 2: the six video rows (Independent/Sequential × Base/+Exp/"
                        "+Exp+Temp) on sequences, with transition success (Markdown + CSV)")  # fmt: skip

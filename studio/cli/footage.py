@@ -1,5 +1,5 @@
 """A verb's video source: thresholded or mask footage as it is, or raw colour footage segmented from a first-frame
-``--box X,Y,W,H`` or ``--first-mask PNG`` (:mod:`studio.imitate.segment`), sampled at ``VideoConfig.hz``."""
+``--box X,Y,W,H`` or ``--first-mask PNG`` (:mod:`studio.targets.segment`), sampled at ``VideoConfig.hz``."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from studio.imitate.video import VideoConfig
+from studio.targets.video import VideoConfig
 
 SEGMENT_MAX_HZ = 30.0  # raw footage is segmented at its source rate, at most this (or hz if higher)
 
@@ -29,7 +29,7 @@ def read_first_mask(path: Path) -> np.ndarray:
     none is that bright (a palette mask such as DAVIS's dark-red object on black)."""
     from PIL import Image, UnidentifiedImageError
 
-    from studio.imitate.targets import TargetError
+    from studio.errors import TargetError
 
     path = Path(path)
     if not path.is_file():
@@ -50,7 +50,7 @@ def load_source(
     progress=None,
     cancel=None,
 ):
-    """The sampled video (:class:`~studio.imitate.video.Video`): thresholded/mask footage as :func:`load_video`
+    """The sampled video (:class:`~studio.targets.video.Video`): thresholded/mask footage as :func:`load_video`
     reads it, or colour footage segmented from ``box`` (x, y, w, h source px) or the ``first_mask`` file and framed
     by :func:`video_from_masks`. None when ``cancel`` stopped it. ``progress(stage, step, total)``.
 
@@ -58,12 +58,12 @@ def load_source(
     ``SEGMENT_MAX_HZ`` (neighbouring frames), and the sampled frames take their masks from it: on DAVIS blackswan
     from the first mask's box, segmenting only the 4 Hz samples scored J 0.37, every frame (24 fps) then sampled
     J 0.88."""
-    from studio.imitate.video import load_video, read_footage, video_from_masks
+    from studio.targets.video import load_video, read_footage, video_from_masks
 
     if box is None and first_mask is None:
         video = load_video(src, cfg, progress, cancel)
         return None if video.cancelled else video
-    from studio.imitate.segment import segment_video
+    from studio.targets.segment import segment_video
 
     first = None if first_mask is None else read_first_mask(first_mask)
     sampled = read_footage(src, cfg.hz, cfg.fps, cfg.max_bad_share, progress, cancel)

@@ -25,7 +25,7 @@ from studio.cli.flags import add_config_flags, config_from_args, given, ranged
 from studio.cli.progress import StageBars, add_quiet_flag, ctrl_c_cancels
 from studio.cli.still_flags import add_still_flags, still_configs
 from studio.imitate.config import SearchConfig
-from studio.imitate.targets import TargetConfig
+from studio.targets.images import TargetConfig
 
 
 def _finite(d: dict) -> dict:
@@ -73,11 +73,11 @@ def _run(args: argparse.Namespace) -> int:
     from studio.cli.clip_flags import clip_from_args
     from studio.cli.hand import write_shadow_png
     from studio.imitate.config import LossConfig
-    from studio.imitate.expressive import still_expressive
     from studio.imitate.still import DEFAULT_MODEL, Imitator
-    from studio.imitate.targets import load_target
     from studio.learn.selfmodel import load_selfmodel
     from studio.review.rerun import log_imitation
+    from studio.targets.expressive import still_expressive
+    from studio.targets.images import load_target
 
     target_path = Path(args.target)
     target_cfg = target_config_from_args(args)

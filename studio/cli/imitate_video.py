@@ -41,19 +41,19 @@ from studio.cli.footage import load_source, parse_box
 from studio.cli.progress import StageBars, add_quiet_flag, ctrl_c_cancels
 from studio.cli.sequence_flags import add_sequence_flags, sequence_config_from_args
 from studio.cli.video_outputs import Run, keyframes_document, plan_video, print_late, time_frames, write_review
-from studio.imitate.keyframes import KeyframeConfig
-from studio.imitate.video import VideoConfig
 from studio.motion.limits import LimitsConfig
 from studio.motion.plan import PlanConfig
 from studio.motion.timing import TimingConfig
+from studio.targets.keyframes import KeyframeConfig
+from studio.targets.video import VideoConfig
 
 
 def imitate_frames(model, video, seq_cfg, key_cfg, clip, bars: StageBars, cancel) -> tuple:
     """Expressive masks → keyframes → imitation: ``(expressive, clusters, result, seq)``, the imitator left open."""
     from studio.imitate.config import LossConfig
-    from studio.imitate.expressive import expressive_masks
-    from studio.imitate.keyframes import cluster_keyframes, keyframe_targets
     from studio.imitate.sequence import SequenceImitator
+    from studio.targets.expressive import expressive_masks
+    from studio.targets.keyframes import cluster_keyframes, keyframe_targets
 
     expressive = expressive_masks(video.masks)
     clusters = cluster_keyframes(expressive, key_cfg)
@@ -164,7 +164,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     raw = p.add_mutually_exclusive_group()
     raw.add_argument("--box", type=parse_box, default=None, metavar="X,Y,W,H",
                      help="raw colour footage: the object's box in the first frame, source pixels; it is segmented "
-                          "through the video (studio.imitate.segment)")  # fmt: skip
+                          "through the video (studio.targets.segment)")  # fmt: skip
     raw.add_argument("--first-mask", type=Path, default=None, metavar="PNG",
                      help="raw colour footage: the object's mask in the first frame (white or nonzero = object, "
                           "the source's size), segmented through the video")  # fmt: skip

@@ -27,9 +27,9 @@ from pathlib import Path
 
 from studio.cli.flags import add_config_flags, config_from_args
 from studio.cli.footage import parse_box
-from studio.imitate.keyframes import KeyframeConfig
-from studio.imitate.targets import TargetConfig
-from studio.imitate.video import VideoConfig
+from studio.targets.images import TargetConfig
+from studio.targets.keyframes import KeyframeConfig
+from studio.targets.video import VideoConfig
 
 
 def print_info(project) -> dict:
@@ -105,7 +105,9 @@ def run_with_bars(project, cfg, clip=None, quiet: bool = False, model_path: Path
     from tqdm import tqdm
 
     from studio.cli.progress import ctrl_c_cancels
-    from studio.project.jobs import TqdmBars, queue_for, run_project
+    from studio.jobs import TqdmBars
+    from studio.project.jobs import queue_for
+    from studio.project.run import run_project
 
     queue = queue_for(project)
     bars = TqdmBars(disable=quiet)
@@ -136,7 +138,7 @@ def run_config_from_args(args: argparse.Namespace):
     from studio.cli.sequence_flags import sequence_config_from_args
     from studio.motion.limits import LimitsConfig
     from studio.motion.plan import PlanConfig
-    from studio.project.jobs import RunConfig
+    from studio.project.run import RunConfig
     from studio.project.show_timing import ShowLayout
 
     return RunConfig(

@@ -15,10 +15,10 @@ from studio.cli.flags import add_config_flags, config_from_args
 
 
 def _keyframes(args: argparse.Namespace) -> int:
-    from studio.imitate.expressive import expressive_masks
-    from studio.imitate.keyframes import KeyframeConfig, cluster_keyframes
-    from studio.imitate.video import VideoConfig, load_video
     from studio.review.sheets import keyframe_sheet, write_png
+    from studio.targets.expressive import expressive_masks
+    from studio.targets.keyframes import KeyframeConfig, cluster_keyframes
+    from studio.targets.video import VideoConfig, load_video
 
     src = Path(args.src)
     video = load_video(src, config_from_args(args, VideoConfig))
@@ -49,8 +49,8 @@ def _keyframes(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from studio.imitate.keyframes import KeyframeConfig
-    from studio.imitate.video import VideoConfig
+    from studio.targets.keyframes import KeyframeConfig
+    from studio.targets.video import VideoConfig
 
     p = sub.add_parser("keyframes", help="cluster a video's frames into keyframes and write a contact sheet")
     p.add_argument("src", help="video file (mp4, avi, mov, webm, GIF) or folder of frames (PNG/JPEG masks)")

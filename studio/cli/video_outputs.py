@@ -23,9 +23,9 @@ class Run:
     src: Path  # the source given
     out: Path  # the output folder
     hand: object  # studio.sim.hand.Hand
-    video: object  # studio.imitate.video.Video
+    video: object  # studio.targets.video.Video
     expressive: np.ndarray  # (N, S, S) uint8
-    clusters: object  # studio.imitate.keyframes.Clusters
+    clusters: object  # studio.targets.keyframes.Clusters
     result: object  # studio.imitate.sequence.SequenceResult
     seq: object  # the open studio.imitate.sequence.SequenceImitator (renderer, collision world)
     covered: int = 0  # frames whose keyframes are finished (a prefix; all of them unless cancelled)

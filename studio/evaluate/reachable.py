@@ -3,7 +3,7 @@
 On a real target (a letter, an animal) the loss that remains is part optimiser, part hand: no pose of this hand
 may cast that outline. A reachable target takes the second part out. It is the shadow of a known collision-free
 pose, drawn like self-exploration (:func:`~studio.sim.sampling.sample_poses`), rendered at a fine resolution and
-framed like a loaded image (:func:`~studio.imitate.targets.square_frame`: its box plus the target margin,
+framed like a loaded image (:func:`~studio.targets.images.square_frame`: its box plus the target margin,
 area-resampled and thresholded), so it is as sharp as a target file, not a copy of a model-resolution render. The
 known pose's own rendered shadow, scored against it, is the floor any method can reach at the model's resolution
 (the rest is resampling); :func:`reach_summary` reports a method against it.
@@ -15,11 +15,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from studio.imitate.targets import TargetConfig, shadow_box, square_frame
 from studio.sim.hand import Hand
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import SamplerConfig, sample_poses
 from studio.sim.shadow import Rig, ShadowRenderer
+from studio.targets.images import TargetConfig, shadow_box, square_frame
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,7 @@ def reachable_targets(
     hand: Hand, world: CollisionWorld, size: int, cfg: ReachableConfig | None = None, rig: Rig | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """``cfg.count`` collision-free poses ``(N, 21)`` rad and their shadows as targets ``(N, size, size)`` uint8
-    (1 = shadow), framed like :func:`~studio.imitate.targets.load_target` frames an image file."""
+    (1 = shadow), framed like :func:`~studio.targets.images.load_target` frames an image file."""
     cfg = cfg or ReachableConfig()
     rng = np.random.default_rng(cfg.seed)
     found: list[np.ndarray] = []

@@ -3,7 +3,7 @@
 Each method gives a pose and its shadow: Random and Nearest Neighbour a training image (a rendered shadow of a
 training pose), the inverse CNN and ours the exact renderer's shadow of their pose (ours before and after
 refinement). One :class:`~studio.imitate.losses.ImageLoss` per target scores every method's shadow. The
-expressive region of a still target is its holes (:func:`studio.imitate.targets.find_holes`): for a target without holes
+expressive region of a still target is its holes (:func:`studio.targets.images.find_holes`): for a target without holes
 the expressive terms are NaN, and the Exp. columns are means over the targets that have holes. Rows are plain
 JSON-able dicts (NaN → None); :func:`write_table` writes them as Markdown and CSV.
 """
@@ -24,11 +24,11 @@ from studio.errors import ClosedError
 from studio.evaluate.baselines import BaselineOutput, InverseBaseline, NearestNeighbour, RandomImage, TrainingSet
 from studio.evaluate.config import EvalConfig
 from studio.evaluate.report import csv_text, markdown_table, write_report
-from studio.imitate.expressive import still_expressive
 from studio.imitate.losses import ImageLoss
 from studio.imitate.still import Imitator
 from studio.learn.inverse import InverseCNN
 from studio.sim.shadow import ShadowRenderer
+from studio.targets.expressive import still_expressive
 
 METHODS = ("Random", "Inverse CNN", "Nearest Neighbour", "Ours, first answer", "Ours w/o refinement", "Ours")
 LOSS_COLUMNS = {  # Table 1 header → loss component (studio.imitate.config.COMPONENTS)

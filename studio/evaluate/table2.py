@@ -28,16 +28,17 @@ from pathlib import Path
 
 import numpy as np
 
+from studio.errors import TargetError
 from studio.evaluate.report import csv_text, markdown_table, nan_to_none, write_report
 from studio.evaluate.table1 import LOSS_COLUMNS
 from studio.imitate.config import MODES, SequenceConfig
-from studio.imitate.expressive import expressive_masks
-from studio.imitate.keyframes import KeyframeConfig, cluster_keyframes, keyframe_targets
 from studio.imitate.sequence import SequenceImitator
-from studio.imitate.targets import IMAGE_SUFFIXES, TargetError
 from studio.imitate.transitions import TransitionConfig
-from studio.imitate.video import VideoConfig, load_video
-from studio.imitate.video_read import VIDEO_SUFFIXES
+from studio.targets.expressive import expressive_masks
+from studio.targets.footage import VIDEO_SUFFIXES
+from studio.targets.images import IMAGE_SUFFIXES
+from studio.targets.keyframes import KeyframeConfig, cluster_keyframes, keyframe_targets
+from studio.targets.video import VideoConfig, load_video
 
 log = logging.getLogger(__name__)
 
@@ -118,7 +119,7 @@ def gather_sequences(paths: Sequence[str | Path]) -> list[Path]:
 def prepare_sequence(
     path: Path, video_cfg: VideoConfig | None = None, keyframe_cfg: KeyframeConfig | None = None, name: str = ""
 ) -> PreparedSequence:
-    """Load one sequence (errors: :func:`~studio.imitate.video.load_video`), then :func:`sequence_from_masks`."""
+    """Load one sequence (errors: :func:`~studio.targets.video.load_video`), then :func:`sequence_from_masks`."""
     t0 = time.perf_counter()
     video = load_video(path, replace(video_cfg or VideoConfig(), keep_frames=False))
     s = sequence_from_masks(video.masks, video.times, keyframe_cfg, name or Path(path).name, Path(path))
@@ -134,7 +135,7 @@ def sequence_from_masks(
     source: Path | None = None,
 ) -> PreparedSequence:
     """Frames ``masks (N, S, S)`` uint8 (1 = shadow, one square frame) at ``times (N,)`` s (None: 0, 1, …) →
-    their expressive masks and keyframes (:func:`~studio.imitate.keyframes.cluster_keyframes`)."""
+    their expressive masks and keyframes (:func:`~studio.targets.keyframes.cluster_keyframes`)."""
     t0 = time.perf_counter()
     masks = np.asarray(masks)
     expressive = expressive_masks(masks)

@@ -27,16 +27,16 @@ from studio.imitate.config import (
     SearchConfig,
     SweepConfig,
 )
-from studio.imitate.expressive import still_expressive
 from studio.imitate.live_best import LiveBest
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner, RefineResult
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, Retrieved, cached_index
 from studio.imitate.search import SearchResult, gradient_search
 from studio.imitate.seeding import Seeds, seed_poses
-from studio.imitate.targets import TargetConfig, load_target
 from studio.learn.selfmodel import SelfModel, load_selfmodel
 from studio.sim.shadow import Rig, ShadowRenderer
+from studio.targets.expressive import still_expressive
+from studio.targets.images import TargetConfig, load_target
 
 DEFAULT_MODEL = asset("models/selfmodel_cpu128.pt", must_exist=False)  # the shipped 128² CPU self-model
 

@@ -1,6 +1,6 @@
 """Transition success between consecutive keyframes of a sequence (DESIGN §4 "Transition success").
 
-Keyframes are taken in order of first appearance (the order :func:`~studio.imitate.keyframes.cluster_keyframes`
+Keyframes are taken in order of first appearance (the order :func:`~studio.targets.keyframes.cluster_keyframes`
 numbers them and :mod:`studio.imitate.sequence` optimises them); K keyframes make K − 1 transitions. Transition
 ``k → k+1`` succeeds when both endpoints imitate their targets well enough (``total ≤ max_total``) and the hand can
 get from one pose to the other without a jump: ``mean|Δθ| ≤ max_mean_step`` and ``max|Δθ| ≤ max_step`` (rad, over

@@ -1,7 +1,7 @@
 """The inverse-CNN baseline (DESIGN §4 "Baselines"): a shadow image → joint angles, trained with MSE.
 
 The network sees the shadow the way the losses do: the bounding-box crop of its pixels, padded and made square
-(:func:`studio.sim.crop.align`), so a target framed by :func:`studio.imitate.targets.load_target` and a
+(:func:`studio.sim.crop.align`), so a target framed by :func:`studio.targets.images.load_target` and a
 shadow in the rig's window look alike. ``crop (B, 1, S, S) → strided convs → FC → theta (B, 21) rad``; the output is
 the joints' range centre plus a learnt offset, and predictions are clipped to the joint limits. It trains with the
 shared trainer (``studio.learn.trainer``) on pairs rendered fresh every step or from shards; its checkpoints are

@@ -22,7 +22,7 @@ PROJECT_NAME = "demo.shadow"  # the project folder inside the demo's folder
 
 def demo_sources() -> list[Path]:
     """The demo's sources in order: the bundled still, then the bundled video."""
-    from studio.imitate.video import DEFAULT_VIDEO
+    from studio.targets.video import DEFAULT_VIDEO
 
     return [Path(DEMO_STILL), Path(DEFAULT_VIDEO)]
 

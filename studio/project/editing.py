@@ -19,11 +19,11 @@ from typing import Any
 import numpy as np
 
 from studio.imitate.config import LossConfig
-from studio.imitate.targets import read_grey
 from studio.motion.show import Show
 from studio.project import edits
 from studio.project.sources import Progress, load_sources, locate, make_source
 from studio.project.state import PoseResult, ProjectError, ProjectState, frozen
+from studio.targets.images import read_grey
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """Keyframe edits as pure functions: clustering a project's frames, and the artist's changes to the clusters.
 
-Frames are clustered per source (:func:`~studio.imitate.keyframes.cluster_keyframes` on the expressive masks the
+Frames are clustered per source (:func:`~studio.targets.keyframes.cluster_keyframes` on the expressive masks the
 artist sees: automatic ∪ additions minus erasures), keyframes numbered in order of first appearance across the
 sources. A keyframe keeps its id while it exists; a re-clustering gives a cluster with the same frames (by frame
 key) and the same representative as before that keyframe's old id (and its time and hold), so its result is kept.
@@ -17,9 +17,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from studio.imitate.expressive import combine
-from studio.imitate.keyframes import KeyframeConfig, cluster_keyframes
 from studio.project.state import Frame, Keyframe, ProjectError, ProjectState
+from studio.targets.expressive import combine
+from studio.targets.keyframes import KeyframeConfig, cluster_keyframes
 
 
 def combined_masks(state: ProjectState) -> np.ndarray:

@@ -37,9 +37,6 @@ from pathlib import Path
 import numpy as np
 
 from studio.imitate.config import LossConfig
-from studio.imitate.keyframes import KeyframeConfig
-from studio.imitate.targets import TargetConfig
-from studio.imitate.video import VideoConfig
 from studio.motion.show import Show, save_show
 from studio.motion.video_timing import VideoTiming
 from studio.project import edits
@@ -48,23 +45,18 @@ from studio.project.inputs import keyframe_inputs, show_inputs
 from studio.project.project_format import DOC, SUFFIX, load_state, save_state
 from studio.project.show_timing import ShowLayout, project_timing
 from studio.project.sources import Progress, hash_source, load_sources, locate, make_source
-from studio.project.state import Frame, Keyframe, PoseResult, ProjectError, ProjectState, Source, frozen
+from studio.project.state import Frame, Keyframe, PoseResult, ProjectError, ProjectState, Source, frozen, same
+from studio.project.status import MissingSource, ProjectStatus
 from studio.project.summary import summarise
+from studio.targets.images import TargetConfig
+from studio.targets.keyframes import KeyframeConfig
+from studio.targets.video import VideoConfig
 
 __all__ = ["KEEP", "Change", "MissingSource", "Project", "ProjectError", "ShowLayout"]
 
 log = logging.getLogger(__name__)
 
 MAX_UNDO = 200  # changes kept for undo
-
-
-@dataclass(frozen=True)
-class MissingSource:
-    """A source that is not where the project last read it."""
-
-    index: int  # source number
-    path: str  # the path as given
-    absolute: str  # where it was last read
 
 
 @dataclass(frozen=True)
@@ -247,12 +239,12 @@ class Project(Editing):
         current result yet."""
         from studio.sim.hand import load_hand
 
-        return project_timing(self, load_hand().joint_names, layout)
+        return project_timing(self._state, self.status(), load_hand().joint_names, layout)
 
     # ---------------------------------------------------------------- saving and undo
     def _commit(self, label: str, new: ProjectState) -> None:
         old = self._state
-        if new.doc() == old.doc():
+        if same(new, old):
             log.debug("%s: %s changes nothing", self.path, label)
             return
         save_state(self.path, new, _now())
@@ -315,4 +307,14 @@ class Project(Editing):
 
     def summary(self) -> dict:
         """Plain data for ``project info`` and the widgets (:func:`studio.project.summary.summarise`)."""
-        return summarise(self)
+        return summarise(self._state, self.status())
+
+    def status(self) -> ProjectStatus:
+        """Where the project stands now (:class:`~studio.project.status.ProjectStatus`, plain data)."""
+        with self._lock:
+            return ProjectStatus(
+                path=str(self.path), missing_sources=tuple(self.missing_sources),
+                changed_sources=tuple(self.changed_sources), missing=tuple(self.missing_keyframes()),
+                stale=tuple(self.stale_keyframes()), show_stale=self.is_show_stale(), can_undo=self.can_undo,
+                can_redo=self.can_redo,
+            )  # fmt: skip

@@ -43,9 +43,6 @@ from PIL import Image
 
 from studio.atomic import write_json, write_with
 from studio.imitate.config import LossConfig
-from studio.imitate.keyframes import KeyframeConfig
-from studio.imitate.targets import TargetConfig
-from studio.imitate.video import VideoConfig
 from studio.motion.show import Show, load_show, save_show
 from studio.project.state import (
     Frame,
@@ -58,6 +55,9 @@ from studio.project.state import (
     mask_hash,
     text_hash,
 )
+from studio.targets.images import TargetConfig
+from studio.targets.keyframes import KeyframeConfig
+from studio.targets.video import VideoConfig
 
 log = logging.getLogger(__name__)
 

@@ -29,16 +29,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from studio.motion.plan import Keyframes
 from studio.motion.video_timing import VideoTiming, runs_of, video_end, video_keyframes
-from studio.project.state import ProjectError
-
-if TYPE_CHECKING:
-    from studio.project.project import Project
+from studio.project.state import ProjectError, ProjectState
+from studio.project.status import ProjectStatus
 
 
 @dataclass(frozen=True)
@@ -57,28 +54,29 @@ def _finite(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
-def _poses(project: Project, joint_names: list[str]) -> dict[int, np.ndarray]:
+def _poses(s: ProjectState, status: ProjectStatus, joint_names: list[str]) -> dict[int, np.ndarray]:
     """Keyframe id → its result's pose ``(21,)`` rad; a ProjectError naming missing or stale results."""
-    missing, stale = project.missing_keyframes(), project.stale_keyframes()
+    missing, stale = list(status.missing), list(status.stale)
     if missing or stale:
         parts = ([f"no result for keyframe(s) {missing}"] if missing else []) + (
             [f"stale result(s) for keyframe(s) {stale}"] if stale else []
         )
         raise ProjectError(
-            f"{project.path}: cannot time a show: {' and '.join(parts)}; run `shadow-studio project run "
-            f"{project.path}` to optimise them first"
+            f"{status.path}: cannot time a show: {' and '.join(parts)}; optimise them first"
         )
-    return {k: r.theta(joint_names) for k, r in project.state.results.items()}
+    return {k: r.theta(joint_names) for k, r in s.results.items()}
 
 
-def project_timing(project: Project, joint_names: list[str], layout: ShowLayout | None = None) -> VideoTiming:
-    """The planner keyframes of ``project`` on the show clock (module doc), poses in ``joint_names``' order.
+def project_timing(
+    s: ProjectState, status: ProjectStatus, joint_names: list[str], layout: ShowLayout | None = None
+) -> VideoTiming:
+    """The planner keyframes of a project (its state ``s`` and ``status``) on the show clock (module doc), poses in
+    ``joint_names``' order.
 
     ``frame`` of the result is a project frame index, ``cluster`` a keyframe id; ``runs`` are project frame
     indices; ``end_s`` is the show's end (the last source's end)."""
     layout = layout or ShowLayout()
-    s = project.state
-    poses = _poses(project, joint_names)
+    poses = _poses(s, status, joint_names)
     owner = {m: kf for kf in s.keyframes for m in kf.members}
     hz = s.video.hz
     times: list[float] = []
@@ -134,7 +132,7 @@ def project_timing(project: Project, joint_names: list[str], layout: ShowLayout 
     if bad.size:
         j = int(bad[0]) + 1
         raise ProjectError(
-            f"{project.path}: keyframe {cluster[j]} would be at {t[j]:.3f} s, not after keyframe {cluster[j - 1]} at "
+            f"{status.path}: keyframe {cluster[j]} would be at {t[j]:.3f} s, not after keyframe {cluster[j - 1]} at "
             f"{t[j - 1]:.3f} s: change or clear its time (Project.set_keyframe_time({cluster[j]}, None))"
         )
     planner = Keyframes(t, np.stack([poses[k] for k in cluster]), np.array(hold), source_frame, target,

@@ -3,9 +3,9 @@
 A source is a still (an image file; a one-frame GIF), a video (a video file or an animated GIF) or a folder of
 frames. Its content hash is the sha256 of the file, or for a folder of its sorted file names and their contents, so
 a changed source is told apart from a moved one. Loading goes through the engine's loaders: stills through
-:func:`~studio.imitate.targets.load_target` (framed at the project's size), videos through
-:func:`~studio.imitate.video.load_video`, colour footage segmented from its first-frame box or mask
-(:mod:`studio.imitate.segment`). Expressive masks are computed per source (what moves within that source, plus
+:func:`~studio.targets.images.load_target` (framed at the project's size), videos through
+:func:`~studio.targets.video.load_video`, colour footage segmented from its first-frame box or mask
+(:mod:`studio.targets.segment`). Expressive masks are computed per source (what moves within that source, plus
 holes): a still's is its holes.
 """
 
@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from studio.imitate.expressive import expressive_masks
-from studio.imitate.targets import IMAGE_SUFFIXES, TargetConfig, load_target
-from studio.imitate.video import SegmentationNeeded, VideoConfig, load_video, video_from_masks
 from studio.project.state import Frame, ProjectError, Source
+from studio.targets.expressive import expressive_masks
+from studio.targets.images import IMAGE_SUFFIXES, TargetConfig, load_target
+from studio.targets.video import SegmentationNeeded, VideoConfig, load_video, video_from_masks
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +93,7 @@ def _load_video(src: Source, path: Path, cfg: VideoConfig, progress: Progress | 
                 f"{path.name} is colour footage: the object must be segmented first; give its first-frame box or "
                 "mask (project new --box x,y,w,h or --first-mask PNG; Project.set_segmentation)"
             ) from None
-        from studio.imitate.segment import segment_video
+        from studio.targets.segment import segment_video
 
         seg = (lambda s, i, n: progress(s, i, n)) if progress else None
         masks = segment_video(e.footage.frames, box=src.box, first_mask=src.first_mask, progress=seg)

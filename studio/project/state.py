@@ -9,18 +9,19 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, is_dataclass
 from typing import Any
 
 import numpy as np
 
 from studio.errors import StudioError
 from studio.imitate.config import LossConfig
-from studio.imitate.keyframes import KeyframeConfig
-from studio.imitate.targets import TargetConfig
-from studio.imitate.video import VideoConfig
 from studio.motion.show import Show
+from studio.targets.images import TargetConfig
+from studio.targets.keyframes import KeyframeConfig
+from studio.targets.video import VideoConfig
 
 
 class ProjectError(StudioError):
@@ -121,12 +122,28 @@ class ProjectState:
                 return kf
         raise ProjectError(f"no keyframe {k}; the keyframes are {[kf.id for kf in self.keyframes]}")
 
-    def doc(self) -> dict[str, Any]:
-        """The ``project.json`` document of this state (without ``modified``), naming files by content; two states
-        are the same exactly when their documents are equal."""
-        from studio.project.project_format import state_doc
 
-        return state_doc(self)
+def same(a: Any, b: Any) -> bool:
+    """Whether two pieces of project state hold the same values: arrays by shape and content, dataclasses field by
+    field (``compare=False`` fields too), mappings and sequences item by item, floats with NaN equal to NaN.
+
+    ``same(state_a, state_b)`` tells whether an edit changed anything, without the file format."""
+    if a is b:
+        return True
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a), np.asarray(b)
+        return a.shape == b.shape and bool(np.array_equal(a, b, equal_nan=a.dtype.kind == "f" and b.dtype.kind == "f"))
+    if type(a) is not type(b):
+        return False
+    if is_dataclass(a):
+        return all(same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
+    if isinstance(a, Mapping):
+        return a.keys() == b.keys() and all(same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)):
+        return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b))
+    if isinstance(a, float):
+        return a == b or (math.isnan(a) and math.isnan(b))
+    return bool(a == b)
 
 
 def frozen(a: np.ndarray) -> np.ndarray:

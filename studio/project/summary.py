@@ -3,12 +3,9 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
-from studio.project.state import PoseResult
-
-if TYPE_CHECKING:
-    from studio.project.project import Project
+from studio.project.state import PoseResult, ProjectState
+from studio.project.status import ProjectStatus
 
 
 def _total(result: PoseResult | None) -> float | None:
@@ -16,14 +13,13 @@ def _total(result: PoseResult | None) -> float | None:
     return None if total is None or not math.isfinite(total) else float(total)
 
 
-def summarise(project: Project) -> dict:
+def summarise(s: ProjectState, status: ProjectStatus) -> dict:
     """Plain data for ``project info`` and the widgets: sources (missing? changed?), frames, keyframes with
     their result's state ("current", "stale" or "missing"), counts, the show (stale?), undo/redo."""
-    s = project.state
-    missing = {m.index for m in project.missing_sources}
+    missing = {m.index for m in status.missing_sources}
     keyframes = []
     for kf in s.keyframes:
-        state = "missing" if kf.id not in s.results else "stale" if project.is_stale(kf.id) else "current"
+        state = status.result_state(kf.id)
         keyframes.append({
             "id": kf.id, "representative": kf.representative, "members": list(kf.members),
             "time_s": kf.time_s, "hold": kf.hold, "edited": kf.edited, "result": state,
@@ -32,9 +28,9 @@ def summarise(project: Project) -> dict:
     counts = {c: sum(k["result"] == c for k in keyframes) for c in ("current", "stale", "missing")}
     show = None
     if s.show is not None:
-        show = {"duration_s": s.show.duration, "samples": len(s.show.times), "stale": project.is_show_stale()}
+        show = {"duration_s": s.show.duration, "samples": len(s.show.times), "stale": status.show_stale}
     return {
-        "project": str(project.path),
+        "project": status.path,
         "title": s.title,
         "sources": [
             {
@@ -43,7 +39,7 @@ def summarise(project: Project) -> dict:
                 "kind": src.kind,
                 "footage": src.footage,
                 "missing": i in missing,
-                "changed": i in project.changed_sources,
+                "changed": i in status.changed_sources,
                 "frames": sum(f.source == i for f in s.frames),
             }
             for i, src in enumerate(s.sources)
@@ -56,6 +52,6 @@ def summarise(project: Project) -> dict:
         "results": counts,
         "painted_frames": sorted(set(s.additions) | set(s.erasures)),
         "show": show,
-        "can_undo": project.can_undo,
-        "can_redo": project.can_redo,
+        "can_undo": status.can_undo,
+        "can_redo": status.can_redo,
     }

@@ -1,4 +1,4 @@
-"""The classical segmentation's two steps (:mod:`studio.imitate.segment` describes the method): the first frame
+"""The classical segmentation's two steps (:mod:`studio.targets.segment` describes the method): the first frame
 from a box (:func:`first_from_box`) and frame-to-frame propagation (:class:`Tracker`), on frames kept at the work
 resolution (:class:`WorkFrames`). Every array here is at the work resolution ``(h, w)``; masks are uint8 {0, 1}.
 """
@@ -6,22 +6,14 @@ resolution (:class:`WorkFrames`). Every array here is at the work resolution ``(
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
-import studio.imitate.segment_cues as cues
-
-if TYPE_CHECKING:
-    from studio.imitate.segment import SegmentConfig
+import studio.targets.segment_cues as cues
+from studio.targets.segment_config import DIS_PRESETS, SegmentConfig
 
 log = logging.getLogger(__name__)
-DIS_PRESETS = {
-    "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
-    "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
-    "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM,
-}
 
 
 class WorkFrames:

@@ -21,8 +21,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from studio.project.jobs.engine import imitate_keyframe_job, imitate_video_job, plan_job
-from studio.project.jobs.queue import DEFAULT_WORKER, Job, JobQueue
+from studio.jobs.engine import imitate_keyframe_job, imitate_video_job, plan_job
+from studio.jobs.queue import DEFAULT_WORKER, Job, JobQueue
 
 if TYPE_CHECKING:
     from studio.imitate.config import LossConfig, RefineConfig, SearchConfig, SequenceConfig

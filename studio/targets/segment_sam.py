@@ -1,4 +1,4 @@
-"""Optional Segment Anything adapter for :func:`studio.imitate.segment.segment_video`.
+"""Optional Segment Anything adapter for :func:`studio.targets.segment.segment_video`.
 
 Used only when its package is importable (``segment_anything``, Meta's SAM, or ``sam2``) AND
 ``SegmentConfig.sam_checkpoint`` names a local file that exists. Nothing is downloaded: without either, the
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from studio.imitate.targets import TargetError
+from studio.errors import TargetError
 
 log = logging.getLogger(__name__)
 

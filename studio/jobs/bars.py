@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from typing import IO
 
-from studio.project.jobs.events import JobEvent, JobState
+from studio.jobs.events import JobEvent, JobState
 
 QUIET_STAGES = ("start", "apply")  # stages that open no bar of their own
 

@@ -1,4 +1,4 @@
-"""The evidence :mod:`studio.imitate.segment` weighs for each pixel of a frame, and the graph cut that decides.
+"""The evidence :mod:`studio.targets.segment` weighs for each pixel of a frame, and the graph cut that decides.
 
 Every cue is a log-likelihood ratio map ``(h, w)`` float (positive = object), at the work resolution:
 

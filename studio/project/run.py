@@ -31,11 +31,11 @@ import numpy as np
 
 from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
 from studio.imitate.transitions import TransitionConfig, transition_success
+from studio.jobs.engine import _plan
+from studio.jobs.events import JobError, JobState, Reporter
+from studio.jobs.queue import Job, JobQueue
 from studio.motion.plan import PlanConfig
-from studio.project.jobs.engine import _plan
-from studio.project.jobs.events import JobError, JobState, Reporter
-from studio.project.jobs.project_jobs import queue_for, video_job
-from studio.project.jobs.queue import Job, JobQueue
+from studio.project.jobs import queue_for, video_job
 from studio.project.show_timing import ShowLayout
 from studio.project.state import ProjectError
 

@@ -1,17 +1,15 @@
-"""Background jobs of a project: the engine in a worker, progress events, cancel within a second, results applied
-only on completion (DESIGN §4 "The studio's state", §5.11).
+"""Background work (DESIGN §3, §5.11): the engine in a worker, typed progress events, cancel within a second,
+results applied only on completion. Knows nothing of projects (:mod:`studio.project.jobs` binds jobs to one).
 
-    from studio.project.jobs import JobQueue, TqdmBars, imitate_keyframe_job
-    with JobQueue() as queue:                             # one per project, FIFO, one job at a time
-        queue.subscribe(TqdmBars())                       # the CLI's bars; widgets subscribe or poll queue.events()
+    from studio.jobs import JobQueue, TqdmBars, imitate_keyframe_job
+    with JobQueue() as queue:                             # FIFO, one job at a time
+        queue.subscribe(TqdmBars())                       # the one tqdm subscriber (CLI); widgets subscribe or poll
         job = queue.submit(imitate_keyframe_job("asl_v.jpeg", apply=lambda r: ...))
         job.wait()                                        # job.state: done / failed (job.error) / cancelled
 
 Pieces: :mod:`.events` (JobEvent, JobState, JobError, Reporter, PosePreview, EventPoller), :mod:`.queue` (Job,
 JobQueue), :mod:`.workers` (thread and spawned-process workers), :mod:`.engine` (imitate a keyframe, imitate a
-video, plan), :mod:`.play` (play a show), :mod:`.project_jobs` (the same bound to a Project: ``keyframe_job``,
-``video_job``, ``show_job`` apply through ``set_result``/``set_show``; ``queue_for(project)``), :mod:`.project_run`
-(``run_project``: every missing or stale keyframe, then the show; what ``project run`` does), :mod:`.bars` (tqdm).
+sequence of keyframes, plan a show), :mod:`.bars` (tqdm).
 
 **Thread or process?** ``benchmarks/bench_jobs.py`` on this 2-core machine (shared with other work), the main
 thread's asyncio loop ticking every 20 ms for 10 s while a job runs (lateness p50 / p99, ms):
@@ -31,9 +29,9 @@ new worker), needs picklable jobs and results, and cannot hold a caller's bus or
 
 from __future__ import annotations
 
-from studio.project.jobs.bars import TqdmBars
-from studio.project.jobs.engine import PlannedShow, imitate_keyframe_job, imitate_video_job, plan_job
-from studio.project.jobs.events import (
+from studio.jobs.bars import TqdmBars
+from studio.jobs.engine import PlannedShow, imitate_keyframe_job, imitate_video_job, plan_job
+from studio.jobs.events import (
     EventPoller,
     JobCancelled,
     JobError,
@@ -43,14 +41,10 @@ from studio.project.jobs.events import (
     Reporter,
     WorkerDied,
 )  # fmt: skip
-from studio.project.jobs.play import PlaybackStopped, play_job
-from studio.project.jobs.project_jobs import keyframe_job, queue_for, show_job, video_job
-from studio.project.jobs.project_run import RunConfig, RunReport, run_project
-from studio.project.jobs.queue import DEFAULT_WORKER, Job, JobQueue
+from studio.jobs.queue import DEFAULT_WORKER, Job, JobQueue
 
 __all__ = [
     "DEFAULT_WORKER", "EventPoller", "Job", "JobCancelled", "JobError", "JobEvent", "JobQueue", "JobState",
-    "PlannedShow", "PlaybackStopped", "PosePreview", "Reporter", "RunConfig", "RunReport", "TqdmBars", "WorkerDied",
-    "imitate_keyframe_job", "imitate_video_job", "keyframe_job", "play_job", "plan_job", "queue_for", "run_project",
-    "show_job", "video_job",
+    "PlannedShow", "PosePreview", "Reporter", "TqdmBars", "WorkerDied", "imitate_keyframe_job", "imitate_video_job",
+    "plan_job",
 ]  # fmt: skip

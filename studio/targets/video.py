@@ -1,20 +1,20 @@
 """Video targets: a video file or a folder of frames → binary shadow masks ``(N, S, S)`` in one square frame.
 
-DESIGN §4 "Video targets". :func:`load_video` reads the source sampled at ``hz`` (:mod:`studio.imitate.video_read`:
+DESIGN §4 "Video targets". :func:`load_video` reads the source sampled at ``hz`` (:mod:`studio.targets.footage`:
 video files through OpenCV, GIFs through Pillow with their real frame durations, frame folders at ``fps``), then
 
 1. tells what the frames are (``kind="auto"``): colour footage (the channels differ by more than
    ``colour_spread`` on average), masks (every pixel 0 or 255, as DAVIS ground truth) or grey shadow footage;
-2. binarises them with the still-target pieces of :mod:`studio.imitate.targets`, one polarity for the whole
+2. binarises them with the still-target pieces of :mod:`studio.targets.images`, one polarity for the whole
    sequence (found on the borders of all sampled frames): masks as they are; shadow footage by ``threshold``
    (paper: grey 128) or Otsu, then a photographed backdrop's ruled lines and specks removed
-   (:mod:`studio.imitate.cleanup`), the largest pieces kept and crease holes filled (a hole is an opening when it
+   (:mod:`studio.targets.cleanup`), the largest pieces kept and crease holes filled (a hole is an opening when it
    is as light as a grey backdrop, ``backdrop_level``); a frame with no shadow is skipped and counted;
 3. frames every mask in ONE square frame: the union of the shadow boxes of all frames, grown by ``margin`` and
    squared about its centre, resized to ``size × size``, so motion stays visible (the losses still crop each
    frame to its own box). The source frames are cropped the same way for review.
 
-Raw colour footage needs segmentation (:mod:`studio.imitate.segment`), so ``kind="auto"`` never thresholds it:
+Raw colour footage needs segmentation (:mod:`studio.targets.segment`), so ``kind="auto"`` never thresholds it:
 it raises :class:`SegmentationNeeded`, which carries the sampled RGB frames; :func:`read_frames` gives them
 directly, and :func:`video_from_masks` frames masks made by segmentation like any others.
 """
@@ -30,17 +30,17 @@ import cv2
 import numpy as np
 
 from studio.assets import asset
-from studio.imitate.cleanup import clean_shadow
-from studio.imitate.targets import (
+from studio.errors import TargetError
+from studio.targets.cleanup import clean_shadow
+from studio.targets.footage import Footage, Progress, read_footage, sample_times
+from studio.targets.images import (
     TargetConfig,
-    TargetError,
     detect_polarity,
     mask_from_grey,
     shadow_box,
     shadowness,
     threshold_level,
 )
-from studio.imitate.video_read import Footage, Progress, read_footage, sample_times
 
 __all__ = [
     "DEFAULT_VIDEO",
@@ -119,7 +119,7 @@ class SegmentationNeeded(TargetError):
 
     def __init__(self, message: str, footage: Footage):
         super().__init__(message)
-        self.footage = footage  # the sampled RGB frames and times, for studio.imitate.segment
+        self.footage = footage  # the sampled RGB frames and times, for studio.targets.segment
 
 
 def read_frames(
@@ -154,7 +154,7 @@ def detect_kind(frames: np.ndarray, colour_spread: float = VideoConfig.colour_sp
 
 def shadow_mask(grey: np.ndarray, polarity: str, cfg: VideoConfig, source: str = "<frame>") -> np.ndarray:
     """One grey frame ``(H, W)`` of shadow footage → its mask ``(H, W)`` uint8 (module doc, step 2): threshold,
-    ruled lines and specks removed (:mod:`studio.imitate.cleanup`), then the still-target pieces and holes."""
+    ruled lines and specks removed (:mod:`studio.targets.cleanup`), then the still-target pieces and holes."""
     target_cfg = TargetConfig(
         polarity=polarity, threshold=cfg.threshold, auto_otsu=cfg.auto_otsu, backdrop_level=cfg.backdrop_level
     )
@@ -259,7 +259,7 @@ def load_video(
 
     ``progress(stage, step, total)`` for the stages "read", "binarise" and "frame"; setting ``cancel`` stops the
     reading (the slow part) early: the frames read so far are binarised and the result is flagged ``cancelled``.
-    Raises :class:`~studio.imitate.targets.TargetError` naming the file
+    Raises :class:`~studio.errors.TargetError` naming the file
     for bad input, and :class:`SegmentationNeeded` for colour footage with ``kind="auto"``.
     """
     cfg = cfg or VideoConfig()
@@ -289,7 +289,7 @@ def load_video(
             raise SegmentationNeeded(
                 f"colour footage: {footage.source.name} is raw video, not shadow footage or masks, and a threshold "
                 "would turn it into garbage; segment the object first (imitate-video --box x,y,w,h or --first-mask "
-                "PNG; studio.imitate.segment), or force VideoConfig(kind='shadow') to threshold it anyway: "
+                "PNG; studio.targets.segment), or force VideoConfig(kind='shadow') to threshold it anyway: "
                 f"{footage.source}",
                 footage,
             )

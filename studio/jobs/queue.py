@@ -8,7 +8,7 @@
 
 A job's ``run(report, cancel) -> result`` runs in the worker; ``apply(result)`` runs once, on the queue's
 dispatcher thread, only when ``run`` returned and the job was not cancelled; the job is ``done`` after it. A job that
-raises (in ``run`` or ``apply``) ends ``failed`` with a :class:`~studio.project.jobs.events.JobError`, a cancelled
+raises (in ``run`` or ``apply``) ends ``failed`` with a :class:`~studio.jobs.events.JobError`, a cancelled
 one ``cancelled``: neither calls ``apply``, so the project stays exactly as it was (an ``apply`` that raises halfway
 must keep its own edits atomic: the Project API's are). A cancelled job's partial result (the engines return the
 best so far) stays readable in :attr:`Job.result` for whoever wants it; it is never applied.
@@ -29,8 +29,8 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from studio.project.jobs.events import EventPoller, JobError, JobEvent, JobState, WorkerDied
-from studio.project.jobs.workers import WORKERS, ProcessWorker, Run, ThreadWorker
+from studio.jobs.events import EventPoller, JobError, JobEvent, JobState, WorkerDied
+from studio.jobs.workers import WORKERS, ProcessWorker, Run, ThreadWorker
 
 log = logging.getLogger(__name__)
 

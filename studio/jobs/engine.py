@@ -1,6 +1,6 @@
 """Jobs that run the engine: imitate one keyframe, imitate a whole video, plan a show (play: :mod:`.play`).
 
-Each factory returns a :class:`~studio.project.jobs.queue.Job` whose ``run`` is a ``functools.partial`` of a
+Each factory returns a :class:`~studio.jobs.queue.Job` whose ``run`` is a ``functools.partial`` of a
 module-level function (so it runs in a thread or a spawned process alike) and whose ``apply`` is the caller's
 callback (the Project's ``set_result``/``set_show``, or anything else), called only when the job completes. The
 engine's progress callbacks become events: ``progress(stage, step, total, best)`` as they are, with a ≤ 64² preview
@@ -19,14 +19,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from studio.project.jobs.events import PosePreview, Reporter
-from studio.project.jobs.queue import Job
+from studio.jobs.events import PosePreview, Reporter
+from studio.jobs.queue import Job
 
 if TYPE_CHECKING:
     from studio.imitate.config import LossConfig, RefineConfig, SearchConfig, SequenceConfig, SweepConfig
-    from studio.imitate.targets import TargetConfig
     from studio.motion.plan import Keyframes, PlanConfig
     from studio.motion.show import Show
+    from studio.targets.images import TargetConfig
 
 Apply = Callable[[Any], None] | None
 HOLES = "holes"  # expressive region of a still: the target's holes (DESIGN §4), none when it has none
@@ -69,8 +69,8 @@ def imitate_keyframe_job(
 def _imitate_keyframe(report: Reporter, cancel, *, target, expressive, search, refine, refine_enabled, candidates,
                       sweep, loss_cfg, clip, model_path, target_cfg, preview):  # fmt: skip
     from studio.imitate.config import ImitateConfig
-    from studio.imitate.expressive import still_expressive
     from studio.imitate.still import Imitator
+    from studio.targets.expressive import still_expressive
 
     config = ImitateConfig(candidates=candidates)
     with Imitator(None, model_path, loss_cfg, clip, search, refine, config=config, sweep=sweep) as im:

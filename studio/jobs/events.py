@@ -3,8 +3,8 @@
 A job's life is a stream of :class:`JobEvent`: one ``queued``, one ``running`` (stage "start"), progress events
 while it runs (state ``running``: stage, step of total, best loss so far, now and then a small preview of the
 current best shadow), and one final event (``done``, ``failed`` with its :class:`JobError`, or ``cancelled``).
-Both faces consume the same events: the CLI through :class:`~studio.project.jobs.bars.TqdmBars`, the widgets by
-subscribing or polling (:class:`~studio.project.jobs.queue.JobQueue`).
+Both faces consume the same events: the CLI through :class:`~studio.jobs.bars.TqdmBars`, the widgets by
+subscribing or polling (:class:`~studio.jobs.queue.JobQueue`).
 
 Inside the worker the engine call gets a :class:`Reporter` (``report(stage, step, total, best, shadow)``) and a
 cancel event; :class:`PosePreview` turns the engine's ``best_pose(θ)`` hook into a ≤ 64² shadow at most ~10 times a

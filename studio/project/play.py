@@ -13,8 +13,8 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from studio.errors import StudioError
-from studio.project.jobs.events import Reporter
-from studio.project.jobs.queue import Job
+from studio.jobs.events import Reporter
+from studio.jobs.queue import Job
 
 if TYPE_CHECKING:
     from hardware.calibration import Calibration

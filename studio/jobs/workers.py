@@ -5,7 +5,7 @@ Both speak one message protocol to the queue's dispatcher thread (plain tuples):
     ("progress", stage, step, total, best, shadow)     any number, in order
     ("done", result) | ("cancelled",) | ("error", type, message, traceback)     exactly one, last
 
-A job's ``run(report, cancel)`` is called in the worker with a :class:`~studio.project.jobs.events.Reporter` and a
+A job's ``run(report, cancel)`` is called in the worker with a :class:`~studio.jobs.events.Reporter` and a
 cancel event (``threading.Event``, or a ``multiprocessing`` event in a process: the same ``is_set()``). For a process
 worker ``run`` must pickle (a module-level function, or a ``functools.partial`` of one with picklable arguments) and its
 result must pickle; the process is spawned once (fresh interpreter: torch, the model and numba's caches load on its
@@ -31,7 +31,7 @@ from collections.abc import Callable
 from contextlib import contextmanager
 from typing import Any
 
-from studio.project.jobs.events import JobCancelled, Reporter, Send
+from studio.jobs.events import JobCancelled, Reporter, Send
 
 log = logging.getLogger(__name__)
 

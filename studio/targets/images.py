@@ -37,17 +37,13 @@ import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
 from studio.assets import asset
-from studio.errors import StudioError
+from studio.errors import TargetError
 
 log = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".gif", ".bmp", ".tif", ".tiff", ".webp")
 SAMPLE_DIR = asset("targets")  # bundled sample targets (ASL letters, MPEG-7 silhouettes), SOURCE.txt beside them
 DEFAULT_TARGET = SAMPLE_DIR / "asl_o.jpeg"  # the default example: ASL "o", whose opening is an expressive hole
-
-
-class TargetError(StudioError):
-    """A target file is missing, unreadable, not an image, or holds no usable shadow."""
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 Photographed silhouettes (Muybridge's plates) stand on a ruled backdrop: thin dark lines across the frame that a
 threshold keeps and that touch the feet, so keeping the largest piece keeps them too. Two steps remove them
-before the still-target steps (pieces, holes) of :mod:`studio.imitate.targets` run:
+before the still-target steps (pieces, holes) of :mod:`studio.targets.images` run:
 
 1. **ruled lines**: the pixels whose run of shadow across one axis is thin (``thickness`` × the shorter side)
    and that form, along that axis, a run of such thin pixels that is long (``length`` × the longer side). A tail

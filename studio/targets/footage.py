@@ -16,7 +16,7 @@ frame of ``k / hz``. A rate above the source's is an error saying the most it ca
 
 Bad input never ends in a traceback or a silently shorter show: a missing path, an unknown suffix, a file with no
 readable frames, a GIF cut off in the middle, frames of mixed sizes in a folder, an empty folder each raise a
-:class:`~studio.imitate.targets.TargetError` naming the file; a corrupt frame in the middle is skipped, counted in
+:class:`~studio.errors.TargetError` naming the file; a corrupt frame in the middle is skipped, counted in
 ``skipped`` and logged, and more than ``max_bad_share`` of the sampled frames bad is an error.
 """
 
@@ -33,7 +33,8 @@ import cv2
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
-from studio.imitate.targets import IMAGE_SUFFIXES, TargetError
+from studio.errors import TargetError
+from studio.targets.images import IMAGE_SUFFIXES
 
 log = logging.getLogger(__name__)
 
@@ -101,7 +102,7 @@ def natural_key(path: Path) -> list:
 
 def _rgb(im: Image.Image) -> np.ndarray:
     """A Pillow image as RGB ``(H, W, 3)`` uint8; a varying alpha channel is the shape (opaque = white), as
-    :func:`~studio.imitate.targets.read_grey` reads stills; 16-bit and float images are stretched to 0-255."""
+    :func:`~studio.targets.images.read_grey` reads stills; 16-bit and float images are stretched to 0-255."""
     if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
         alpha = np.asarray(im.convert("RGBA"))[..., 3]
         if alpha.min() < alpha.max():
