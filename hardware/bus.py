@@ -16,15 +16,17 @@ from __future__ import annotations
 import logging
 import threading
 from abc import ABC, abstractmethod
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
 from hardware import constants as C
-from hardware.errors import BusError, ChecksumError, EStopLatched, ServoTimeout, UnexpectedReply
+from hardware.errors import BusError, ChecksumError, EStopLatched, ProtocolError, ServoTimeout, UnexpectedReply
 
 log = logging.getLogger(__name__)
 
 Request = tuple[int, C.Command, tuple[int, ...]]  # (servo id, command, parameter values)
+T = TypeVar("T")
 
 
 def move_requests(targets: Mapping[int, float], duration_s: float) -> list[Request]:
@@ -163,6 +165,18 @@ class ServoBus(ABC):
     def read_positions(self, ids: Iterable[int]) -> dict[int, int]:
         """``{id: units}``; raises on the first servo that does not answer."""
         return {i: self.read_position(i) for i in ids}
+
+    def read_back(self, ids: Iterable[int], read: Callable[[int], T] | None = None) -> dict[int, T | None]:
+        """``{id: read(id)}`` for every servo in ``ids`` (default :meth:`read_position`, servo units); None for a
+        servo that did not answer or answered garbled (after the bus's retries). A lost port still raises."""
+        read = read or self.read_position
+        out: dict[int, T | None] = {}
+        for i in ids:
+            try:
+                out[i] = read(i)
+            except (ServoTimeout, ProtocolError):
+                out[i] = None
+        return out
 
     def read_voltage(self, servo_id: int) -> float:
         """Supply voltage at the servo, V."""

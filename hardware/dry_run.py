@@ -1,4 +1,5 @@
-"""Play a show to the built-in emulator: 21 virtual LX-15D servos on a pseudo-terminal (POSIX only).
+"""Play a show: on a connected bus, or (a dry run) on the built-in emulator, 21 virtual LX-15D servos on a
+pseudo-terminal (POSIX only).
 
 The same path as ``shadow-studio play SHOW --dry-run``, for scripts and notebooks::
 
@@ -6,6 +7,7 @@ The same path as ``shadow-studio play SHOW --dry-run``, for scripts and notebook
     result = play_on_emulator(show)          # PlaybackResult: reason, sent vs measured, timing
 
 Real pyserial talks to the emulator exactly as it would to a USB adapter, so everything but the servos is real.
+``play_on_emulator`` is :func:`play_show` under the name scripts know: without ``bus`` it plays on the emulator.
 """
 
 from __future__ import annotations
@@ -13,16 +15,16 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 
+from hardware.bus import ServoBus
 from hardware.calibration import Calibration, load_calibration
-from hardware.errors import BusError
 from hardware.playback_log import PlaybackResult
 from hardware.player import Player, PlayerConfig, SampleHook
-from hardware.serial_bus import BusConfig, SerialServoBus
+from hardware.session import ServoSession
 from studio.motion.show import Show
 from studio.sim.hand import Hand, load_hand
 
 
-def play_on_emulator(
+def play_show(
     show: Show,
     calibration: Calibration | None = None,
     config: PlayerConfig | None = None,
@@ -30,19 +32,24 @@ def play_on_emulator(
     progress: Callable[[int, int], None] | None = None,
     cancel: threading.Event | None = None,
     on_sample: SampleHook | None = None,
+    *,
+    bus: ServoBus | None = None,
 ) -> PlaybackResult:
-    """Start the emulator with the calibration's servo IDs, play ``show`` through real pyserial, stop it again.
+    """Play ``show`` through a :class:`~hardware.player.Player` on ``bus`` (connected; left open), or, when
+    ``bus`` is None, on the emulator started for it with the calibration's servo IDs (a
+    :class:`~hardware.session.ServoSession`, closed with torque as ``config`` leaves it).
 
     ``calibration`` defaults to the shipped one; ``on_sample`` is the player's per-tick hook (review's commanded vs
     measured series). Never raises for a stop condition (the result says why); raises ``BusError`` where the
     emulator cannot run (no pseudo-terminals on this system).
     """
-    try:
-        from hardware.emulator import ServoEmulator  # POSIX only (pty): imported when used
-    except ImportError as e:
-        raise BusError(f"the servo emulator needs POSIX pseudo-terminals, which this system lacks ({e})") from None
     cal = calibration or load_calibration(None, hand or load_hand())
-    with ServoEmulator(cal.ids) as emu, SerialServoBus(BusConfig(emu.port)) as bus:
-        return Player(bus, cal, config or PlayerConfig(), on_sample=on_sample).play(
-            show.times, show.positions, show.joint_names, cancel=cancel, progress=progress
-        )
+    cfg = config or PlayerConfig()
+    if bus is None:
+        with ServoSession(calibration=cal, release_on_close=not cfg.hold_torque_on_stop) as session:
+            return play_show(show, cal, cfg, progress=progress, cancel=cancel, on_sample=on_sample, bus=session.bus)
+    player = Player(bus, cal, cfg, on_sample=on_sample)
+    return player.play(show.times, show.positions, show.joint_names, cancel=cancel, progress=progress)
+
+
+play_on_emulator = play_show  # without ``bus``: start the emulator, play ``show`` through real pyserial, stop it

@@ -18,7 +18,6 @@ import numpy as np
 
 from hardware.bus import ServoBus
 from hardware.calibration import Calibration
-from hardware.errors import ProtocolError, ServoTimeout
 from hardware.safety import SafetyConfig, clip_command, move_time
 
 HELP = """commands:
@@ -92,14 +91,8 @@ class Jog:
     def read_array(self, strict: bool = True) -> np.ndarray:
         """(J,) measured angles, rad. A servo that does not answer raises ``ServoTimeout`` (or ``ProtocolError``
         for a garbled answer); with ``strict=False`` its angle reads NaN instead."""
-        units = np.full(len(self.cal.ids), np.nan)
-        for k, i in enumerate(self.cal.ids):
-            try:
-                units[k] = self.bus.read_position(i)
-            except (ServoTimeout, ProtocolError):
-                if strict:
-                    raise
-        return self.cal.to_rad(units)
+        got = self.bus.read_positions(self.cal.ids) if strict else self.bus.read_back(self.cal.ids)
+        return self.cal.to_rad(np.array([np.nan if got[i] is None else got[i] for i in self.cal.ids], float))
 
     def read(self) -> dict[str, float]:
         """``{joint: rad}`` measured."""

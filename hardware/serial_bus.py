@@ -9,6 +9,7 @@ imported on ``connect``, so nothing else needs it.
 from __future__ import annotations
 
 import contextlib
+import errno
 import functools
 import time
 from collections.abc import Sequence
@@ -31,6 +32,7 @@ class BusConfig:
     echo: bool = False  # the adapter echoes what the host sends (single-wire adapters); discarded here
     batch_size: int = 7  # servos per batch of moves (paper)
     batch_gap_s: float = 0.010  # pause between batches in write_positions (paper)
+    exclusive: bool = True  # lock the port while open (POSIX flock): a second opener is told it is busy
 
 
 class SerialServoBus(ServoBus):
@@ -52,16 +54,14 @@ class SerialServoBus(ServoBus):
         with self._lock:
             if self._serial is not None:
                 return
+            cfg = self.config
             try:
-                cfg = self.config
+                lock = cfg.exclusive or None  # None: pyserial leaves the port unlocked
                 self._serial = serial.Serial(
-                    cfg.port, cfg.baud, bytesize=8, parity="N", stopbits=1, timeout=cfg.timeout_s
+                    cfg.port, cfg.baud, bytesize=8, parity="N", stopbits=1, timeout=cfg.timeout_s, exclusive=lock
                 )
             except _port_errors() as e:
-                raise BusError(
-                    f"cannot open servo bus {self.config.port!r}: {e}. Check the adapter is plugged in and the path "
-                    "(or start `shadow-studio emulate` and use the path it prints)"
-                ) from e
+                raise BusError(f"cannot open servo bus {cfg.port!r}: {_open_failure(e)}") from e
 
     def disconnect(self) -> None:
         with self._lock:
@@ -76,7 +76,10 @@ class SerialServoBus(ServoBus):
 
     def _port(self):
         if self._serial is None:
-            raise BusError(f"{self.label} is not connected: call connect() or use it as a context manager")
+            raise BusError(
+                f"{self.label} is not connected: it was closed or never opened; open it again (a ServoSession, "
+                "connect() or a with block)"
+            )
         return self._serial
 
     @contextlib.contextmanager
@@ -98,7 +101,7 @@ class SerialServoBus(ServoBus):
             if echo != data:
                 raise UnexpectedReply(
                     f"adapter echo does not match what was sent ({len(echo)}/{len(data)} bytes): another device may "
-                    "be driving the bus, or echo is set but the adapter does not echo (drop --echo)"
+                    "be driving the bus, or echo is set but the adapter does not echo (turn echo off)"
                 )
 
     def _transmit(self, requests: Sequence[Request]) -> None:
@@ -162,6 +165,19 @@ class SerialServoBus(ServoBus):
                 f"from ID {stray.servo_id}: check for duplicate or misconfigured IDs (run `shadow-studio scan`)"
             )
         raise ServoTimeout(servo_id)
+
+
+def _open_failure(e: BaseException) -> str:
+    """Why a port did not open, and what to do, in one line (from the errno pyserial passes on)."""
+    code = getattr(e, "errno", None)
+    if code in (errno.ENOENT, errno.ENODEV, errno.ENXIO):
+        return "no such port. Check the adapter is plugged in and the path (or use the built-in servo emulator)"
+    if code in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK):
+        return "the port is busy: another program or session has it open; close that first"
+    if code in (errno.EACCES, errno.EPERM):
+        return "permission denied: give your user access to the port (on Linux, the dialout group) and log in again"
+    text = str(e).replace("\n", " ")
+    return f"{text}. Check the adapter is plugged in and the path"
 
 
 @functools.cache

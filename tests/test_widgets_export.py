@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 from studio.assets import asset
 
+from hardware.emulator import ServoEmulator
+from hardware.session import ServoSession
 from studio.jobs import JobState
 from studio.motion.show import load_show
 from studio.motion.show_info import show_info_lines
@@ -134,5 +136,12 @@ def test_play_on_the_emulator_with_progress_and_stop(state):
     played = short.play()
     assert wait_for(played, 30.0) == JobState.DONE, played.error
     assert played.result.ok and "played" in short.messages.text and short.progress.value == 1.0
+    with ServoEmulator(range(1, 22)) as hand_at_port:  # a hand at a port: the panel opens a session of its own
+        short.target.value, short.port.value = "port", hand_at_port.port
+        played = short.play()
+        assert wait_for(played, 30.0) == JobState.DONE, played.error
+        assert played.result.ok and short._sessions == {}
+        with ServoSession(hand_at_port.port, ids=[1]) as again:  # closed when the job ended: the port is free
+            assert again.read_back()[1] is not None
     short.close()
     panel.close()

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 
 import ipywidgets as W
 import numpy as np
@@ -158,3 +159,18 @@ def test_torque_home_and_the_selected_keyframes_pose(state, hand):
     assert "servos stopped, torque held" in p.message.value and p.emulator is None and emulator._thread is None
     p.close()
     assert "jog" not in state.extras
+
+
+def test_disconnect_stops_and_releases_torque_when_configured(state, hand):
+    p = JogPanel(state, config=replace(FAST, release_on_close=True), hand=hand)
+    try:
+        assert p.connect()
+        p.home_button.click()  # every servo loaded
+        p.read_button.click()  # answered once every move before it was handled
+        emulator = p.emulator
+        assert all(s.torque for s in emulator.servos)
+        p.disconnect_button.click()
+        assert "servos stopped, torque released" in p.message.value and emulator._thread is None
+        assert not any(s.torque for s in emulator.servos)  # the emulator's own servos, read after it stopped
+    finally:
+        p.close()

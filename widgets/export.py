@@ -7,7 +7,8 @@ in the box (default next to the project) read back by :func:`studio.motion.show.
 **show info** is what ``shadow-studio show-info`` prints (:func:`studio.motion.show_info.show_info_lines`);
 **CSV** is :func:`studio.motion.show.export_csv`; **play** runs :func:`studio.project.jobs.play_job` on the
 built-in emulator or on the hand at a serial port (the Jog panel's bus when it is connected to that port, so its
-e-stop stops the show), with progress and stop (a cancel: the player stops within a tick, torque as configured).
+e-stop stops the show; else a :class:`hardware.session.ServoSession` of its own, closed fail-safe when the job
+ends), with progress and stop (a cancel: the player stops within a tick, torque as configured).
 
 Job events arrive on the queue's thread: the panel only sets widget values there, at most ``redraw_hz`` times a
 second (DESIGN §6); every error is a message in the panel, never a traceback.
@@ -24,6 +25,7 @@ from pathlib import Path
 import ipywidgets as w
 
 from hardware.player import PlayerConfig
+from hardware.session import ServoSession
 from studio.jobs import Job, JobEvent, JobState
 from studio.motion.plan import PlanConfig
 from studio.motion.show import Show, export_csv, load_show
@@ -64,7 +66,7 @@ class ExportPanel:
         self.cfg = cfg or ExportConfig()
         self.hand = hand or load_hand()
         self.jobs: list[Job] = []  # the jobs this panel started, in order
-        self._own_bus: dict[Job, object] = {}  # a bus this panel opened for a play job (closed when the job ends)
+        self._sessions: dict[Job, ServoSession] = {}  # servos this panel opened for a play job (closed when it ends)
         self._last_draw = 0.0
         self.messages = Messages()
         self.allow_late = w.Checkbox(value=self.cfg.allow_late, description="allow late (stretch too-fast moves)",
@@ -178,7 +180,7 @@ class ExportPanel:
 
     def _play(self) -> Job:
         show = self.current_show()
-        bus, own = None, False
+        bus, session = None, None
         if self.target.value == "port":
             port = self.port.value.strip()
             if not port:
@@ -189,16 +191,15 @@ class ExportPanel:
             if jog is not None and jog.bus is not None and jog.bus.config.port == port:
                 bus = jog.bus  # the Jog panel's: its e-stop stops the show
             else:
-                from hardware.serial_bus import BusConfig, SerialServoBus
-
-                bus, own = SerialServoBus(BusConfig(port)), True
-                bus.connect()
+                release = not (self.cfg.player or PlayerConfig()).hold_torque_on_stop  # as the player leaves it
+                session = ServoSession(port, release_on_close=release).open()
+                bus = session.bus
         job = play_job(show, config=self.cfg.player, bus=bus, title=f"play {show.title}")
         try:
-            self._submit(job, bus if own else None)
+            self._submit(job, session)
         except BaseException:
-            if own:
-                bus.disconnect()
+            if session is not None:
+                session.close()
             raise
         return job
 
@@ -209,18 +210,18 @@ class ExportPanel:
             self.messages.say("stopping…")
         return any(stopped)
 
-    def _submit(self, job: Job, bus=None) -> Job:
+    def _submit(self, job: Job, session: ServoSession | None = None) -> Job:
         self.stop_button.disabled = False
         self.progress.description, self.progress.value = job.kind, 0.0
         self.status.value = f"{job.title}: queued"
-        if bus is not None:
-            self._own_bus[job] = bus
+        if session is not None:
+            self._sessions[job] = session
         self.jobs.append(job)
         try:
             self.state.queue.submit(job)
         except BaseException:
             self.jobs.remove(job)
-            self._own_bus.pop(job, None)
+            self._sessions.pop(job, None)
             raise
         return job
 
@@ -247,12 +248,9 @@ class ExportPanel:
         self._finished(job, e)
 
     def _finished(self, job: Job, e: JobEvent) -> None:
-        bus = self._own_bus.pop(job, None)
-        if bus is not None:
-            try:
-                bus.disconnect()
-            except Exception as err:
-                log.debug("closing the play bus failed: %s", err)
+        session = self._sessions.pop(job, None)
+        if session is not None:
+            session.close()  # servos stopped, torque as the player's config says; never raises
         self.stop_button.disabled = all(j.finished for j in self.jobs)
         self.progress.description = e.state.value
         if e.state == JobState.DONE:

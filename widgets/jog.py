@@ -1,13 +1,13 @@
 """The Jog panel: move the hand (or the built-in emulator) one joint at a time, read it back, e-stop it.
 
-A face of :class:`hardware.jog.Jog` (DESIGN §5.7): connect to the emulator (21 virtual servos on a
-pseudo-terminal, started here with the calibration's IDs and stopped on disconnect) or to a serial port; a slider
-per joint spans that joint's soft limits (``hardware.calibration``) and moves its servo at jog speed; read back the
-measured angles on demand or periodically (a background thread that only sets label values, ≤ 10 Hz); torque
-on/off; home; the selected keyframe's pose, ramped; a large e-stop that latches the bus (a separate reset clears
-it). Failing safe (DESIGN §5.13): every error becomes a message in the panel, never a traceback; a lost port
-disables the sliders; anything unexpected sends a stop; a disconnect stops every servo and leaves torque held (or
-released, ``release_on_close``), as the message says.
+A face of :class:`hardware.jog.Jog` (DESIGN §5.7) on a :class:`hardware.session.ServoSession`: connect to the
+emulator (21 virtual servos on a pseudo-terminal, started with the calibration's IDs, stopped on disconnect) or to
+a serial port; a slider per joint spans that joint's soft limits (``hardware.calibration``) and moves its servo at
+jog speed; read back the measured angles on demand or periodically (a background thread that only sets label
+values, ≤ 10 Hz); torque on/off; home; the selected keyframe's pose, ramped; a large e-stop that latches the bus
+(a separate reset clears it). Failing safe (DESIGN §5.13): every error becomes a message in the panel, never a
+traceback; a lost port disables the sliders; anything unexpected sends a stop; a disconnect (the session's close)
+stops every servo and leaves torque held (or released, ``release_on_close``), as the message says.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from hardware.calibration import Calibration, load_calibration
 from hardware.errors import BusError, EStopLatched
 from hardware.jog import Jog, JogConfig, JogMove
 from hardware.serial_bus import BusConfig, SerialServoBus
+from hardware.session import CloseReport, ServoSession
 from studio.errors import StudioError
 from studio.sim.hand import Hand, load_hand
 from widgets.images import title
@@ -56,8 +57,7 @@ class JogPanel:
         self.hand = hand or load_hand()
         self.cal = calibration or load_calibration(None, self.hand)
         self.cfg = config or JogPanelConfig()
-        self.emulator = None  # hardware.emulator.ServoEmulator started by this panel (None: a serial port, or none)
-        self.bus: SerialServoBus | None = None
+        self.session: ServoSession | None = None  # the servos this panel opened (None: not connected)
         self.jog: Jog | None = None
         self.torque_on: bool | None = None  # what this panel last set (None: as the servos came)
         self._quiet = False  # set while the panel itself moves sliders (no move is sent)
@@ -149,23 +149,31 @@ class JogPanel:
             label.value = f"measured {_deg(x)}"
 
     # ------------------------------------------------------------------ connecting
+    @property
+    def bus(self) -> SerialServoBus | None:
+        """The connected bus (None: not connected)."""
+        session = self.session
+        return session.bus if session is not None and session.is_open else None
+
+    @property
+    def emulator(self):
+        """The ``hardware.emulator.ServoEmulator`` this panel started (None: a serial port, or not connected)."""
+        session = self.session
+        return session.emulator if session is not None else None
+
     def connect(self) -> bool:
         """Connect to the emulator (started now) or the port in the text box; returns whether it worked."""
         if self.jog is not None:
             self.disconnect()
+        port = None
+        if self.source.value != "emulator":
+            port = self.port.value.strip()
+            if not port:
+                self._say("type the serial port of the servo adapter (e.g. /dev/ttyUSB0) first", error=True)
+                return False
         try:
-            if self.source.value == "emulator":
-                from hardware.emulator import ServoEmulator  # POSIX only (pty): imported when used
-
-                self.emulator = ServoEmulator(self.cal.ids).start()
-                port = self.emulator.port
-            else:
-                port = self.port.value.strip()
-                if not port:
-                    self._say("type the serial port of the servo adapter (e.g. /dev/ttyUSB0) first", error=True)
-                    return False
-            self.bus = SerialServoBus(BusConfig(port, timeout_s=self.cfg.timeout_s))
-            self.bus.connect()
+            config, release = BusConfig(port or "", timeout_s=self.cfg.timeout_s), self.cfg.release_on_close
+            self.session = ServoSession(port, calibration=self.cal, config=config, release_on_close=release).open()
             home = np.clip(self.hand.rest_pose(), self.cal.lower, self.cal.upper)
             self.jog = Jog(self.bus, self.cal, config=replace(self.cfg.jog), home_pose=home)
         except (StudioError, ImportError, OSError) as e:
@@ -182,7 +190,7 @@ class JogPanel:
         self._show_target()
         self._show_measured(self.jog.target)
         self._set_enabled(True, self.bus.estop_latched)
-        what = "the emulator" if self.emulator is not None else port
+        what = "the emulator" if port is None else port
         note = f"; servos {silent} did not answer (check their cables)" if silent else ": every servo answered"
         self._say(f"connected to {what} ({len(self.cal.ids)} servos){note}", error=bool(silent))
         return True
@@ -191,36 +199,22 @@ class JogPanel:
         """Stop every servo, hold or release torque (``release_on_close``), close the port and the emulator."""
         if self.jog is None:
             return
-        stopped = True
-        try:
-            self.bus.stop()
-            if self.cfg.release_on_close:
-                self.bus.set_torque(False)
-        except StudioError as e:
-            stopped = False
-            log.info("stopping the servos on disconnect failed: %s", e)
-        self._close_hardware()
+        closed = self._close_hardware()
         self._set_enabled(False)
         torque = "released" if self.cfg.release_on_close else ("off" if self.torque_on is False else "held")
-        if stopped:
+        if closed is not None and closed.stopped:
             self._say(f"disconnected: servos stopped, torque {torque}")
         else:
             self._say("disconnected, but the stop did not reach the servos: cut their power if they still move", True)
 
-    def _close_hardware(self) -> None:
+    def _close_hardware(self) -> CloseReport | None:
+        """Stop the read-back thread, then close the session (servos stopped, torque as configured; never raises)."""
         self._refresh_stop.set()
         t, self._refresh_thread = self._refresh_thread, None
         if t is not None and t is not threading.current_thread():
             t.join(2.0)
-        bus, self.bus, self.jog = self.bus, None, None
-        if bus is not None:
-            try:
-                bus.disconnect()
-            except StudioError as e:
-                log.debug("closing the servo bus failed: %s", e)
-        emu, self.emulator = self.emulator, None
-        if emu is not None:
-            emu.stop()
+        session, self.session, self.jog = self.session, None, None
+        return session.close() if session is not None else None
 
     def _lost(self, e: BusError) -> None:
         """The port failed (unplugged, powered off, emulator gone): close it, disable the sliders, say so."""

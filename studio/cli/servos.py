@@ -1,15 +1,16 @@
 """Verbs ``emulate``, ``scan``, ``calibrate``, ``play`` and ``jog``: the terminal face of the hardware layer.
 
-They fail safe (DESIGN §5.13): a lost port (``BusError``) ends the verb with one line and exit code 2 (through
-``main``); ``jog`` and ``calibrate`` carry on after a servo misses a read; ``calibrate`` checks ``--out`` before it
-touches the bus and keeps what was calibrated in ``<out>.partial.yaml`` when it ends early; ``play --log`` writes
-its log however playback ends. The emulator (POSIX only: pty, termios) is imported only by the verbs that use it.
+They open the servos through :class:`hardware.session.ServoSession` and fail safe (DESIGN §5.13): however a verb
+ends, the session stops every servo and leaves torque held (``play --release-on-stop``: released); a lost port
+(``BusError``) ends the verb with one line and exit code 2 (through ``main``); ``jog`` and ``calibrate`` carry on
+after a servo misses a read; ``calibrate`` checks ``--out`` before it touches the bus and keeps what was calibrated
+in ``<out>.partial.yaml`` when it ends early; ``play --log`` writes its log however playback ends. The emulator
+(POSIX only: pty, termios) is imported only by the verbs that use it.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import sys
 import time
 from pathlib import Path
@@ -17,13 +18,14 @@ from pathlib import Path
 import numpy as np
 
 from hardware.bus import scan
-from hardware.calibration import check_writable, default_calibration, load_calibration, save_calibration
+from hardware.calibration import Calibration, check_writable, default_calibration, load_calibration, save_calibration
 from hardware.emulator_config import EmulatorConfig, Faults
-from hardware.errors import BusError, EStopLatched, HardwareError, ProtocolError, ServoTimeout
+from hardware.errors import BusError, EStopLatched, ProtocolError, ServoTimeout
 from hardware.jog import HELP, Jog
 from hardware.playback_log import PlaybackResult, save_playback_log
 from hardware.player import Player, PlayerConfig
-from hardware.serial_bus import BusConfig, SerialServoBus
+from hardware.serial_bus import BusConfig
+from hardware.session import ServoSession, load_emulator
 from hardware.wizard import CalibrationWizard
 from studio.cli.flags import add_config_flags, config_from_args
 from studio.sim.hand import load_hand
@@ -45,24 +47,18 @@ def _bus_args(p: argparse.ArgumentParser, port_required: bool = True) -> None:
     )
 
 
-def _bus(args) -> SerialServoBus:
-    return SerialServoBus(config_from_args(args, BusConfig, base=BusConfig(args.port)))
-
-
-def _emulator():
-    """The ``hardware.emulator`` module, imported on first use (it needs pty and termios: POSIX only)."""
-    try:
-        from hardware import emulator
-    except ImportError as e:
-        raise HardwareError(
-            f"the servo emulator needs a POSIX system with pty and termios ({e}): use Linux or macOS, or a real "
-            "adapter with --port"
-        ) from e
-    return emulator
+def _session(
+    args, calibration: Calibration | None = None, emulator: bool = False, release: bool = False
+) -> ServoSession:
+    """The :class:`ServoSession` a verb opens: ``--port`` (or the emulator) with the link flags (``--echo``,
+    ``--timeout``, ``--retries``); on close torque is held, or released when ``release``."""
+    config = config_from_args(args, BusConfig, base=BusConfig(args.port or ""))
+    port = None if emulator else args.port
+    return ServoSession(port, calibration=calibration, config=config, release_on_close=release)
 
 
 def cmd_emulate(args) -> int:
-    em = _emulator()
+    em = load_emulator()
     ids = {k: frozenset(_ids(getattr(args, k))) for k in ("missing", "stuck", "hot")}
     faults = config_from_args(args, Faults, **{f"{k}_ids": v for k, v in ids.items()})
     dups = tuple(_ids(args.duplicate))
@@ -79,8 +75,8 @@ def cmd_emulate(args) -> int:
 
 def cmd_scan(args) -> int:
     expected = load_calibration(args.calibration, load_hand()).ids if args.calibration else []
-    with _bus(args) as bus:
-        report = scan(bus, _ids(args.ids), expected)
+    with _session(args) as session:
+        report = scan(session.bus, _ids(args.ids), expected)
     print(f"present: {report.present or 'none'}")
     if report.duplicates:
         print(f"DUPLICATE IDs (two servos answer at once): {report.duplicates}: give one of each a new ID")
@@ -103,8 +99,8 @@ def cmd_calibrate(args) -> int:
     check_writable(args.out)  # before the bus: a session is not lost to a typo in --out
     hand = load_hand()
     start = load_calibration(args.start, hand) if args.start else default_calibration(hand)
-    with _bus(args) as bus:
-        wiz = CalibrationWizard(bus, hand, start)
+    with _session(args, start) as session:
+        wiz = CalibrationWizard(session.bus, hand, start)
         print("commands: + - 'step N' free hold set skip   (empty line = set)")
         print(wiz.prompt())
         try:
@@ -137,16 +133,13 @@ def cmd_play(args) -> int:
     cal = load_calibration(args.calibration, hand)
     show = load_show(args.show, hand)
     cfg = PlayerConfig(hold_torque_on_stop=not args.release_on_stop)
-    with contextlib.ExitStack() as stack:
-        if args.dry_run:
-            emu = stack.enter_context(_emulator().ServoEmulator(cal.ids))
-            args.port = emu.port
-            print(f"dry run: playing to the emulator on {emu.port}")
-        elif not args.port:
-            raise ValueError("give --port PATH (or --dry-run to play to the emulator)")
-        bus = stack.enter_context(_bus(args))
+    if not args.dry_run and not args.port:
+        raise ValueError("give --port PATH (or --dry-run to play to the emulator)")
+    with _session(args, cal, emulator=args.dry_run, release=args.release_on_stop) as session:
+        if session.emulator is not None:
+            print(f"dry run: playing to the emulator on {session.emulator.port}")
         print(f"playing {show.title!r}: {show.duration:.2f} s, {len(show.times)} samples; Ctrl-C stops safely")
-        player = Player(bus, cal, cfg)
+        player = Player(session.bus, cal, cfg)
         try:
             result = player.play(show.times, show.positions, show.joint_names)
         finally:  # the log is written however playback ended (even by a bug, which then surfaces)
@@ -174,8 +167,8 @@ def _report(result: PlaybackResult) -> None:
 def cmd_jog(args) -> int:
     hand = load_hand()
     cal = load_calibration(args.calibration, hand)
-    with _bus(args) as bus:
-        jog = Jog(bus, cal, home_pose=hand.rest_pose())
+    with _session(args, cal) as session:
+        jog = Jog(session.bus, cal, home_pose=hand.rest_pose())
         print(HELP)
         silent = [i for i, q in zip(cal.ids, jog.target) if np.isnan(q)]
         if silent:

@@ -37,29 +37,21 @@ def play_job(
     title: str = "",
 ) -> Job:
     """Play ``show`` → ``PlaybackResult``. ``bus`` None plays on the emulator (real pyserial over a
-    pseudo-terminal, ``hardware.dry_run.play_on_emulator``); a connected ``ServoBus`` plays on it (thread worker
-    only: a bus does not pickle). ``calibration`` defaults to the shipped one; ``on_sample(t, commanded,
+    pseudo-terminal, ``hardware.dry_run.play_show``); a connected ``ServoBus`` plays on it (thread worker only: a
+    bus does not pickle). ``calibration`` defaults to the shipped one; ``on_sample(t, commanded,
     measured)`` is the player's per-tick hook, called in the worker (thread worker: any callable)."""
     run = functools.partial(_play, show=show, calibration=calibration, config=config, bus=bus, on_sample=on_sample)
     return Job("play", run, apply, title or (show.title or "show"))
 
 
 def _play(report: Reporter, cancel, *, show, calibration, config, bus, on_sample):
-    from hardware.calibration import load_calibration
-    from hardware.dry_run import play_on_emulator
-    from hardware.player import Player, PlayerConfig, StopReason
+    from hardware.dry_run import play_show
+    from hardware.player import StopReason
 
     def progress(k: int, n: int) -> None:
         report("play", k, n)
 
-    if bus is None:
-        result = play_on_emulator(show, calibration, config, progress=progress, cancel=cancel, on_sample=on_sample)
-    else:
-        from studio.sim.hand import load_hand
-
-        cal = calibration or load_calibration(None, load_hand())
-        player = Player(bus, cal, config or PlayerConfig(), on_sample=on_sample)
-        result = player.play(show.times, show.positions, show.joint_names, cancel=cancel, progress=progress)
+    result = play_show(show, calibration, config, progress=progress, cancel=cancel, on_sample=on_sample, bus=bus)
     if result.reason not in (StopReason.COMPLETED, StopReason.CANCELLED):
         raise PlaybackStopped(f"playback stopped ({result.reason.value}): {result.message}")
     return result
