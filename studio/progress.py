@@ -52,13 +52,14 @@ def report(
         progress(Progress(stage, int(step), int(total), float(best), item))
 
 
-def staged(progress: ProgressFn | None, prefix: str) -> ProgressFn | None:
-    """``progress`` with every stage named ``prefix + stage`` ("keyframe 2/5: " + "search"); None stays None."""
+def staged(progress: ProgressFn | None, prefix: str, item: str | None = None) -> ProgressFn | None:
+    """``progress`` with every stage named ``prefix + stage`` ("keyframe 2/5: " + "search") and, given ``item``, every
+    event's item set to it (the run a table's step belongs to); None stays None."""
     if progress is None:
         return None
 
     def forward(p: Progress) -> None:
-        progress(Progress(prefix + p.stage, p.step, p.total, p.best, p.item))
+        progress(Progress(prefix + p.stage, p.step, p.total, p.best, p.item if item is None else item))
 
     return forward
 

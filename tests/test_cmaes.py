@@ -83,6 +83,10 @@ def test_cmaes_refinement_climbs_out_of_collision(hand):
         start, target_pose = poses[hit][0], poses[~hit][0]
     loss_fn = ImageLoss(renderer.render_one(target_pose), LossConfig(use_clip=False, crop_size=64))
     with Refiner(renderer) as refiner:
-        res = refiner.refine(loss_fn, start, RefineConfig(method="cmaes", restarts=2, steps=60, seed=0))
+        seen = []
+        cfg = RefineConfig(method="cmaes", restarts=2, steps=60, seed=0, log_every=10)
+        res = refiner.refine(loss_fn, start, cfg, progress=seen.append)
         assert res.start_collides and res.collision_free, res.message
+        assert [(p.stage, p.step, p.total) for p in seen] == [("refine", s, 120) for s in range(10, 121, 10)]
+        assert seen[-1].best == res.loss  # both runs count on one bar: steps over restarts × steps
         assert not refiner.world.in_collision(res.theta)[0]

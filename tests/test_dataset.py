@@ -73,8 +73,9 @@ def test_cancel_stops_between_shards(tmp_path, hand):
     cancel = threading.Event()
     seen = []
 
-    def progress(done, total):
-        seen.append(done)
+    def progress(p):
+        assert p.stage == "collect" and p.total == 90
+        seen.append(p.step)
         cancel.set()
 
     summary = collect(tmp_path, CollectConfig(n=90, shard_size=30, resolution=32), hand, progress=progress,

@@ -214,11 +214,34 @@ def test_plan_and_play_jobs(hand):
         play = queue.run(play_job(planned.show, apply=got.append))
         assert play.state == JobState.DONE, play.error
     assert got[1].ok and got[1].commands > 0
-    assert [e.stage for e in rec.events if e.job_id == plan.id and e.stage not in ("", "start", "apply")] == [
-        "path", "timing", "done"
-    ]  # fmt: skip
+    steps = [(e.stage, e.step, e.total) for e in rec.events if e.job_id == plan.id and e.state == JobState.RUNNING]
+    steps = [s for s in steps if s[0] not in ("start", "apply")]
+    assert steps == [("path", 1, 3), ("path", 2, 3), ("path", 3, 3), ("timing", 1, 1), ("show", 1, 1)]
     ticks = [(e.step, e.total) for e in rec.events if e.job_id == play.id and e.stage == "play"]
     assert ticks and ticks[-1][0] == ticks[-1][1]
+
+
+def test_cancel_mid_plan_ends_the_job_cancelled_within_a_second(hand):
+    """plan_show gets the job's cancel event: a cancel while the path is repaired (seconds of work) ends the job
+    cancelled within a second, nothing applied."""
+    from studio.motion.plan import Keyframes
+
+    j = hand.joint_names.index
+    a = hand.rest_pose().copy()
+    a[[j("index_mcp_abd"), j("index_mcp_flex"), j("index_pip")]] = (-0.39, -1.52, 0.12)
+    a[[j("middle_mcp_abd"), j("middle_mcp_flex"), j("middle_pip")]] = (-0.55, -0.7, 0.36)
+    b = a.copy()
+    b[[j("index_mcp_abd"), j("index_mcp_flex")]] = (-0.29, 0.53)  # the index finger swings across the middle one
+    got, rec = [], Recorder("path")
+    with JobQueue() as queue:
+        queue.subscribe(rec)
+        job = queue.submit(plan_job(Keyframes.at([1.0, 4.0, 7.0, 10.0], [a, b, a, b], hold=False), apply=got.append))
+        assert rec.seen.wait(60), job.error
+        t0 = time.monotonic()
+        assert job.cancel()
+        assert job.wait(1.0) == JobState.CANCELLED and time.monotonic() - t0 < 1.0
+    assert got == [] and job.error is None and rec.events[-1].state == JobState.CANCELLED
+    assert "timing" not in {e.stage for e in rec.events}  # stopped within the path, not at its end
 
 
 def test_plan_job_with_a_colliding_keyframe_fails_with_the_planners_error(hand):
@@ -289,7 +312,7 @@ def test_best_pose_hook_gives_the_reported_pose(hand):
     seen = []
     with Imitator() as im:
         loss_fn = im.loss_fn(im.load(TARGET))
-        r = gradient_search(im.model, loss_fn, TINY, progress=lambda s, n, b: seen.append(("p", b)),
+        r = gradient_search(im.model, loss_fn, TINY, progress=lambda p: seen.append(("p", p.best)),
                             best_pose=lambda th: seen.append(("pose", th)))  # fmt: skip
     kinds = [k for k, _ in seen]
     assert kinds == ["pose", "p"] * 4

@@ -15,6 +15,7 @@ from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex
 from studio.imitate.sequence import SequenceImitator
 from studio.imitate.still import Imitator
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
+from studio.progress import Progress
 from studio.sim.shadow import Rig, ShadowRenderer
 
 LOSS = LossConfig(use_clip=False, crop_size=32)
@@ -39,8 +40,8 @@ class Recorder:
     def __init__(self):
         self.events: list[tuple] = []
 
-    def progress(self, stage, step, total, best):
-        self.events.append(("report", stage, best))
+    def progress(self, p: Progress):
+        self.events.append(("report", p.stage, p.best))
 
     def best_pose(self, theta):
         self.events.append(("pose", np.array(theta)))
@@ -116,13 +117,13 @@ def test_live_best_judges_each_pose_at_the_report_that_follows(imitator, hand, f
     exact = float(imitator.refiner.score(loss_fn, poses[:1])[0][0])
     rec = Recorder()
     live = LiveBest(imitator.refiner, loss_fn, rec.progress, rec.best_pose)
-    live.report("index", 1, 2, math.nan)  # no pose yet: NaN, nothing shown
+    live.report(Progress("index", 1, 2))  # no pose yet: NaN, nothing shown
     live.pose(poses[1])
-    live.report("refine", 1, 9, 0.5)  # a stage with its own rendered loss: taken at it
+    live.report(Progress("refine", 1, 9, 0.5))  # a stage with its own rendered loss: taken at it
     live.pose(poses[2])
-    live.report("refine", 2, 9, 0.7)  # worse: not shown, the number stays
+    live.report(Progress("refine", 2, 9, 0.7))  # worse: not shown, the number stays
     live.pose(poses[0])
-    live.report("keyframe 1/1: search", 3, 9, -5.0)  # a search's number is the model's: re-scored here
+    live.report(Progress("keyframe 1/1: search", 3, 9, -5.0))  # a search's number is the model's: re-scored here
     reports = [e[2] for e in rec.events if e[0] == "report"]
     assert math.isnan(reports[0]) and reports[1:] == [0.5, 0.5, pytest.approx(exact)]
     assert sum(e[0] == "pose" for e in rec.events) == 2  # poses[1], then poses[0]; poses[2] was worse
@@ -138,6 +139,6 @@ def test_a_colliding_pose_is_never_shown(imitator, hand):
     rec = Recorder()
     live = LiveBest(imitator.refiner, imitator.loss_fn(imitator.renderer.render_one(hit)), rec.progress, rec.best_pose)
     live.pose(hit)
-    live.report("refine", 1, 1, 0.0)  # even at a claimed loss of 0
+    live.report(Progress("refine", 1, 1, 0.0))  # even at a claimed loss of 0
     assert len(rec.events) == 1 and rec.events[0][:2] == ("report", "refine") and math.isnan(rec.events[0][2])
     assert live.shown()[0].shape == (0, hand.dof) and live.theta is None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 from pathlib import Path
 
 import cv2
@@ -20,6 +21,7 @@ from studio.imitate.clip_loss import (
     TINY_CLIP_CFG,
     ClipWeightsError,
     cache_candidates,
+    find_clip,
     load_clip,
     tiny_clip,
 )
@@ -219,7 +221,7 @@ def test_without_clip_or_region_terms_are_nan_and_left_out() -> None:
         assert math.isnan(comp[name].item()), name
     assert torch.isfinite(total).all()
     torch.testing.assert_close(total, cfg.w_mae * comp["mae"] + cfg.w_iou * comp["iou_loss"])
-    with pytest.raises(StudioError, match="--no-clip"):
+    with pytest.raises(StudioError, match="use_clip=False"):
         ImageLoss(t, LossConfig())  # CLIP asked for, no model given
 
 
@@ -252,7 +254,8 @@ def test_load_clip_never_downloads_and_says_what_to_do(tmp_path: Path) -> None:
     with pytest.raises(ClipWeightsError) as err:
         load_clip("ViT-B-32", cache_dir=tmp_path)
     msg = str(err.value)
-    assert "--clip-weights PATH" in msg and "--no-clip" in msg and "open_clip_model.safetensors" in msg
+    assert "open_clip_model.safetensors" in msg and "never downloaded" in msg
+    assert not re.search(r"(^|\s)--[a-z]", msg)  # no face's words (a flag); the hub's folder names have "--"
     assert str(tmp_path) in msg
     with pytest.raises(ClipWeightsError, match="not found: .*nope.pt"):
         load_clip("ViT-B-32", weights=tmp_path / "nope.pt")
@@ -307,7 +310,16 @@ def test_load_clip_from_checkpoint_files(tmp_path: Path, tiny_model_name: str) -
         load_clip(tiny_model_name, weights=junk)
 
 
-def test_cli_options(tmp_path: Path) -> None:
+def test_one_clip_rule_on_every_face(tmp_path: Path, monkeypatch) -> None:
+    """Off unless weights are given or cached (never an error then), on with given weights, off when asked; one line
+    says which. The command line's flags reach the same rule."""
+    monkeypatch.setenv("HF_HUB_CACHE", str(tmp_path / "hub"))  # an empty cache: nothing is found
+    clip, line = find_clip(cache_dir=tmp_path)
+    assert clip is None and "off" in line and "never downloaded" in line
+    clip, line = find_clip(enabled=False)
+    assert clip is None and "off" in line
+    with pytest.raises(ClipWeightsError, match="not found"):
+        find_clip(tmp_path / "w.safetensors")
     parser = argparse.ArgumentParser()
     add_clip_arguments(parser)
     assert clip_from_args(parser.parse_args(["--no-clip"])) is None

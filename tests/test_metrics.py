@@ -84,7 +84,7 @@ def test_table_has_every_row_and_column(table, tmp_path):
     md = open(paths["markdown"]).read()
     for name in [*METHODS, *LOSS_COLUMNS, *EXTRA_COLUMNS]:
         assert name in md
-    assert "n/a" in md and "holes" in md and "--no-clip" in md
+    assert "n/a" in md and "holes" in md and "CLIP off" in md
     with open(paths["csv"]) as f:
         rows = list(csv.DictReader(f))
     assert [r["method"] for r in rows] == list(METHODS) and rows[0]["clip"] == ""
@@ -181,7 +181,7 @@ def test_clip_columns_filled_with_a_clip_model(setup):
         result = evaluator.run([("ring", ring())])
     for row in result.rows:
         assert row["clip"] is not None and row["exp_clip"] is not None
-    assert not any("--no-clip" in n for n in result.notes)
+    assert not any("CLIP off" in n for n in result.notes)
 
 
 def test_scoring_at_another_side_renders_every_pose_there(setup):
@@ -236,7 +236,8 @@ def _evaluate_args(setup, out, *targets) -> list[str]:
     root = setup["root"]
     return ["evaluate", *map(str, targets), "--out", str(out), "--model", str(root / "model.pt"),
             "--inverse", str(root / "inverse.pt"), "--nn-data", str(root / "shards"), "--no-clip", "--quiet",
-            "--search-batch", "2", "--search-iters", "2", "--refine-steps", "3", "--refine-restarts", "2"]  # fmt: skip
+            "--search-batch", "2", "--search-iterations", "2", "--refine-steps", "3",
+            "--refine-restarts", "2"]  # fmt: skip
 
 
 def test_evaluate_cli_writes_table_and_prints_json_last(setup, tmp_path, capsys):

@@ -4,6 +4,8 @@ too-fast segments, keyframe errors, and the CLI verbs."""
 from __future__ import annotations
 
 import json
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -12,12 +14,14 @@ from hypothesis import strategies as st
 from scipy.interpolate import CubicSpline
 
 from studio.cli.main import main
-from studio.motion.errors import KeyframeCollisionError, PlanError, SegmentTooFastError
+from studio.errors import Cancelled
+from studio.motion.errors import KeyframeCollisionError, PlanCancelled, PlanError, SegmentTooFastError
 from studio.motion.limits import JointLimits, LimitsConfig
 from studio.motion.path import PathConfig, build_path, keyframe_spline, spline_path
 from studio.motion.plan import Keyframes, PlanConfig, keyframe_velocities, parse_keyframes, plan_show
 from studio.motion.show import load_show
 from studio.motion.timing import TimingConfig
+from studio.progress import Progress
 from studio.sim.hand import DEFAULT_URDF, load_hand, parse_urdf
 from studio.sim.physics import CollisionWorld
 
@@ -219,7 +223,7 @@ def test_too_fast_segment_is_reported_with_its_feasible_time(world):
     segs = e.value.segments
     assert [s.index for s in segs] == [0, 1]
     assert all(s.feasible > s.requested for s in segs)
-    assert "needs at least" in str(e.value) and "--allow-late" in str(e.value)
+    assert "needs at least" in str(e.value) and "allow late transitions" in str(e.value)
     # exactly the reported times are feasible (rest-to-rest segments do not depend on the times)
     t1 = segs[0].feasible + 1e-6
     ok = plan_show(HAND, keyframes([t1, t1 + segs[1].feasible + 1e-6], kf.poses, kf.hold), world=world)
@@ -229,6 +233,42 @@ def test_too_fast_segment_is_reported_with_its_feasible_time(world):
     assert [s.index for s in late.trajectory.late] == [0, 1]
     assert late.show.provenance["late_segments"][0]["feasible"] == pytest.approx(segs[0].feasible)
     assert late.show.duration == pytest.approx(segs[0].feasible + segs[1].feasible)
+
+
+def _crossing(n: int) -> Keyframes:
+    """``n`` keyframes 3 s apart swinging the index finger across the middle one and back: every segment needs the
+    repair pass and a detour (seconds of planning)."""
+    return keyframes(1.0 + 3.0 * np.arange(n), [CROSS_A, CROSS_B] * (n // 2))
+
+
+def test_a_cancel_stops_planning_promptly_with_a_typed_error(world):
+    """Setting the cancel event mid-path raises PlanCancelled (a Cancelled, not a PlanError) well under a second
+    later, on a plan that takes seconds; set while timing (a stage later), the same, and no show is sampled."""
+    cancel, seen = threading.Event(), []
+    timer = threading.Timer(0.3, cancel.set)
+    timer.start()
+    t0 = time.monotonic()
+    with pytest.raises(PlanCancelled, match="cancelled") as e:
+        plan_show(HAND, _crossing(4), world=world, progress=seen.append, cancel=cancel)
+    late = time.monotonic() - t0 - 0.3
+    timer.join()
+    assert late < 0.5, late  # the path alone takes ~2 s here
+    assert isinstance(e.value, Cancelled) and not isinstance(e.value, PlanError)
+    assert all(isinstance(p, Progress) for p in seen) and {p.stage for p in seen} <= {"path"}
+
+    cancel.clear()
+    seen.clear()
+
+    def stop_when_timing(p: Progress) -> None:
+        seen.append(p)
+        if p.stage == "timing":
+            cancel.set()
+
+    with pytest.raises(PlanCancelled):
+        plan_show(HAND, _crossing(2), world=world, progress=stop_when_timing, cancel=cancel)
+    path = [(p.step, p.total) for p in seen if p.stage == "path"]
+    assert path == [(1, 4), (2, 4), (3, 4), (4, 4)]  # two segments, the fingertip pass, the corners
+    assert [p.stage for p in seen if p.stage != "path"] == ["timing"]  # stopped at the next timing round
 
 
 def test_colliding_keyframe_is_reported_not_moved(world):

@@ -14,6 +14,7 @@ from studio.imitate.rendered_loss import RenderedLoss, crop_batch
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, cached_index, index_key, pack_crops
 from studio.imitate.still import Imitator
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
+from studio.progress import Progress
 from studio.sim.crop import pad_pixels
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import Rig, ShadowRenderer
@@ -97,8 +98,9 @@ def test_a_cancelled_build_returns_nothing_and_saves_nothing(tmp_path, renderer)
     cfg = RetrievalConfig(size=900, chunk=300, seed=17)
     cancel, seen = threading.Event(), []
 
-    def progress(done, size):
-        seen.append(done)
+    def progress(p: Progress):
+        assert p.stage == "index" and p.total == 900
+        seen.append(p.step)
         cancel.set()
 
     assert cached_index(renderer, cfg, folder=tmp_path, progress=progress, cancel=cancel) is None
@@ -114,8 +116,8 @@ def test_a_cancel_while_the_index_is_built_ends_the_imitation_cancelled(hand, re
     model = SelfModel(SelfModelConfig(resolution=32, hidden=32, channels=16, min_channels=8, res_blocks=1), hand)
     cancel = threading.Event()
 
-    def progress(stage, *a):
-        if stage == "index":
+    def progress(p: Progress):
+        if p.stage == "index":
             cancel.set()
 
     imitator = Imitator(model, loss_cfg=LossConfig(use_clip=False, crop_size=32), search=SearchConfig(batch=4),
@@ -146,7 +148,7 @@ def test_imitator_answers_first_from_the_index_then_improves(hand, index, render
     target = renderer.render_one(np.clip(index.theta[42] + 0.05, hand.lower, hand.upper))
     stages, poses = [], []
     with imitator:
-        result = imitator.imitate(target, progress=lambda s, *a: stages.append(s), best_pose=poses.append)
+        result = imitator.imitate(target, progress=lambda p: stages.append(p.stage), best_pose=poses.append)
     assert stages[0] == "retrieve" and stages.index("sweep") < stages.index("search") and stages[-1] == "refine"
     np.testing.assert_array_equal(poses[0], result.first.theta[0])
     assert result.timings["first_answer"] < result.seconds

@@ -18,6 +18,7 @@ from studio.imitate.seeding import seed_poses
 from studio.imitate.sequence import SequenceImitator
 from studio.imitate.still import Imitator
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
+from studio.progress import Progress
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import sample_poses
 from studio.sim.shadow import Rig, ShadowRenderer
@@ -105,8 +106,8 @@ def test_refine_best_keeps_the_lowest_loss_and_stops_on_cancel(imitator, index, 
     assert best.loss <= pool.loss[0] + 1e-12  # refinement never returns worse than its start
     cancel, calls = threading.Event(), []
 
-    def stop_after_first(step, total, b):
-        calls.append(step)
+    def stop_after_first(p: Progress):
+        calls.append(p.step)
         cancel.set()
 
     first = refine_best(imitator.refiner, loss_fn, pool.theta, pool.loss, 3, cfg, stop_after_first, cancel)
@@ -133,20 +134,21 @@ def test_with_clip_the_sweep_reports_no_pixel_loss_only_the_full_one(imitator, i
     the swept poses are re-scored, and then the full loss of the best, the number the search goes on from."""
     loss_fn = ImageLoss(targets[2], LossConfig(use_clip=True, crop_size=32), tiny_clip(seed=0))
     heard = []
-    seeds = seed_poses(index, imitator.refiner, SWEEP, loss_fn, targets[2], 4, progress=lambda *a: heard.append(a))
-    sweep = [a for a in heard if a[0] == "sweep"]
-    assert len(sweep) >= 3 and all(np.isnan(a[3]) for a in sweep[:-1])
-    assert sweep[-1][3] == pytest.approx(seeds.swept.loss[0]) and sweep[-1][1] == sweep[-1][2]
+    seeds = seed_poses(index, imitator.refiner, SWEEP, loss_fn, targets[2], 4, progress=heard.append)
+    assert all(isinstance(p, Progress) for p in heard) and heard[0].stage == "retrieve"
+    sweep = [p for p in heard if p.stage == "sweep"]
+    assert len(sweep) >= 3 and all(np.isnan(p.best) for p in sweep[:-1])
+    assert sweep[-1].best == pytest.approx(seeds.swept.loss[0]) and sweep[-1].step == sweep[-1].total
     np.testing.assert_allclose(seeds.swept.loss, imitator.refiner.score(loss_fn, seeds.swept.theta)[0], rtol=1e-6)
     heard.clear()
     seed_poses(index, imitator.refiner, SWEEP, ImageLoss(targets[2], LOSS), targets[2], 4,
-               progress=lambda *a: heard.append(a))  # fmt: skip
-    assert all(np.isfinite(a[3]) for a in heard)  # without CLIP every report has the loss
+               progress=heard.append)  # fmt: skip
+    assert all(np.isfinite(p.best) for p in heard)  # without CLIP every report has the loss
 
 
 def _stages(seq, targets, cfg, **kw):
     stages, poses = [], []
-    result = seq.imitate(targets, cfg=cfg, progress=lambda s, *a: stages.append(s), best_pose=poses.append, **kw)
+    result = seq.imitate(targets, cfg=cfg, progress=lambda p: stages.append(p.stage), best_pose=poses.append, **kw)
     return result, stages, poses
 
 
@@ -180,7 +182,7 @@ def test_independent_seeds_every_keyframe(imitator, targets):
     assert len(plain.keyframes) == 3
     unswept = SequenceConfig(**{**cfg.__dict__, "sweep": SweepConfig(starts=0)})  # the sequence's sweep, not the
     _, stages, _ = _stages(SequenceImitator(cfg=unswept, imitator=imitator), targets[:1], unswept)  # imitator's
-    assert "keyframe 1/1: retrieve" in stages and not any(s.endswith(": sweep") for s in stages)
+    assert "retrieve" in stages and not any(s.endswith("sweep") for s in stages)  # one keyframe: plain stages
 
 
 def test_a_keyframe_retrieves_as_many_seeds_as_its_own_search_batch(imitator, targets):
@@ -207,8 +209,8 @@ def test_a_keyframe_retrieves_as_many_seeds_as_its_own_search_batch(imitator, ta
 def test_cancel_during_the_seeds_leaves_no_half_keyframe(imitator, targets):
     cancel = threading.Event()
 
-    def progress(stage, *a):
-        if stage.endswith("sweep"):
+    def progress(p: Progress):
+        if p.stage.endswith("sweep"):
             cancel.set()
 
     result = SequenceImitator(cfg=SEQ, imitator=imitator).imitate(targets, cfg=SEQ, progress=progress, cancel=cancel)
@@ -227,7 +229,7 @@ def test_cancel_while_the_index_is_built_leaves_no_keyframe(imitator, tmp_path, 
     (nothing saved) and the sequence returns cancelled with no keyframe."""
     monkeypatch.setenv("SHADOW_STUDIO_CACHE", str(tmp_path))
     cancel = threading.Event()
-    stop_at_index = lambda stage, *a: cancel.set() if stage == "keyframe 1/3: index" else None  # noqa: E731
+    stop_at_index = lambda p: cancel.set() if p.stage == "keyframe 1/3: index" else None  # noqa: E731
     with Imitator(imitator.model, loss_cfg=LOSS, retrieval=RetrievalConfig(size=1200, chunk=300, seed=23)) as im:
         seq = SequenceImitator(cfg=SEQ, imitator=im)
         result = seq.imitate(targets, cfg=SEQ, progress=stop_at_index, cancel=cancel)

@@ -11,6 +11,7 @@ import pytest
 from PIL import Image
 
 from studio.errors import TargetError
+from studio.progress import Progress
 from studio.targets import segment_sam
 from studio.targets.segment import segment_video
 from studio.targets.segment_config import SegmentConfig
@@ -115,12 +116,12 @@ def test_a_single_frame_from_a_box() -> None:
 def test_progress_and_cancel() -> None:
     frames, truth = blob_clip(n=8)
     seen = []
-    masks = segment_video(frames, box=box_of(truth[0]), progress=lambda *a: seen.append(a))
-    assert seen == [("segment", k, 8) for k in range(1, 9)] and len(masks) == 8
+    masks = segment_video(frames, box=box_of(truth[0]), progress=seen.append)
+    assert [(p.stage, p.step, p.total) for p in seen] == [("segment", k, 8) for k in range(1, 9)] and len(masks) == 8
     cancel = threading.Event()
 
-    def stop_at_3(stage: str, step: int, total: int) -> None:
-        if step == 3:
+    def stop_at_3(p: Progress) -> None:
+        if p.step == 3:
             cancel.set()
 
     part = segment_video(frames, box=box_of(truth[0]), progress=stop_at_3, cancel=cancel)

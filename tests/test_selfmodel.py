@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import threading
+from dataclasses import astuple
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from studio.learn.config import TrainConfig
 from studio.learn.selfmodel import SelfModel, SelfModelConfig, load_selfmodel
 from studio.learn.train import train
 from studio.learn.trainer import lr_at
+from studio.progress import Progress
 
 TINY = dict(resolution=32, hidden=64, channels=16, min_channels=8, res_blocks=1)
 
@@ -64,10 +66,11 @@ def test_tiny_model_trains_resumes_and_reloads(tmp_path, hand):
     cfg = TrainConfig(out=str(out), resolution=32, steps=60, batch_size=32, warmup=5, eval_every=30,
                       eval_size=128, lr=3e-3, threads=1)  # fmt: skip
     seen = []
-    first = train(cfg, hand, progress=lambda *a: seen.append(a))
+    first = train(cfg, hand, progress=seen.append)
     assert first["test_mae"] < 0.45 < first["initial_val_mae"]  # an untrained decoder outputs ~0.5 everywhere
-    assert [a[0] for a in seen].count("train") == 60 and ("val", 30, 60) == seen[29 + 1][:3]
-    assert seen[-1][:3] == ("test", 60, 60) and seen[-1][3] == first["test_mae"]
+    assert all(isinstance(p, Progress) for p in seen)
+    assert [p.stage for p in seen].count("train") == 60 and ("val", 30, 60) == astuple(seen[29 + 1])[:3]
+    assert astuple(seen[-1])[:3] == ("test", 60, 60) and seen[-1].best == first["test_mae"]
     model, info = load_selfmodel(out, hand, device="cpu")
     assert info.metrics["test_mae"] == pytest.approx(first["test_mae"])
     assert info.kind == "selfmodel" and info.config["resolution"] == 32 and info.hand_hash == hand.hash
@@ -91,7 +94,7 @@ def test_resume_after_cancel_continues_exactly(tmp_path, hand):
 
     parts = tmp_path / "parts.pt"
     cancel = threading.Event()
-    stop_at_7 = lambda stage, step, total, loss: step == 7 and cancel.set()  # noqa: E731
+    stop_at_7 = lambda p: p.step == 7 and cancel.set()  # noqa: E731
     cut = train(TrainConfig(out=str(parts), **common), hand, progress=stop_at_7, cancel=cancel)
     assert cut["cancelled"] and cut["steps"] == 7 and "test_mae" not in cut
     ckpt = read_checkpoint(parts, "selfmodel", hand.hash)

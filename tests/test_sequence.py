@@ -19,6 +19,7 @@ from studio.imitate.sequence import SequenceImitator
 from studio.imitate.still import DEFAULT_MODEL
 from studio.imitate.transitions import TransitionConfig, transition_success
 from studio.learn.selfmodel import load_selfmodel
+from studio.progress import Progress
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import sample_poses
 from studio.targets.expressive import expressive_masks
@@ -226,9 +227,9 @@ def test_progress_and_cancel_return_the_keyframes_done(seq, moving):
     masks, expressive, _ = moving
     stages, cancel, when = [], threading.Event(), {}
 
-    def progress(stage, step, total, best):
-        stages.append(stage)
-        if stage.startswith("keyframe 2/4") and not cancel.is_set():
+    def progress(p: Progress):
+        stages.append(p.stage)
+        if p.stage.startswith("keyframe 2/4") and not cancel.is_set():
             when["set"] = time.perf_counter()
             cancel.set()
 

@@ -67,14 +67,15 @@ def test_sweep_never_worsens_stays_free_and_finds_the_moved_finger(hand, world, 
     theta, loss, scored = block_sweep(
         start, start_loss, joint_blocks(hand), hand.lower, hand.upper, score,
         lambda th: world.in_collision(th, check=False), cfg, np.random.default_rng(seed),
-        on_better=lambda th, v: seen.append(v), on_block=blocks_done.append,
+        on_better=lambda th, v: seen.append(v), progress=blocks_done.append,
     )  # fmt: skip
     assert loss == pytest.approx(float(score(theta[None])[0]), abs=1e-9)  # the loss it reports is the pose's
     assert loss <= start_loss and seen == sorted(seen, reverse=True) and (not seen or seen[-1] == loss)
     assert not world.in_collision(theta)[0]
     assert np.all(theta >= hand.lower) and np.all(theta <= hand.upper)
     assert scored >= 64 + 5 * 512
-    assert blocks_done == list(range(1, len(blocks_done) + 1)) and 6 <= len(blocks_done) <= 3 * 6  # per block
+    assert [p.step for p in blocks_done] == list(range(1, len(blocks_done) + 1)) and 6 <= len(blocks_done) <= 3 * 6
+    assert all(p.stage == "sweep" and p.total == 3 * 6 for p in blocks_done) and blocks_done[-1].best == loss
     assert start_loss > 0.02 and loss < 0.5 * start_loss  # the misplaced finger was found again
 
 

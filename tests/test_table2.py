@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import torch
 
-from studio.cli.evaluate import sequence_config_from_args
 from studio.cli.main import build_parser, main
+from studio.cli.run_flags import sequence_from_args
 from studio.errors import TargetError
 from studio.evaluate.table1 import LOSS_COLUMNS
 from studio.evaluate.table2 import (
@@ -41,7 +41,7 @@ TINY = SequenceConfig(
     refine=RefineConfig(restarts=2, steps=15),
     candidates=1,
 )
-TINY_FLAGS = ["--first-batch", "8", "--first-iters", "15", "--next-batch", "4", "--next-iters", "8",
+TINY_FLAGS = ["--search-batch", "8", "--search-iterations", "15", "--next-batch", "4", "--next-iterations", "8",
               "--refine-steps", "15", "--refine-restarts", "2", "--candidates", "1",
               "--sweep-draws", "96", "--sweep-passes", "1"]  # fmt: skip
 
@@ -104,10 +104,10 @@ def test_gather_sequences(tmp_path):
 
 def test_preset_and_budget_flags():
     parse = build_parser().parse_args
-    cfg = sequence_config_from_args(parse(["evaluate-video", "x", "--out", "o"]))
+    cfg = sequence_from_args(parse(["evaluate-video", "x", "--out", "o"]))
     assert cfg == CPU_SEQUENCE
-    cfg = sequence_config_from_args(parse(["evaluate-video", "x", "--out", "o", "--preset", "paper",
-                                           "--first-batch", "8", "--candidates", "2", "--seed", "3"]))  # fmt: skip
+    cfg = sequence_from_args(parse(["evaluate-video", "x", "--out", "o", "--preset", "paper",
+                                    "--search-batch", "8", "--candidates", "2", "--seed", "3"]))  # fmt: skip
     assert (cfg.first.batch, cfg.first.iterations, cfg.first.seed) == (8, 3000, 3)  # only given fields change
     assert cfg.next == replace(PAPER_SEQUENCE.next, seed=3)
     assert cfg.refine.steps == PAPER_SEQUENCE.refine.steps and cfg.candidates == 2
@@ -168,7 +168,7 @@ def test_six_rows_one_measure_and_counts_that_add_up(table, tmp_path):
     md = (tmp_path / "table2.md").read_text()
     for header in [*LOSS_COLUMNS, *EXTRA_COLUMNS]:
         assert f" {header} |" in md.splitlines()[0]
-    assert md.count("\n| ") == 6 and "n/a" in md and "L_base + L_expr" in md and "--no-clip" in md
+    assert md.count("\n| ") == 6 and "n/a" in md and "L_base + L_expr" in md and "CLIP off" in md
     rows = list(csv.DictReader(open(paths["csv"])))
     assert [r["row"] for r in rows] == [r.name for r in ROWS] and rows[0]["clip"] == "" and rows[0]["exp_iou"]
     assert len(list(csv.DictReader(open(paths["per_sequence"])))) == 12
@@ -186,15 +186,16 @@ def test_cancel_keeps_the_finished_runs(seq, sequences):
     cancel = threading.Event()
     stages = []
 
-    def progress(stage, step, total, best):
-        stages.append(stage)
-        if stage.startswith("moving · Independent +Exp ·"):
+    def progress(p):
+        stages.append((p.stage, p.item))
+        if p.item == "moving · Independent +Exp":
             cancel.set()
 
     result = VideoEvaluator(seq, TINY).run(sequences, progress, cancel=cancel)
     assert result.cancelled and [r["row"] for r in result.records] == ["Independent Base"]
     assert [r["row"] for r in result.rows] == ["Independent Base"] and "Cancelled: 1 of 12" in result.notes[-1]
-    assert "moving · Independent Base · keyframe 1/3: search" in stages
+    assert stages[0] == ("evaluate-video", "") and ("keyframe 1/3: search", "moving · Independent Base") in stages
+    assert ("evaluate-video", "moving · Independent Base") in stages  # the run done, then the next one starts
 
 
 # --- the verb end to end ------------------------------------------------------------------------------------------
@@ -210,7 +211,7 @@ def test_evaluate_video_cli_on_a_davis_sequence(shared_targets, tmp_path, capsys
     assert torch.get_num_threads() == threads
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert [r["row"] for r in summary["rows"]] == [r.name for r in ROWS] and summary["sequences"] == ["blackswan"]
-    assert summary["clip"] is False and summary["cancelled"] is False and summary["preset"] == "cpu"
+    assert summary["clip"] is False and summary["cancelled"] is False and summary["preset"] == "studio"
     n = summary["rows"][0]["transitions"]
     assert n == summary["rows"][0]["keyframes"] - 1 >= 1 and all(r["transitions"] == n for r in summary["rows"])
     for name in ("table2.md", "table2.csv", "per_sequence.csv", "per_keyframe.csv", "settings.json"):

@@ -14,9 +14,11 @@ from hypothesis import strategies as st
 from PIL import Image
 
 from studio.errors import TargetError
+from studio.progress import Progress
 from studio.targets.cleanup import clean_shadow, remove_specks, ruled_lines, run_lengths
 from studio.targets.footage import gif_sample, natural_key
 from studio.targets.images import detect_polarity
+from studio.targets.source import raw_frames
 from studio.targets.video import (
     DEFAULT_VIDEO,
     SegmentationNeeded,
@@ -24,7 +26,6 @@ from studio.targets.video import (
     detect_kind,
     load_video,
     read_footage,
-    read_frames,
     sample_times,
     video_from_masks,
 )
@@ -175,7 +176,8 @@ def test_shared_video_files_load(shared_targets):
     horse = shared_targets / "video" / "muybridge-horse" / "horse-in-motion.gif"
     assert load_video(horse, SMALL).masks.shape == (5, 32, 32)
     bear = shared_targets / "video" / "bear-mp4" / "bear.mp4"
-    frames, times, idx, fps = read_frames(bear)
+    f = raw_frames(bear)
+    frames, times, idx, fps = f.frames, f.times, f.frame_index, f.fps
     assert fps == 30 and frames.shape == (11, 480, 854, 3) and idx.tolist() == sample_times(82 / 30, 30, 4)[1].tolist()
     assert np.allclose(times, idx / 30)
     with pytest.raises(SegmentationNeeded, match="colour footage.*segment.*bear.mp4") as err:
@@ -187,9 +189,10 @@ def test_shared_video_files_load(shared_targets):
 
 def test_rgb_folder_needs_segmentation(shared_targets):
     dog = shared_targets / "davis-rgb" / "dog"
-    with pytest.raises(SegmentationNeeded, match="--box"):
+    with pytest.raises(SegmentationNeeded, match="box or mask"):
         load_video(dog, SMALL)
-    frames, times, idx, fps = read_frames(dog, VideoConfig(hz=2))
+    f = raw_frames(dog, VideoConfig(hz=2))
+    frames, fps = f.frames, f.fps
     assert fps == 24 and frames.shape[1:] == (480, 854, 3) and len(frames) == len(sample_times(60 / 24, 24, 2)[0])
 
 
@@ -264,12 +267,13 @@ def test_gif_clock_is_the_sum_of_its_durations(tmp_path):
 def test_progress_and_cancel(tmp_path):
     _write_folder(tmp_path / "f", _blob_frames(12))
     seen = []
-    load_video(tmp_path / "f", VideoConfig(hz=24, size=24), progress=lambda *a: seen.append(a))
-    assert {s for s, _, _ in seen} == {"read", "binarise", "frame"} and ("read", 12, 12) in seen
+    load_video(tmp_path / "f", VideoConfig(hz=24, size=24), progress=seen.append)
+    assert all(isinstance(p, Progress) for p in seen)  # the one protocol of every long engine call
+    assert {p.stage for p in seen} == {"read", "binarise", "frame"} and Progress("read", 12, 12) in seen
     cancel = threading.Event()
 
-    def stop(stage, step, total):
-        if stage == "read" and step == 3:
+    def stop(p: Progress) -> None:
+        if p.stage == "read" and p.step == 3:
             cancel.set()
 
     video = load_video(tmp_path / "f", VideoConfig(hz=24, size=24), progress=stop, cancel=cancel)
@@ -362,7 +366,7 @@ def test_bad_folders(tmp_path):
 
 def test_rate_above_the_source(tmp_path):
     _write_folder(tmp_path / "f", _blob_frames(6))
-    with pytest.raises(TargetError, match="30 Hz is above.*24 fps.*hz ≤ 24"):
+    with pytest.raises(TargetError, match="30 Hz is above.*24 fps.*at 24 Hz or less"):
         load_video(tmp_path / "f", VideoConfig(hz=30))
     assert len(load_video(tmp_path / "f", VideoConfig(hz=30, fps=30, size=24)).masks) == 6
     gif = _write_gif(tmp_path / "g.gif", _blob_frames(10), [100] * 10)

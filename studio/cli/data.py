@@ -15,18 +15,13 @@ COLLECT_RANGES = {"n": "[1, ∞)", "shard_size": "[1, ∞)", "seed": "[0, ∞)",
 
 
 def _collect(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+    from studio.jobs import TqdmBars
     from studio.learn.dataset import collect
 
     cfg = config_from_args(args, CollectConfig)
     t0 = time.perf_counter()
-    with tqdm(total=cfg.n, unit="pair", desc="collect", disable=args.quiet) as bar:
-
-        def progress(done: int, total: int) -> None:
-            bar.update(done - bar.n)
-
-        summary = collect(Path(args.out), cfg, progress=progress)
+    with TqdmBars(disable=args.quiet, leave=True) as bars:
+        summary = collect(Path(args.out), cfg, progress=bars)
     seconds = time.perf_counter() - t0
     summary |= {"seconds": round(seconds, 2), "pairs_per_s": round(summary["samples"] / max(seconds, 1e-9), 1)}
     print(json.dumps(summary))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from collections.abc import Callable
 
 from studio.cli.flags import add_config_flags
@@ -36,17 +37,23 @@ def add_trainer_flags(p: argparse.ArgumentParser, base) -> None:
 
 
 def run_training(args: argparse.Namespace, desc: str, steps: int, out: str, train: Callable[..., dict]) -> int:
-    """Run ``train(resume=, overwrite=, progress=)`` under a progress bar; print the JSON summary last."""
-    from tqdm import tqdm
+    """Run ``train(resume=, overwrite=, progress=)`` under one progress bar named ``desc`` over ``steps`` (the running
+    training loss as its best, the last validation and test losses after it); print the JSON summary last."""
+    from studio.jobs import TqdmBars
+    from studio.progress import Progress
 
-    with tqdm(total=steps, unit="step", desc=desc, disable=args.quiet) as bar:
-        shown: dict[str, float] = {}
+    with TqdmBars(disable=args.quiet, leave=True) as bars:
+        held = {"loss": math.nan}  # the trainer's "val" and "test" stages go on the one bar, after the training loss
 
-        def progress(stage: str, step: int, total: int, loss: float) -> None:
-            bar.update(step - bar.n)
-            shown["loss" if stage == "train" else stage] = loss
-            bar.set_postfix({k: f"{v:.4f}" for k, v in shown.items()}, refresh=False)
+        def progress(p: Progress) -> None:
+            if p.stage == "train":
+                held["loss"] = p.best
+            else:
+                held[p.stage] = p.best
+            item = ", ".join(f"{k} {v:.4f}" for k, v in held.items() if k != "loss")
+            bars(Progress(desc, p.step, p.total, held["loss"], item))
 
+        bars(Progress(desc, 0, steps))  # the bar shows while the data and the first batch load
         metrics = train(resume=args.resume, overwrite=args.force, progress=progress)
     print(json.dumps({"checkpoint": out, **metrics}))
     return 0

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -27,6 +27,7 @@ from studio.evaluate.report import csv_text, markdown_table, write_report
 from studio.imitate.losses import ImageLoss
 from studio.imitate.still import Imitator
 from studio.learn.inverse import InverseCNN
+from studio.progress import ProgressFn, report, staged, stopped
 from studio.sim.shadow import ShadowRenderer
 from studio.targets.expressive import still_expressive
 
@@ -123,16 +124,17 @@ class Evaluator:
 
     def evaluate_target(
         self, name: str, target: np.ndarray, cancel: threading.Event | None = None,
-        score_target: np.ndarray | None = None,
+        score_target: np.ndarray | None = None, progress: ProgressFn | None = None,
     ) -> list[dict]:  # fmt: skip
         """One record per method for one ``(R, R)`` target mask (at the model's side ``R``). With a scoring side
         other than the model's, ``score_target`` is the same target framed at that side (``(S, S)``): every
-        method's pose is rendered and scored there (Random and Nearest Neighbour: their training pose's shadow)."""
+        method's pose is rendered and scored there (Random and Nearest Neighbour: their training pose's shadow).
+        ``progress`` gets our imitation's stages (:meth:`~studio.imitate.still.Imitator.imitate`)."""
         if self.inverse.closed:
             raise ClosedError("this Evaluator was closed; make a new one (or evaluate inside its `with` block)")
         expressive = still_expressive(target)
         loss_fn = self.imitator.loss_fn(target, expressive)
-        ours = self.imitator.imitate(target, expressive, refine=True, cancel=cancel)
+        ours = self.imitator.imitate(target, expressive, refine=True, progress=progress, cancel=cancel)
         before_refine = ours.seconds - ours.timings["refine"]  # retrieval, sweep and search
         unrefined = BaselineOutput(ours.unrefined_theta, ours.unrefined_shadow, ours.unrefined_collides,
                                    before_refine)  # fmt: skip
@@ -164,18 +166,22 @@ class Evaluator:
     def run(
         self,
         targets: Sequence[tuple],
-        progress: Callable[[int, int, str], None] | None = None,
+        progress: ProgressFn | None = None,
         cancel: threading.Event | None = None,
     ) -> EvalResult:
         """Evaluate ``(name, (R, R) mask)`` targets (``(name, mask, (S, S) mask)`` when scoring at another side
-        ``S``, :meth:`evaluate_target`); ``progress(done, total, name)`` after each target."""
+        ``S``, :meth:`evaluate_target`). Reports stage "evaluate" at the start and after each target (step: targets
+        done, item: the target's name) and, in between, the target's imitation stages ("retrieve", "sweep",
+        "search", "refine", with the target's name as item). ``cancel`` stops within a search or refinement step;
+        the table then holds the targets finished before it."""
         records: list[dict] = []
+        report(progress, "evaluate", 0, len(targets))
         for i, (name, target, *scored) in enumerate(targets):
-            if cancel is not None and cancel.is_set():
+            if stopped(cancel):
                 break
-            records += self.evaluate_target(name, target, cancel, scored[0] if scored else None)
-            if progress:
-                progress(i + 1, len(targets), name)
+            steps = staged(progress, "", item=name)
+            records += self.evaluate_target(name, target, cancel, scored[0] if scored else None, steps)
+            report(progress, "evaluate", i + 1, len(targets), item=name)
         rows = summarise(records)
         return EvalResult(rows, records, self.notes(rows), self.settings())
 
@@ -238,7 +244,10 @@ class Evaluator:
             f"run took {self.nn_setup_seconds:.1f} s, not in the per-target seconds); ours: {self._method_note()}",
         ]
         if not lc.use_clip:
-            notes.append("CLIP off (--no-clip): CLIP and Exp. CLIP not computed (n/a); Base = 0.06·MAE + 0.4·IoU loss.")
+            notes.append(
+                "CLIP off (no local CLIP weights, or turned off): CLIP and Exp. CLIP not computed (n/a); "
+                "Base = 0.06·MAE + 0.4·IoU loss."
+            )
         return notes
 
 

@@ -22,7 +22,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -34,6 +34,7 @@ from studio.evaluate.table1 import LOSS_COLUMNS
 from studio.imitate.config import MODES, SequenceConfig
 from studio.imitate.sequence import SequenceImitator
 from studio.imitate.transitions import TransitionConfig
+from studio.progress import ProgressFn, report, staged, stopped
 from studio.targets.expressive import expressive_masks
 from studio.targets.footage import VIDEO_SUFFIXES
 from studio.targets.images import IMAGE_SUFFIXES
@@ -46,7 +47,6 @@ EXTRA_COLUMNS = {"Transitions": "transitions_text", "Success (%)": "success_pct"
                  "Seconds / sequence": "seconds"}  # fmt: skip
 DIGITS = {"success_pct": 1, "mean_step": 3, "seconds": 1}
 LOSS_KEYS = (*LOSS_COLUMNS.values(), "expr", "temporal")  # kept per keyframe (Total = base + expr, module doc)
-Progress = Callable[[str, int, int, float], None]  # (stage, step, total, best loss), stage names sequence and row
 
 
 @dataclass(frozen=True)
@@ -197,11 +197,12 @@ class VideoEvaluator:
         self.seq, self.cfg, self.rows = seq, cfg, tuple(rows)
         self.transition = transition or TransitionConfig()
 
-    def evaluate(self, s: PreparedSequence, row: Row, progress: Progress | None = None, cancel=None):
-        """One (sequence, row) run → ``(record, keyframe dicts)``, or None when cancelled half-way."""
+    def evaluate(self, s: PreparedSequence, row: Row, progress: ProgressFn | None = None, cancel=None):
+        """One (sequence, row) run → ``(record, keyframe dicts)``, or None when cancelled half-way. ``progress`` gets
+        the sequence's stages ("keyframe k/K: search", ...) with item "sequence · row"."""
         name = f"{s.name} · {row.name}"
-        stage = (lambda st, i, m, b: progress(f"{name} · {st}", i, m, b)) if progress else None
-        result = self.seq.imitate(s.masks, s.expressive, stage, cancel, cfg=row.config(self.cfg))
+        steps = staged(progress, "", item=name)
+        result = self.seq.imitate(s.masks, s.expressive, steps, cancel, cfg=row.config(self.cfg))
         if result.cancelled:
             return None
         rep = result.transitions(self.transition)
@@ -229,23 +230,23 @@ class VideoEvaluator:
     def run(
         self,
         sequences: Sequence[PreparedSequence],
-        progress: Progress | None = None,
-        on_run: Callable[[int, int, str], None] | None = None,
+        progress: ProgressFn | None = None,
         cancel: threading.Event | None = None,
     ) -> Table2Result:
-        """Every row on every sequence (sequence by sequence); ``on_run(done, total, name)`` after each run.
-        Setting ``cancel`` stops within a search or refinement step; the run it interrupts is left out."""
+        """Every row on every sequence, sequence by sequence. Stage "evaluate-video" at the start and after each run
+        (step: runs done, item: "sequence · row"), the run's stages between (:meth:`evaluate`). Setting ``cancel``
+        stops within a search or refinement step; the run it interrupts is left out."""
         records, keyframes, total, cancelled = [], [], len(sequences) * len(self.rows), False
+        report(progress, "evaluate-video", 0, total)
         for s in sequences:
             for row in self.rows:
-                out = None if cancel is not None and cancel.is_set() else self.evaluate(s, row, progress, cancel)
+                out = None if stopped(cancel) else self.evaluate(s, row, progress, cancel)
                 if out is None:
                     cancelled = True
                     break
                 records.append(out[0])
                 keyframes += out[1]
-                if on_run:
-                    on_run(len(records), total, f"{s.name} · {row.name}")
+                report(progress, "evaluate-video", len(records), total, item=f"{s.name} · {row.name}")
             if cancelled:
                 break
         rows = summarise(records, keyframes, self.rows)
@@ -289,7 +290,10 @@ class VideoEvaluator:
             + ", keeping the temporal term in the +Temp rows. Seconds: wall time per sequence on this machine.",
         ]
         if not lc.use_clip:
-            notes.append("CLIP off (--no-clip): CLIP and Exp. CLIP not computed (n/a); Base = 0.06·MAE + 0.4·IoU loss.")
+            notes.append(
+                "CLIP off (no local CLIP weights, or turned off): CLIP and Exp. CLIP not computed (n/a); "
+                "Base = 0.06·MAE + 0.4·IoU loss."
+            )
         if len(records) < runs:
             notes.append(f"Cancelled: {len(records)} of {runs} (sequence, row) runs finished; only those are shown.")
         return notes

@@ -24,6 +24,7 @@ from studio.imitate.config import RefineConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner, RefineResult
 from studio.imitate.retrieval import Retrieved
+from studio.progress import ProgressFn, stopped
 
 
 def rendered_pool(
@@ -69,18 +70,19 @@ def refine_best(
     pool_loss: np.ndarray,
     k: int,
     cfg: RefineConfig,
-    progress: Callable[[int, int, float], None] | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     theta_prev: np.ndarray | None = None,
     best_pose: Callable[[np.ndarray], None] | None = None,
 ) -> RefineResult | None:
     """Refine the ``k`` best distinct poses of the pool ``(P, 21)`` / ``(P,)`` one after another (each with the
     full ``cfg`` schedule, scored with the temporal term against ``theta_prev (21,)`` rad when given) → the result
-    with the lowest loss, None when none ran (an empty pool, or ``cancel`` set before the first). Setting
-    ``cancel`` stops within a refinement step and returns the best result so far (the caller reads ``cancel``)."""
+    with the lowest loss, None when none ran (an empty pool, or ``cancel`` set before the first). Stage "refine"
+    (:meth:`~studio.imitate.refine.Refiner.refine`), starting over for each candidate. Setting ``cancel`` stops
+    within a refinement step and returns the best result so far (the caller reads ``cancel``)."""
     best = None
     for start in distinct_best(pool_theta, pool_loss, k):
-        if cancel is not None and cancel.is_set():
+        if stopped(cancel):
             break
         r = refiner.refine(loss_fn, start, cfg, progress, cancel, theta_prev=theta_prev, best_pose=best_pose)
         if best is None or r.loss < best.loss:

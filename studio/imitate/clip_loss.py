@@ -5,9 +5,10 @@ backdrop: ``1 − p`` (``invert=True``) replicated to three channels, resized to
 (bilinear, antialiased, differentiable) and normalised with the weights' mean/std. Only the image tower is kept,
 frozen.
 
-Weights never come from the network. :func:`load_clip` takes a checkpoint file (``--clip-weights PATH``) or finds
-one already in the open_clip / Hugging Face cache; with none it raises :class:`ClipWeightsError` saying which file
-to provide, or to run with ``--no-clip``. :func:`tiny_clip` builds a small randomly initialised model for tests.
+Weights never come from the network. One rule on every face (:func:`find_clip`): the CLIP terms are on when local
+weights are given (a checkpoint file) or found in the open_clip / Hugging Face cache, off otherwise, and a line says
+which. :func:`load_clip` loads given or cached weights, raising :class:`ClipWeightsError` (which file to provide)
+when there are none or they cannot be read. :func:`tiny_clip` builds a small randomly initialised model for tests.
 """
 
 from __future__ import annotations
@@ -131,10 +132,7 @@ def _missing_message(model_name: str, pretrained: str, cache_dir: str | Path | N
             f"CLIP weights for {model_name} ({pretrained}) are not on this machine (looked in {', '.join(places)}); "
             "they are never downloaded"
         )
-    return (
-        f"{problem}. Get {where} on a machine with internet, then pass it with --clip-weights PATH "
-        "(load_clip(weights=PATH)), or run with --no-clip to leave the CLIP term out"
-    )
+    return f"{problem}. Get {where} on a machine with internet and give that file as the CLIP weights"
 
 
 def _load_state(model: nn.Module, path: Path) -> None:
@@ -191,10 +189,29 @@ def load_clip(
     except Exception as e:  # any failure to read the user's file is reported as one clear line
         raise ClipWeightsError(
             f"cannot load CLIP weights for {model_name} from {path} ({type(e).__name__}: {e}); "
-            "give an open_clip checkpoint of that model with --clip-weights PATH, or run with --no-clip"
+            "give an open_clip checkpoint of that model"
         ) from None
     image_size = model.visual.image_size
     image_size = image_size[0] if isinstance(image_size, (tuple, list)) else image_size
     mean, std = tag.get("mean", OPENAI_MEAN), tag.get("std", OPENAI_STD)
     log.info("CLIP %s loaded from %s", model_name, path)
     return ClipImageEncoder(model.visual, image_size, mean, std, invert, name=f"{model_name}:{path}").to(device)
+
+
+def find_clip(
+    weights: str | Path | None = None,
+    model_name: str = "ViT-B-32",
+    enabled: bool = True,
+    device: str | torch.device = "cpu",
+    cache_dir: str | Path | None = None,
+) -> tuple[ClipImageEncoder | None, str]:
+    """The one CLIP rule of every face → ``(encoder or None, one line saying which)``: off when not ``enabled``; on
+    with ``weights`` (a checkpoint file; a ClipWeightsError when it is missing or unreadable); else on when the
+    weights are in a local cache, off when they are not (never a download, never an error)."""
+    if not enabled:
+        return None, "CLIP terms off (asked)"
+    if weights is None:
+        if not any(p.is_file() for p in cache_candidates(model_name, "openai", cache_dir)):
+            return None, f"CLIP terms off: no local {model_name} weights given or cached (they are never downloaded)"
+    clip = load_clip(model_name, weights=weights, cache_dir=cache_dir, device=device)
+    return clip, f"CLIP terms on: {clip.name}"

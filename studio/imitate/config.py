@@ -147,16 +147,29 @@ class SequenceConfig:
 
 
 PAPER_SEQUENCE = SequenceConfig()  # the paper's sizes (GPU): first 500 × 3000, next 128 × 1200, 8 × 1000 refinement
-# CPU preset (1 torch thread, shipped 128² model), benchmarks/bench_sequence.py on the six DAVIS sequences: sequential
-# +Exp+Temp L_base + L_expr 0.563 at 11.7 s a sequence, independent 0.489 at 21.4 s. Seeding the keyframes searched
-# from scratch (retrieve) and searching them 32 × 50 instead of 32 × 150 unseeded: 0.569 → 0.563 and 0.520 → 0.489;
-# kept at 32 × 150 the seeded search was no better and 50–60 % slower; sweeping inherited poses too changed nothing.
-# Later keyframes: 32 × 100 instead of 16 × 60 changes L_base by < 0.003 and doubles the time; 4 candidates × 500
-# refinement steps instead of 2 × 150 lower L_base by up to 0.01 for 10 % more time.
+# The studio preset (1 torch thread, shipped 128² model), benchmarks/bench_sequence.py on the six DAVIS sequences:
+# sequential +Exp+Temp L_base + L_expr 0.550, independent 0.483, transition success 9/9 vs 0/9. Every keyframe is
+# refined like a still (CMA-ES, CPU_REFINE): against 8 hill-climbing chains × 500 steps (0.563 / 0.489 then) it is
+# lower on both rows and needs 2,400 instead of 4,000 renders a keyframe, and a still in a project, a keyframe
+# searched from scratch and `imitate` are one search. Seeding the keyframes searched from scratch (retrieve) and
+# searching them 32 × 50 instead of 32 × 150 unseeded: 0.569 → 0.563 and 0.520 → 0.489 (hill); later keyframes:
+# 32 × 100 instead of 16 × 60 changes L_base by < 0.003 and doubles the time.
 CPU_SEQUENCE = SequenceConfig(
     first=STUDIO_SEARCH,  # 32 × 50: after the seeds, as for a still
     next=SearchConfig(batch=16, iterations=60, lr=0.08),
-    refine=RefineConfig(steps=500),
+    refine=CPU_REFINE,  # CMA-ES 1 × 150 generations of 16, as for a still
     candidates=4,
     retrieve=True,  # keyframes searched from scratch start from retrieval + block sweep, as still targets do
 )
+
+STUDIO = "studio"  # the default preset's name
+PRESETS = {STUDIO: CPU_SEQUENCE, "paper": PAPER_SEQUENCE}  # --preset on every face: the budgets of every keyframe
+
+
+def still_configs(cfg: SequenceConfig) -> tuple[SearchConfig, RefineConfig, ImitateConfig, SweepConfig]:
+    """The configs of ``Imitator`` that search and refine a still the way ``cfg`` searches a keyframe from scratch:
+    its first search, refinement, candidates, retrieval and sweep (the unrefined pose picked on the renderer when
+    retrieval seeds the search, by the self-model otherwise, as a sequence picks it)."""
+    imitate = ImitateConfig(candidates=cfg.candidates, retrieve=cfg.retrieve,
+                            select="rendered" if cfg.retrieve else "model")  # fmt: skip
+    return cfg.first, cfg.refine, imitate, cfg.sweep

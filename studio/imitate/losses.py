@@ -75,8 +75,7 @@ class ImageLoss:
         self.cfg = cfg or LossConfig()
         if self.cfg.use_clip and clip is None:
             raise StudioError(
-                "the CLIP loss term needs a CLIP model: pass clip=load_clip(weights=PATH) (--clip-weights PATH) "
-                "or LossConfig(use_clip=False) (--no-clip)"
+                "the CLIP loss term needs a CLIP model: pass clip=load_clip(weights=PATH) or LossConfig(use_clip=False)"
             )
         self.clip = clip if self.cfg.use_clip else None
         t = as_image_batch(target).float()

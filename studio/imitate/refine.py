@@ -27,6 +27,7 @@ from studio.imitate.cmaes import CMAES
 from studio.imitate.config import RefineConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import RenderedLoss, fast_loss
+from studio.progress import ProgressFn, report, stopped
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import ShadowRenderer
 
@@ -112,13 +113,15 @@ class Refiner:
         loss_fn: ImageLoss,
         theta_start: np.ndarray,
         cfg: RefineConfig | None = None,
-        progress: Callable[[int, int, float], None] | None = None,
+        progress: ProgressFn | None = None,
         cancel: threading.Event | None = None,
         theta_prev: np.ndarray | None = None,
         best_pose: Callable[[np.ndarray], None] | None = None,
     ) -> RefineResult:
-        """Hill-climb from ``theta_start (21,)`` rad (module doc); ``progress(step, total, best_loss)``, just after
-        ``best_pose(θ (21,) rad)`` with the best collision-free pose so far (none yet: not called).
+        """Hill-climb (or CMA-ES) from ``theta_start (21,)`` rad (module doc). Reports stage "refine" (step of the
+        schedule's steps, the best collision-free loss: inf before one is found) every ``log_every`` steps, just after
+        ``best_pose(θ (21,) rad)`` with the best collision-free pose so far (none yet: not called). ``cancel`` stops
+        within a step: the result is then flagged ``cancelled`` and holds the best pose so far.
 
         ``theta_prev (21,)`` rad (a sequence's previous keyframe optimum) adds the temporal term to every score,
         so a proposal that drifts away from the previous pose must pay for it with a better shadow; None scores
@@ -163,7 +166,7 @@ class Refiner:
         best_theta, best_loss = cur[best_i].copy(), float(cur_loss[best_i])
         curve, evaluations, sigma, cancelled = [], cfg.restarts + 1, cfg.sigma0, False
         for step in range(1, cfg.steps + 1):
-            if cancel is not None and cancel.is_set():
+            if stopped(cancel):
                 cancelled = True
                 break
             prop = np.clip(cur + rng.normal(0, sigma, cur.shape), lo, hi)
@@ -189,8 +192,7 @@ class Refiner:
                 curve.append((step, best_loss))
                 if best_pose and np.isfinite(best_loss):
                     best_pose(best_theta.copy())
-                if progress:
-                    progress(step, cfg.steps, best_loss)
+                report(progress, "refine", step, cfg.steps, best_loss)
         return best_theta, best_loss, curve, evaluations, cancelled
 
     def _cmaes(self, loss_fn, start, cfg, rng, progress, cancel, theta_prev, best_pose):
@@ -207,7 +209,7 @@ class Refiner:
             mean = start if run == 0 else np.clip(start + rng.normal(0, cfg.restart_noise, start.shape), lo, hi)
             es = CMAES(mean, cfg.sigma0, lo, hi, cfg.popsize, rng)
             for gen in range(1, cfg.steps + 1):
-                if cancel is not None and cancel.is_set():
+                if stopped(cancel):
                     cancelled = True
                     break
                 x = es.ask()
@@ -228,8 +230,7 @@ class Refiner:
                     curve.append((step, best_loss))
                     if best_pose and np.isfinite(best_loss):
                         best_pose(best_theta.copy())
-                    if progress:
-                        progress(step, total, best_loss)
+                    report(progress, "refine", step, total, best_loss)
             if cancelled:
                 break
         return best_theta, best_loss, curve, evaluations, cancelled

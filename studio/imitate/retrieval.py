@@ -30,6 +30,7 @@ from studio.atomic import write_with
 from studio.home import cache_dir
 from studio.imitate.config import LossConfig
 from studio.imitate.rendered_loss import crop_batch
+from studio.progress import ProgressFn, report, stopped
 from studio.sim.crop import pad_pixels
 from studio.sim.hand import Hand
 from studio.sim.physics import CollisionWorld
@@ -98,11 +99,12 @@ class RetrievalIndex:
         renderer: ShadowRenderer,
         cfg: RetrievalConfig | None = None,
         world: CollisionWorld | None = None,
-        progress: Callable[[int, int], None] | None = None,
+        progress: ProgressFn | None = None,
         cancel: threading.Event | None = None,
     ) -> RetrievalIndex | None:
-        """Sample, keep the collision-free, render and pack until ``cfg.size`` poses; ``progress(done, size)``.
-        ``cancel`` is checked before every chunk: once set, the build stops and returns None."""
+        """Sample, keep the collision-free, render and pack until ``cfg.size`` poses; stage "index" after every
+        chunk (step: poses packed, of ``cfg.size``). ``cancel`` is checked before every chunk: once set, the build
+        stops and returns None."""
         cfg = cfg or RetrievalConfig()
         hand = renderer.hand
         own = world is None
@@ -111,15 +113,14 @@ class RetrievalIndex:
         thetas, bits, done = [], [], 0
         try:
             while done < cfg.size:
-                if cancel is not None and cancel.is_set():
+                if stopped(cancel):
                     return None
                 theta = sample_poses(hand, cfg.chunk, rng)[0]
                 theta = theta[~world.in_collision(theta, check=False)][: cfg.size - done]
                 thetas.append(theta.astype(np.float32))
                 bits.append(pack_crops(renderer.render(theta, check=False), cfg.crop, cfg.pad))
                 done += len(theta)
-                if progress:
-                    progress(done, cfg.size)
+                report(progress, "index", done, cfg.size)
         finally:
             if own:
                 world.close()
@@ -193,12 +194,12 @@ def cached_index(
     renderer: ShadowRenderer,
     cfg: RetrievalConfig | None = None,
     folder: Path | None = None,
-    progress: Callable[[int, int], None] | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
 ) -> RetrievalIndex | None:
     """The index for ``renderer``'s hand and rig: from this process, else from ``folder`` (default
-    ``cache_dir()/retrieval``), else built (logged; ``progress(done, size)``) and saved there. None when ``cancel``
-    stopped the build (nothing is saved or kept; the next call builds again)."""
+    ``cache_dir()/retrieval``), else built (logged; stage "index", :meth:`RetrievalIndex.build`) and saved there.
+    None when ``cancel`` stopped the build (nothing is saved or kept; the next call builds again)."""
     cfg = cfg or RetrievalConfig()
     key = index_key(renderer.hand, renderer, cfg)
     if key in _MEMO:

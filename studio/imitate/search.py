@@ -18,6 +18,7 @@ import torch
 from studio.imitate.config import SearchConfig
 from studio.imitate.losses import ImageLoss
 from studio.learn.selfmodel import SelfModel
+from studio.progress import ProgressFn, report, stopped
 from studio.sim.hand import Hand
 from studio.sim.sampling import sample_poses
 
@@ -66,15 +67,16 @@ def gradient_search(
     cfg: SearchConfig | None = None,
     init: np.ndarray | None = None,
     theta_prev: np.ndarray | None = None,
-    progress: Callable[[int, int, float], None] | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     best_pose: Callable[[np.ndarray], None] | None = None,
     starts: np.ndarray | None = None,
 ) -> SearchResult:
     """Minimise ``loss_fn(model(θ))`` (+ the temporal term against ``theta_prev``) over a batch of θ.
 
-    ``progress(step, total, best_loss)`` is called every ``log_every`` steps, just after ``best_pose(θ (21,) rad)``
-    with the pose of that best loss (for live previews); ``cancel`` stops early and the best pose so far is returned.
+    Reports stage "search" (step of ``cfg.iterations``, the batch's best loss) every ``log_every`` steps and at the
+    last, just after ``best_pose(θ (21,) rad)`` with the pose of that best loss (for live previews); ``cancel`` stops
+    within a step and the best pose so far is returned (``cancelled=True``).
     ``starts (K, 21)`` rad seed the first rows of the batch (:func:`initial_poses`).
     """
     cfg = cfg or SearchConfig()
@@ -90,7 +92,7 @@ def gradient_search(
     curve: list[tuple[int, float, float]] = []
     step, cancelled = 0, False
     for step in range(1, cfg.iterations + 1):
-        if cancel is not None and cancel.is_set():
+        if stopped(cancel):
             cancelled, step = True, step - 1
             break
         theta = lo + (hi - lo) * torch.sigmoid(phi)
@@ -103,8 +105,7 @@ def gradient_search(
             curve.append((step, best, float(total.detach().mean())))
             if best_pose:
                 best_pose(theta[int(torch.argmin(total.detach()))].detach().double().cpu().numpy())
-            if progress:
-                progress(step, cfg.iterations, best)
+            report(progress, "search", step, cfg.iterations, best)
     with torch.no_grad():
         theta = lo + (hi - lo) * torch.sigmoid(phi)
         total, comps = loss_fn(model(theta), theta, prev)

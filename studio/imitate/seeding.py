@@ -24,8 +24,7 @@ from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
 from studio.imitate.retrieval import RetrievalIndex, Retrieved
 from studio.imitate.sweep import block_sweep, joint_blocks
-
-Progress = Callable[[str, int, int, float], None]  # (stage, step, total, best loss)
+from studio.progress import ProgressFn, report, stopped
 
 
 @dataclass
@@ -57,12 +56,13 @@ def sweep(
     loss_fn: ImageLoss,
     first: Retrieved,
     theta_prev: np.ndarray | None = None,
-    progress: Callable[[int, int, float], None] | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     best_pose: Callable[[np.ndarray], None] | None = None,
 ) -> Retrieved:
     """Block-sweep the ``cfg.starts`` best of the ``first`` poses; the rest follow unchanged. Returns them all under
-    ``loss_fn``, best first, each still collision-free. ``progress(step, total, best)`` after every block.
+    ``loss_fn``, best first, each still collision-free. Stage "sweep" after every block (step: blocks done over all
+    starts, of ``starts × passes × blocks``: the step jumps when a start stops early; best: the best loss so far).
 
     With CLIP on, the thousands of draws are scored by the pixel terms alone (CLIP on every draw would take
     minutes on a CPU) and the swept poses are then re-scored under the full loss; ``best`` is then NaN until
@@ -95,22 +95,23 @@ def sweep(
     def shown() -> float:
         return math.nan if pixel else best[0]
 
-    def on_block(k: int) -> Callable[[int], None] | None:
-        return (lambda done: progress(k * per_start + done, n * per_start, shown())) if progress else None
+    def on_block(k: int) -> ProgressFn | None:  # one start's blocks → steps over all starts
+        if progress is None:
+            return None
+        return lambda p: report(progress, "sweep", k * per_start + p.step, n * per_start, shown())
 
     for k in range(n):
-        if cancel is not None and cancel.is_set():
+        if stopped(cancel):
             break
         theta[k], loss[k], _ = block_sweep(
             theta[k], float(loss[k]), blocks, hand.lower, hand.upper, score, collides, cfg, rng, cancel,
             on_better, on_block(k),
         )  # fmt: skip
-        if progress and not (cancel is not None and cancel.is_set()):
-            progress((k + 1) * per_start, n * per_start, shown())
+        if not stopped(cancel):
+            report(progress, "sweep", (k + 1) * per_start, n * per_start, shown())
     if pixel:
         loss = refiner.score(loss_fn, theta, theta_prev)[0]
-        if progress:
-            progress(n * per_start, n * per_start, float(loss.min()))
+        report(progress, "sweep", n * per_start, n * per_start, float(loss.min()))
     order = np.argsort(loss, kind="stable")
     return Retrieved(theta[order], loss[order], time.perf_counter() - t0)
 
@@ -123,7 +124,7 @@ def seed_poses(
     target: np.ndarray,
     k: int,
     theta_prev: np.ndarray | None = None,
-    progress: Progress | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     best_pose: Callable[[np.ndarray], None] | None = None,
     beside_sweep: Callable[[], None] | None = None,
@@ -137,17 +138,15 @@ def seed_poses(
     timings = {"first_answer": time.perf_counter() - t0}
     if best_pose:
         best_pose(first.theta[0].copy())
-    if progress:
-        progress("retrieve", 1, 1, float(first.loss[0]))
+    report(progress, "retrieve", 1, 1, float(first.loss[0]))
     swept = None
-    if cfg.starts > 0 and not (cancel is not None and cancel.is_set()):
+    if cfg.starts > 0 and not stopped(cancel):
         worker = None
         if beside_sweep is not None:
             worker = threading.Thread(target=beside_sweep, name="studio-beside-sweep", daemon=True)
             worker.start()
-        stage = (lambda s, n, b: progress("sweep", s, n, b)) if progress else None
         try:
-            swept = sweep(refiner, cfg, loss_fn, first, theta_prev, stage, cancel, best_pose)
+            swept = sweep(refiner, cfg, loss_fn, first, theta_prev, progress, cancel, best_pose)
         finally:
             if worker is not None:
                 worker.join()

@@ -43,10 +43,9 @@ from studio.imitate.search import gradient_search
 from studio.imitate.still import Imitator
 from studio.imitate.transitions import TransitionConfig, TransitionReport, transition_success
 from studio.learn.selfmodel import SelfModel
+from studio.progress import ProgressFn, staged, stopped
 
 log = logging.getLogger(__name__)
-
-Progress = Callable[[str, int, int, float], None]  # (stage, step, total, best loss)
 
 
 @dataclass
@@ -140,7 +139,7 @@ class SequenceImitator:
         self,
         masks: np.ndarray,
         expressive: np.ndarray | None = None,
-        progress: Progress | None = None,
+        progress: ProgressFn | None = None,
         cancel: threading.Event | None = None,
         cfg: SequenceConfig | None = None,
         best_pose: Callable[[np.ndarray], None] | None = None,
@@ -149,7 +148,8 @@ class SequenceImitator:
         """Keyframe targets ``masks (K, S, S)`` uint8 (1 = shadow) in first-appearance order (all N frames work too:
         each is then its own keyframe), their expressive masks ``(K, S, S)`` or None → :class:`SequenceResult`.
 
-        ``progress(stage, step, total, best)`` with stages "keyframe k/K: search" and "keyframe k/K: refine", and
+        Reports :class:`~studio.progress.Progress` with stages "keyframe k/K: search" and "keyframe k/K: refine" (one
+        keyframe: plain "search", "refine", ...), and
         for a keyframe seeded from scratch (``cfg.retrieve``) first "keyframe k/K: retrieve" and ".. : sweep" (and
         ".. : index" while the retrieval index is built, once per machine; see ``Imitator.imitate``).
         Setting ``cancel`` returns within a search or refinement step, with the keyframes finished before it and
@@ -181,7 +181,7 @@ class SequenceImitator:
         done: list[KeyframeResult] = []
         n = len(masks)
         for k in range(n):
-            if cancel is not None and cancel.is_set():
+            if stopped(cancel):
                 break
             prev = done[-1].theta if done else previous
             exp_k = None if expressive is None else expressive[k]
@@ -207,22 +207,20 @@ class SequenceImitator:
         prev_t = prev if (cfg.temporal and prev is not None) else None  # the temporal term's θ*_{k−1}
         inherit = cfg.mode == "sequential" and prev is not None
         search_cfg = replace(cfg.next if inherit else cfg.first, seed=(cfg.next if inherit else cfg.first).seed + k)
-        name = f"keyframe {k + 1}/{n}"
-        live = LiveBest(self.refiner, loss_fn, progress, best_pose, prev_t)  # what is shown: only ever better
+        stages = progress if n == 1 else staged(progress, f"keyframe {k + 1}/{n}: ")  # "keyframe 2/5: search"
+        live = LiveBest(self.refiner, loss_fn, stages, best_pose, prev_t)  # what is shown: only ever better
         seeds, seed_s = None, 0.0
         if cfg.retrieve and not inherit:  # retrieval's first answer, then the block sweep of its best poses
             t_seed = time.perf_counter()
-            seeds = self.imitator.seed(
-                loss_fn, target, prev_t, lambda s, i, m, b: live.report(f"{name}: {s}", i, m, b), cancel, live.pose,
-                k=search_cfg.batch, sweep=cfg.sweep,
-            )  # fmt: skip
-            if cancel is not None and cancel.is_set():
+            seeds = self.imitator.seed(loss_fn, target, prev_t, live.report, cancel, live.pose, k=search_cfg.batch,
+                                       sweep=cfg.sweep)  # fmt: skip
+            if stopped(cancel):
                 return None
             seed_s = time.perf_counter() - t_seed
         t_search = time.perf_counter()
         search = gradient_search(
-            self.model, loss_fn, search_cfg, prev if inherit else None, prev_t, live.stage(f"{name}: search"), cancel,
-            live.pose, starts=None if seeds is None else seeds.best.theta,
+            self.model, loss_fn, search_cfg, prev if inherit else None, prev_t, live.report, cancel, live.pose,
+            starts=None if seeds is None else seeds.best.theta,
         )  # fmt: skip
         t1 = time.perf_counter()
         if search.cancelled:
@@ -234,8 +232,8 @@ class SequenceImitator:
             )
         if cfg.refine_enabled:
             best = refine_best(self.refiner, loss_fn, pool_theta, pool_loss, cfg.candidates, cfg.refine,
-                               live.stage(f"{name}: refine"), cancel, prev_t, live.pose)  # fmt: skip
-            if cancel is not None and cancel.is_set():
+                               live.report, cancel, prev_t, live.pose)  # fmt: skip
+            if stopped(cancel):
                 return None
             if best is not None and best.collision_free:
                 theta = best.theta
@@ -265,12 +263,12 @@ def imitate_sequence(
     masks: np.ndarray,
     expressive: np.ndarray | None = None,
     cfg: SequenceConfig | None = None,
-    progress: Progress | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     loss_cfg: LossConfig | None = None,
     clip=None,
 ) -> SequenceResult:
-    """One sequence with a :class:`SequenceImitator` opened and closed here (see its ``imitate``); ``model`` None
-    loads the shipped self-model. Many sequences: keep one ``SequenceImitator`` open instead."""
+    """One sequence with a :class:`SequenceImitator` opened and closed here (see its ``imitate``: stages, cancel);
+    ``model`` None loads the shipped self-model. Many sequences: keep one ``SequenceImitator`` open instead."""
     with SequenceImitator(model, cfg, loss_cfg=loss_cfg, clip=clip) as seq:
         return seq.imitate(masks, expressive, progress, cancel)

@@ -34,6 +34,7 @@ from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, Retrieved,
 from studio.imitate.search import SearchResult, gradient_search
 from studio.imitate.seeding import Seeds, seed_poses
 from studio.learn.selfmodel import SelfModel, load_selfmodel
+from studio.progress import ProgressFn, stopped
 from studio.sim.shadow import Rig, ShadowRenderer
 from studio.targets.expressive import still_expressive
 from studio.targets.images import TargetConfig, load_target
@@ -124,10 +125,10 @@ class Imitator:
         return ImageLoss(target, self.loss_cfg, self.clip, expressive)
 
     def retrieval_index(
-        self, progress: Callable[[int, int], None] | None = None, cancel: threading.Event | None = None
+        self, progress: ProgressFn | None = None, cancel: threading.Event | None = None
     ) -> RetrievalIndex | None:
-        """The retrieval index for this model's hand and rig (loaded or built on first use, then kept); None when
-        ``cancel`` stopped its build."""
+        """The retrieval index for this model's hand and rig (loaded or built on first use, then kept: stage "index"
+        while it is built); None when ``cancel`` stopped its build."""
         if self._index is None:
             self._index = cached_index(self.renderer, self.retrieval_cfg, progress=progress, cancel=cancel)
         return self._index
@@ -137,11 +138,11 @@ class Imitator:
         target: np.ndarray,
         expressive: np.ndarray | None = None,
         refine: bool = True,
-        progress: Callable[[str, int, int, float], None] | None = None,
+        progress: ProgressFn | None = None,
         cancel: threading.Event | None = None,
         best_pose: Callable[[np.ndarray], None] | None = None,
     ) -> ImitationResult:
-        """Retrieve, search, then (optionally) refine. ``progress(stage, step, total, best_loss)`` with stages
+        """Retrieve, search, then (optionally) refine. Reports :class:`~studio.progress.Progress` with stages
         "index" (building the retrieval index, once per machine), "retrieve" (the first answer), "sweep" (the block
         sweep of the best retrieved poses), "search" and "refine"; ``best_pose(θ (21,) rad)`` gets each pose that is
         collision-free and better than every one before it (the first answer, then the sweep's, the search's and the
@@ -163,7 +164,7 @@ class Imitator:
         first, swept = (seeds.first, seeds.swept) if seeds is not None else (None, None)
         t_s = time.perf_counter()
         search = gradient_search(
-            self.model, loss_fn, self.search_cfg, progress=live.stage("search"), cancel=cancel, best_pose=live.pose,
+            self.model, loss_fn, self.search_cfg, progress=live.report, cancel=cancel, best_pose=live.pose,
             starts=None if seeds is None else seeds.best.theta,
         )  # fmt: skip
         pool_theta, pool_loss, unrefined = self._select(loss_fn, search, seeds, live)
@@ -180,13 +181,13 @@ class Imitator:
         cancelled = search.cancelled
         if refine and not cancelled:
             result = refine_best(self.refiner, loss_fn, pool_theta, pool_loss, self.candidates, self.refine_cfg,
-                                 live.stage("refine"), cancel, best_pose=live.pose)  # fmt: skip
+                                 live.report, cancel, best_pose=live.pose)  # fmt: skip
             if result is not None and result.collision_free:
                 theta, comps = result.theta, result.components
                 shadow = self.renderer.render_one(theta)
         t2 = time.perf_counter()
         timings["refine"] = t2 - t1
-        cancelled = cancelled or (cancel is not None and cancel.is_set())
+        cancelled = cancelled or stopped(cancel)
         collision_free = not bool(self.refiner.world.in_collision(theta)[0])
         return ImitationResult(
             target=np.asarray(target, dtype=np.uint8),
@@ -213,7 +214,7 @@ class Imitator:
         loss_fn: ImageLoss,
         target: np.ndarray,
         theta_prev: np.ndarray | None = None,
-        progress: Callable[[str, int, int, float], None] | None = None,
+        progress: ProgressFn | None = None,
         cancel: threading.Event | None = None,
         best_pose: Callable[[np.ndarray], None] | None = None,
         k: int | None = None,
@@ -227,7 +228,7 @@ class Imitator:
         if not self.cfg.retrieve:
             return None
         t0 = time.perf_counter()
-        index = self.retrieval_index((lambda d, n: progress("index", d, n, float("nan"))) if progress else None, cancel)
+        index = self.retrieval_index(progress, cancel)
         if index is None:  # cancelled while the index was built: no seeds (the caller sees the cancel)
             return None
         t_index = time.perf_counter() - t0
@@ -270,11 +271,12 @@ def imitate_still(
     refine: RefineConfig | None = None,
     target_cfg: TargetConfig | None = None,
     device: str | None = None,
-    progress: Callable[[str, int, int, float], None] | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     threads: int | None = 1,
 ) -> ImitationResult:
-    """One still target end to end with the shipped model (or ``model_path``), CLIP off, holes as expressive region.
+    """One still target end to end with the shipped model (or ``model_path``), CLIP off, holes as expressive region;
+    ``progress`` and ``cancel`` as :meth:`Imitator.imitate` (its stages, its partial result).
 
     ``target`` is an image path (loaded with ``target_cfg``) or a mask ``(R, R)`` framed at the model's resolution
     (``load_target(path, size=R)``). ``threads``: torch CPU threads for this call, restored after (1 is far faster

@@ -19,6 +19,7 @@ from collections.abc import Callable
 import numpy as np
 
 from studio.imitate.config import SweepConfig
+from studio.progress import ProgressFn, report, stopped
 from studio.sim.hand import Hand
 from studio.sim.sampling import finger_joint_indices
 
@@ -58,13 +59,14 @@ def block_sweep(
     rng: np.random.Generator,
     cancel: threading.Event | None = None,
     on_better: Callable[[np.ndarray, float], None] | None = None,
-    on_block: Callable[[int], None] | None = None,
+    progress: ProgressFn | None = None,
 ) -> tuple[np.ndarray, float, int]:
     """Sweep one pose ``theta (21,)`` rad (collision-free, with rendered loss ``loss``) block by block.
 
     Returns the best pose found ``(21,)``, its loss (never above ``loss``; the pose stays collision-free) and the
-    number of poses scored. ``on_better(θ, loss)`` is called at each improvement, ``on_block(done)`` after each
-    block with the blocks done so far (at most ``passes × len(blocks)``); ``cancel`` stops between blocks.
+    number of poses scored. ``on_better(θ, loss)`` is called at each improvement; stage "sweep" is reported after each
+    block (step: blocks done, of at most ``passes × len(blocks)``, fewer when a pass improves nothing; best: the
+    loss so far); ``cancel`` stops between blocks.
     """
     theta = np.asarray(theta, dtype=np.float64).copy()
     scored = done = 0
@@ -72,7 +74,7 @@ def block_sweep(
         improved = False
         order = [blocks[0]] + [blocks[i] for i in 1 + rng.permutation(len(blocks) - 1)] if blocks else []
         for block in order:
-            if cancel is not None and cancel.is_set():
+            if stopped(cancel):
                 return theta, loss, scored
             n = cfg.wrist_draws if len(block) == 1 else cfg.draws
             cand = block_candidates(theta, block, n, lower, upper, cfg, rng)
@@ -86,8 +88,7 @@ def block_sweep(
                         on_better(theta.copy(), loss)
                     break
             done += 1
-            if on_block:
-                on_block(done)
+            report(progress, "sweep", done, cfg.passes * len(blocks), loss)
         if not improved:
             break
     return theta, loss, scored

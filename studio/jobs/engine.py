@@ -2,11 +2,11 @@
 
 Each factory returns a :class:`~studio.jobs.queue.Job` whose ``run`` is a ``functools.partial`` of a
 module-level function (so it runs in a thread or a spawned process alike) and whose ``apply`` is the caller's
-callback (the Project's ``set_result``/``set_show``, or anything else), called only when the job completes. The
-engine's progress callbacks become events: ``progress(stage, step, total, best)`` as they are, with a ≤ 64² preview
-of the current best pose's shadow (from the engine's ``best_pose`` hook) at most ~10 times a second;
-``plan_show``'s ``progress(stage, fraction)`` as steps of 100. Engine modules are imported inside the workers, so
-importing this module stays light.
+callback (the Project's ``set_result``/``set_show``, or anything else), called only when the job completes. Every
+engine call gets the job's cancel event and :meth:`~studio.jobs.events.Reporter.engine_progress`
+as its ``progress``: each :class:`~studio.progress.Progress` becomes a job event as it is, with a ≤ 64² preview of the
+current best pose's shadow (from the engine's ``best_pose`` hook) at most ~10 times a second. Engine modules are
+imported inside the workers, so importing this module stays light.
 """
 
 from __future__ import annotations
@@ -101,6 +101,7 @@ def imitate_video_job(
     model_path: Path | None = None,
     preview: int = 64,
     previous: np.ndarray | None = None,
+    device: str | None = None,
     apply: Apply = None,
     title: str = "video",
 ) -> Job:
@@ -109,17 +110,18 @@ def imitate_video_job(
     picks them from a video's frames); ``cfg`` defaults to ``CPU_SEQUENCE`` (its ``expressive`` term needs masks).
     Stages are "keyframe k/K: search" and "keyframe k/K: refine", after "keyframe k/K: retrieve" and ".. : sweep"
     for a keyframe seeded from scratch (``cfg.retrieve``). ``clip`` as for :func:`imitate_keyframe_job`;
-    ``previous (21,) rad``: the pose before the first of these keyframes (continuing a sequence), None: none."""
+    ``previous (21,) rad``: the pose before the first of these keyframes (continuing a sequence), None: none;
+    ``device``: where the self-model runs (None: CUDA when present)."""
     run = functools.partial(
         _imitate_video, masks=np.asarray(masks), expressive=None if expressive is None else np.asarray(expressive),
         cfg=cfg, loss_cfg=loss_cfg, clip=clip, model_path=model_path, preview=preview,
-        previous=None if previous is None else np.asarray(previous, dtype=np.float64),
+        previous=None if previous is None else np.asarray(previous, dtype=np.float64), device=device,
     )  # fmt: skip
     return Job("imitate-video", run, apply, title)
 
 
 def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg, clip, model_path, preview,
-                   previous=None):  # fmt: skip
+                   previous=None, device=None):  # fmt: skip
     from dataclasses import replace
 
     from studio.imitate.config import CPU_SEQUENCE
@@ -129,7 +131,7 @@ def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg
     cfg = cfg or CPU_SEQUENCE
     if expressive is None and cfg.expressive:
         cfg = replace(cfg, expressive=False)  # no masks given: the base loss alone
-    with Imitator(None, model_path, loss_cfg, clip) as im, SequenceImitator(cfg=cfg, imitator=im) as seq:
+    with Imitator(None, model_path, loss_cfg, clip, device=device) as im, SequenceImitator(cfg=cfg, imitator=im) as seq:
         pv = PosePreview(im.hand, preview) if preview else None
         return seq.imitate(masks, expressive, report.engine_progress(pv), cancel, best_pose=pv.pose if pv else None,
                            previous=previous)  # fmt: skip
@@ -152,9 +154,10 @@ def plan_job(
 ) -> Job:  # fmt: skip
     """Plan a show through ``keyframes`` (:func:`studio.motion.plan.plan_show`) → :class:`PlannedShow`.
 
-    ``plan_show`` takes no cancel event: a cancel stops it at its next stage (path → timing), and the job is
-    reported cancelled within a second either way (module doc of :mod:`.queue`). A keyframe in collision or a
-    segment too fast fails the job with the planner's typed error."""
+    Stages "path", "timing" and "show" (:func:`~studio.motion.plan.plan_show`). The job's cancel event goes to
+    ``plan_show``, which raises :class:`~studio.motion.errors.PlanCancelled` within one collision query or timing
+    round: the job ends ``cancelled`` and applies nothing. A keyframe in collision or a segment too fast fails the job
+    with the planner's typed error."""
     return Job("plan", functools.partial(_plan, keyframes=keyframes, cfg=cfg, show_title=show_title), apply, title)
 
 
@@ -162,10 +165,6 @@ def _plan(report: Reporter, cancel, *, keyframes, cfg, show_title) -> PlannedSho
     from studio.motion.plan import plan_show
     from studio.sim.hand import load_hand
 
-    def progress(stage: str, fraction: float) -> None:
-        report.check()
-        report(stage, int(round(fraction * 100)), 100)
-
     report.check()
-    r = plan_show(load_hand(), keyframes, cfg, progress=progress, title=show_title)
+    r = plan_show(load_hand(), keyframes, cfg, progress=report.engine_progress(), title=show_title, cancel=cancel)
     return PlannedShow(r.show, r.home_added, r.collision_checks, r.max_jerk_ratio)

@@ -6,9 +6,10 @@ current best shadow), and one final event (``done``, ``failed`` with its :class:
 Both faces consume the same events: the CLI through :class:`~studio.jobs.bars.TqdmBars`, the widgets by
 subscribing or polling (:class:`~studio.jobs.queue.JobQueue`).
 
-Inside the worker the engine call gets a :class:`Reporter` (``report(stage, step, total, best, shadow)``) and a
-cancel event; :class:`PosePreview` turns the engine's ``best_pose(θ)`` hook into a ≤ 64² shadow at most ~10 times a
-second.
+Inside the worker the engine call gets a :class:`Reporter` and a cancel event: the reporter is the engine call's
+:data:`~studio.progress.ProgressFn` (``report(Progress(...))``, or :meth:`Reporter.engine_progress` to add live
+previews), each :class:`~studio.progress.Progress` becoming one progress event; :class:`PosePreview` turns the
+engine's ``best_pose(θ)`` hook into a ≤ 64² shadow at most ~10 times a second.
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from studio.errors import StudioError
+from studio.errors import Cancelled, StudioError
+from studio.progress import Progress, ProgressFn
 
 
 class JobState(str, enum.Enum):
@@ -40,9 +42,10 @@ class JobState(str, enum.Enum):
         return self in (JobState.DONE, JobState.FAILED, JobState.CANCELLED)
 
 
-class JobCancelled(StudioError):
+class JobCancelled(Cancelled):
     """Raised inside a job's worker (by :meth:`Reporter.check`) to stop an engine call that has no cancel event of
-    its own; the job ends ``cancelled`` and applies nothing."""
+    its own; the job ends ``cancelled`` and applies nothing (as it does when the engine raises any
+    :class:`~studio.errors.Cancelled`, e.g. a cancelled plan)."""
 
 
 class WorkerDied(StudioError):
@@ -77,6 +80,7 @@ class JobEvent:
     elapsed: float  # seconds since the job started running (0 while queued)
     seq: int  # this event's number within its job: 0, 1, 2, ... in the order emitted
     error: JobError | None = None  # set on the final event of a failed job
+    item: str = ""  # the item the engine works on when it goes over many (a target's name, "sequence · row"), else ""
 
     @property
     def fraction(self) -> float:
@@ -92,7 +96,9 @@ Send = Callable[[tuple], None]  # worker → dispatcher message sink
 
 
 class Reporter:
-    """The progress sink an engine call gets in its worker: ``report(stage, step, total, best, shadow)``.
+    """The progress sink an engine call gets in its worker, a :data:`~studio.progress.ProgressFn`: ``report(p)``
+    with a :class:`~studio.progress.Progress` sends one progress event (``engine_progress(preview)`` adds the live
+    shadow previews). Code that is not an engine call may still call ``report(stage, step, total, best, shadow)``.
 
     Calls are cheap (one tuple put on a queue). ``check()`` raises :class:`JobCancelled` once the job was cancelled:
     call it between stages of engine code that takes no cancel event.
@@ -103,21 +109,25 @@ class Reporter:
         self.cancel = cancel  # the job's cancel event (threading.Event, or multiprocessing's in a process worker)
 
     def __call__(
-        self, stage: str, step: int = 0, total: int = 0, best: float = math.nan, shadow: np.ndarray | None = None
-    ) -> None:
-        self._send(("progress", str(stage), int(step), int(total), float(best), shadow))
+        self, stage: str | Progress, step: int = 0, total: int = 0, best: float = math.nan,
+        shadow: np.ndarray | None = None, item: str = "",
+    ) -> None:  # fmt: skip
+        if isinstance(stage, Progress):
+            stage, step, total, best, item = stage.stage, stage.step, stage.total, stage.best, stage.item
+        self._send(("progress", str(stage), int(step), int(total), float(best), shadow, str(item)))
 
     def check(self) -> None:
         """Raise :class:`JobCancelled` if the job was cancelled."""
         if self.cancel.is_set():
             raise JobCancelled("the job was cancelled")
 
-    def engine_progress(self, preview: PosePreview | None = None) -> Callable[[str, int, int, float], None]:
-        """An engine ``progress(stage, step, total, best)`` callback (search, refine, sequence) reporting here, with
-        ``preview``'s newest shadow when one is due."""
+    def engine_progress(self, preview: PosePreview | None = None) -> ProgressFn:
+        """The engine call's ``progress`` (any long call: search, refine, sequence, plan, collect...): each
+        :class:`~studio.progress.Progress` becomes a progress event, with ``preview``'s newest shadow when one is
+        due."""
 
-        def progress(stage: str, step: int, total: int, best: float) -> None:
-            self(stage, step, total, best, preview.image() if preview is not None else None)
+        def progress(p: Progress) -> None:
+            self(p, shadow=preview.image() if preview is not None else None)
 
         return progress
 

@@ -26,7 +26,7 @@ import threading
 import time
 import traceback
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from studio.jobs.events import EventPoller, JobError, JobEvent, JobState, WorkerDied
@@ -41,17 +41,25 @@ Subscriber = Callable[[JobEvent], None]
 class Job:
     """A unit of background work (module doc). Made by the caller or a factory; the queue numbers and runs it."""
 
-    def __init__(self, kind: str, run: Run, apply: Callable[[Any], None] | None = None, title: str = ""):
+    def __init__(
+        self,
+        kind: str,
+        run: Run,
+        apply: Callable[[Any], None] | None = None,
+        title: str = "",
+        meta: Mapping[str, Any] | None = None,
+    ):
         self.kind = kind  # what runs ("imitate-keyframe", "imitate-video", "plan", "play", ...)
         self.run = run  # run(report, cancel) -> result, called in the worker
         self.apply_fn = apply  # apply(result), called once on completion (None: nothing to apply)
         self.title = title  # one line for listings ("keyframe 3", "muybridge_horse.gif")
+        self.meta = dict(meta or {})  # what the submitter attaches for its own use ({"keyframes": [3]}): plain data
         self.id = 0  # set by JobQueue.submit (1, 2, ...)
         self.state = JobState.QUEUED
         self.result: Any = None  # run's return value (done; cancelled when the engine returned a partial one)
         self.error: JobError | None = None  # why it failed
         self.applied = False  # apply ran to the end
-        self.stage, self.step, self.total, self.best = "", 0, 0, math.nan  # the latest progress
+        self.stage, self.step, self.total, self.best, self.item = "", 0, 0, math.nan, ""  # the latest progress
         self.shadow = None  # the latest (H, W) uint8 preview of the current best shadow
         self.started: float | None = None  # time.monotonic() when it started running
         self.ended: float | None = None  # ... and when its final event was emitted
@@ -234,18 +242,19 @@ class JobQueue:
     # --- the dispatcher ----------------------------------------------------------------------------------------
     def _emit(self, job: Job, state: JobState, stage: str | None = None, step: int | None = None,
               total: int | None = None, best: float | None = None, shadow=None,
-              error: JobError | None = None) -> None:  # fmt: skip
+              error: JobError | None = None, item: str | None = None) -> None:  # fmt: skip
         with job._lock:
             job.state = state
             job.stage = job.stage if stage is None else stage
             job.step = job.step if step is None else step
             job.total = job.total if total is None else total
             job.best = job.best if best is None else best
+            job.item = job.item if item is None else item
             job.shadow = job.shadow if shadow is None else shadow
             if state.finished:
                 job.error, job.ended = error, time.monotonic()
             event = JobEvent(job.id, job.kind, state, job.stage, job.step, job.total, job.best, shadow,
-                             job.elapsed, job._seq, error)  # fmt: skip
+                             job.elapsed, job._seq, error, job.item)  # fmt: skip
             job._seq += 1
             for poller in self._pollers:
                 poller.put(event)
@@ -275,7 +284,7 @@ class JobQueue:
                 if job.state != JobState.QUEUED:  # cancelled while queued
                     continue
                 job.started = time.monotonic()
-                self._emit(job, JobState.RUNNING, stage="start")
+                self._emit(job, JobState.RUNNING, stage="start", item="")
                 try:
                     job._runner = self.worker.start(job.run)
                 except Exception as e:
@@ -299,8 +308,8 @@ class JobQueue:
                 continue
             kind = msg[0]
             if kind == "progress":
-                _, stage, step, total, best, shadow = msg
-                self._emit(job, JobState.RUNNING, stage, step, total, best, shadow)
+                _, stage, step, total, best, shadow, item = msg
+                self._emit(job, JobState.RUNNING, stage, step, total, best, shadow, item=item)
             elif kind == "error":
                 return self._finish(job, JobState.FAILED, JobError(msg[1], msg[2], msg[3]))
             elif kind == "cancelled" or job._cancel.is_set():
@@ -315,7 +324,7 @@ class JobQueue:
             if job._cancel.is_set():
                 return self._finish(job, JobState.CANCELLED)
             job._applying = True  # a cancel from now on comes too late
-            self._emit(job, JobState.RUNNING, stage="apply")
+            self._emit(job, JobState.RUNNING, stage="apply", item="")
         try:
             if job.apply_fn is not None:
                 job.apply_fn(job.result)

@@ -2,7 +2,7 @@
 
 Both speak one message protocol to the queue's dispatcher thread (plain tuples)::
 
-    ("progress", stage, step, total, best, shadow)     any number, in order
+    ("progress", stage, step, total, best, shadow, item)     any number, in order
     ("done", result) | ("cancelled",) | ("error", type, message, traceback)     exactly one, last
 
 A job's ``run(report, cancel)`` is called in the worker with a :class:`~studio.jobs.events.Reporter` and a
@@ -31,7 +31,8 @@ from collections.abc import Callable
 from contextlib import contextmanager
 from typing import Any
 
-from studio.jobs.events import JobCancelled, Reporter, Send
+from studio.errors import Cancelled
+from studio.jobs.events import Reporter, Send
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +61,7 @@ def execute(run: Run, send: Send, cancel, threads: int | None, pickle_result: bo
             result = run(Reporter(send, cancel), cancel)
         if pickle_result:
             result = pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL)
-    except JobCancelled:
+    except Cancelled:  # JobCancelled, or the engine's own (a cancelled plan): the job ends cancelled
         send(("cancelled",))
     except BaseException as e:  # SystemExit from engine code too: the job fails, the worker lives on
         send(("error", type(e).__name__, str(e), traceback.format_exc()))

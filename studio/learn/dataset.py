@@ -13,7 +13,7 @@ import json
 import logging
 import multiprocessing as mp
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import asdict
 from pathlib import Path
 
@@ -25,6 +25,7 @@ from studio.atomic import write_json
 from studio.errors import ShardError
 from studio.learn.config import CollectConfig
 from studio.learn.shards import SHARD_FORMAT, Shard, list_shards, pack_masks, read_shard, shard_path, write_shard
+from studio.progress import ProgressFn, report, stopped
 from studio.sim.hand import Hand, load_hand
 from studio.sim.sampling import SamplerConfig, sample_poses
 from studio.sim.shadow import Rig, ShadowRenderer
@@ -71,13 +72,14 @@ def collect(
     cfg: CollectConfig | None = None,
     hand: Hand | None = None,
     sampler: SamplerConfig | None = None,
-    progress: Callable[[int, int], None] | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
 ) -> dict:
     """Fill ``out`` with ``cfg.n`` samples in shards; resumes an interrupted run of the same config.
 
-    ``progress(done_samples, total)`` is called after each shard; setting ``cancel`` stops after the current
-    shard (finished shards stay). Returns ``{"written", "skipped", "samples", "folder"}``.
+    Reports stage "collect" after each shard (step: samples done, of ``cfg.n``; shards already on disk count at
+    once); setting ``cancel`` stops after the current shard (finished shards stay). Returns ``{"written",
+    "skipped", "samples", "folder"}``.
     """
     from studio.sim.physics import CollisionWorld
 
@@ -101,7 +103,7 @@ def collect(
     written = skipped = done = 0
     with CollisionWorld(hand) as world:
         for k in range(cfg.num_shards):
-            if cancel is not None and cancel.is_set():
+            if stopped(cancel):
                 break
             n_k = min(cfg.shard_size, cfg.n - k * cfg.shard_size)
             path = shard_path(out, k)
@@ -110,16 +112,14 @@ def collect(
                     if len(read_shard(path, hand.hash, renderer.rig.hash)) == n_k:
                         skipped += 1
                         done += n_k
-                        if progress:
-                            progress(done, cfg.n)
+                        report(progress, "collect", done, cfg.n)
                         continue
                 except ShardError as e:
                     log.warning("rewriting damaged shard: %s", e)
             write_shard(path, make_shard(hand, renderer, world, n_k, cfg.seed, k, sampler))
             written += 1
             done += n_k
-            if progress:
-                progress(done, cfg.n)
+            report(progress, "collect", done, cfg.n)
     return {"written": written, "skipped": skipped, "samples": done, "folder": str(out)}
 
 

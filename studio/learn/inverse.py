@@ -19,7 +19,8 @@ from torch import nn
 
 from studio.learn.checkpoint import Checkpoint, load_model
 from studio.learn.config import InverseConfig, InverseTrainConfig
-from studio.learn.trainer import Batch, Pairs, Progress, Task, fit
+from studio.learn.trainer import Batch, Pairs, Task, fit
+from studio.progress import ProgressFn
 from studio.sim.crop import align
 from studio.sim.hand import Hand, load_hand
 
@@ -96,12 +97,12 @@ def train_inverse(
     hand: Hand | None = None,
     resume: bool = False,
     overwrite: bool = False,
-    progress: Progress | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
 ) -> dict:
     """Train an inverse CNN (architecture ``model_cfg``, default ``InverseConfig()``) with MSE on (shadow, θ) pairs
     and checkpoint it to ``cfg.out``; returns its metrics (``test_mse``, ``val_mse``, ``initial_val_mse``... in rad²,
-    clipped predictions; see :func:`studio.learn.trainer.fit`)."""
+    clipped predictions; see :func:`studio.learn.trainer.fit`: its stages "train", "val", "test" and ``cancel``)."""
     hand = hand or load_hand()
     mcfg = model_cfg or InverseConfig()
     task = Task(

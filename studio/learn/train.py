@@ -11,7 +11,8 @@ import torch
 
 from studio.learn.config import TrainConfig
 from studio.learn.selfmodel import SelfModel
-from studio.learn.trainer import Batch, Pairs, Progress, Task, fit
+from studio.learn.trainer import Batch, Pairs, Task, fit
+from studio.progress import ProgressFn
 from studio.sim.hand import Hand, load_hand
 
 
@@ -38,11 +39,11 @@ def train(
     hand: Hand | None = None,
     resume: bool = False,
     overwrite: bool = False,
-    progress: Progress | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
 ) -> dict:
     """Train (or resume) a self-model; returns the metrics written into the checkpoint (``test_mae``,
-    ``val_mae``, ...; see :func:`studio.learn.trainer.fit`)."""
+    ``val_mae``, ...; see :func:`studio.learn.trainer.fit`, which says the stages reported and what ``cancel`` does)."""
     hand = hand or load_hand()
     mcfg = cfg.model_config()
     task = Task(

@@ -4,8 +4,8 @@ AdamW with a linear warm-up and a cosine decay to lr/50 (:func:`lr_at`), batches
 shadows (B, 1, R, R))`` pairs from shards (0.7/0.2/0.1 split) or rendered on the fly (batch ``k`` drawn from the seed
 ``(seed, k)``, fixed held-out validation and test sets), validation and an atomic, resumable checkpoint
 (``studio.learn.checkpoint``) every ``eval_every`` steps, CUDA when present. Long runs report
-``progress(stage, step, total, loss)`` and stop within a step when ``cancel`` is set (DESIGN §5.11), leaving a
-checkpoint that ``resume`` continues exactly.
+:class:`~studio.progress.Progress` (stages "train", "val", "test": step of the total steps, the loss as best) and stop
+within a step when ``cancel`` is set (DESIGN §5.11), leaving a checkpoint that ``resume`` continues exactly.
 """
 
 from __future__ import annotations
@@ -26,13 +26,13 @@ from torch import nn
 from studio.errors import StudioError
 from studio.learn.checkpoint import CheckpointError, read_checkpoint, same_config, save_model
 from studio.learn.config import TrainerConfig
+from studio.progress import ProgressFn, report, stopped
 from studio.sim.hand import Hand
 from studio.sim.sampling import sample_poses
 from studio.sim.shadow import Rig, ShadowRenderer
 
 log = logging.getLogger(__name__)
 Batch = tuple[torch.Tensor, torch.Tensor]  # theta (B, 21) float32 rad, shadows (B, 1, R, R) float32 (1 = shadow)
-Progress = Callable[[str, int, int, float], None]  # (stage "train" | "val" | "test", step, total steps, loss)
 
 
 def lr_at(step: int, cfg: TrainerConfig) -> float:
@@ -120,10 +120,14 @@ def fit(
     task: Task,
     resume: bool = False,
     overwrite: bool = False,
-    progress: Progress | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
 ) -> dict:
     """Train ``task``'s network as ``cfg`` says and checkpoint it to ``cfg.out``; returns its metrics.
+
+    Reports stage "train" after every step (step of ``cfg.steps``, the running training loss as best), "val" after
+    every validation (the validation metric) and "test" once at the end (the test metric). ``cancel`` stops within a
+    step, with a resumable checkpoint of where it stopped.
 
     An existing ``cfg.out`` is continued with ``resume`` (same architecture and hand, else ``CheckpointError``),
     replaced with ``overwrite``, and otherwise refused. Metrics (with ``m = task.metric``): ``initial_val_m``
@@ -165,7 +169,7 @@ def fit(
     batches = data.train_batches(step)
     t0 = time.perf_counter() - elapsed
     running = metrics.get(f"train_{m}")
-    while step < cfg.steps and not (cancel is not None and cancel.is_set()):
+    while step < cfg.steps and not stopped(cancel):
         theta, masks = next(batches)
         for g in opt.param_groups:
             g["lr"] = lr_at(step, cfg)
@@ -178,14 +182,12 @@ def fit(
         if running is None:
             running = metrics[f"first_train_{m}"] = value
         running = 0.98 * running + 0.02 * value
-        if progress:
-            progress("train", step, cfg.steps, running)
+        report(progress, "train", step, cfg.steps, running)
         if step % cfg.eval_every == 0 or step == cfg.steps:
             metrics |= {f"val_{m}": task.evaluate(model, val), f"train_{m}": running, "steps": step}
             model.train()
             elapsed = time.perf_counter() - t0
-            if progress:
-                progress("val", step, cfg.steps, metrics[f"val_{m}"])
+            report(progress, "val", step, cfg.steps, metrics[f"val_{m}"])
             if step < cfg.steps:
                 checkpoint(resumable=True)
     elapsed = time.perf_counter() - t0
@@ -195,8 +197,7 @@ def fit(
         return metrics | {"cancelled": True}
     metrics |= {f"test_{m}": task.evaluate(model, data.held_out("test")), "steps": step,
                 "seconds": round(elapsed, 1), "samples_seen": step * cfg.batch_size}  # fmt: skip
-    if progress:
-        progress("test", step, cfg.steps, metrics[f"test_{m}"])
+    report(progress, "test", step, cfg.steps, metrics[f"test_{m}"])
     checkpoint(resumable=False)
     log.info("%s saved to %s (test %s %.5f)", model.kind, out, m, metrics[f"test_{m}"])
     return metrics

@@ -2,13 +2,26 @@
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
-from studio.errors import StudioError
+from studio.errors import Cancelled, StudioError
+from studio.progress import stopped
 
 
 class PlanError(StudioError):
     """Planning a show failed (bad keyframes file, colliding keyframe, no path, infeasible timing)."""
+
+
+class PlanCancelled(Cancelled):
+    """Planning stopped because its cancel event was set (half a plan is no show: nothing is returned). Not a
+    :class:`PlanError`: nothing is wrong with the keyframes."""
+
+
+def check_cancel(cancel: threading.Event | None) -> None:
+    """Raise :class:`PlanCancelled` when ``cancel`` is set (the planner's loops call it between their steps)."""
+    if stopped(cancel):
+        raise PlanCancelled("planning the show was cancelled")
 
 
 class KeyframeCollisionError(PlanError):
@@ -47,5 +60,5 @@ class SegmentTooFastError(PlanError):
         lines = "; ".join(s.describe() for s in self.segments)
         super().__init__(
             f"{len(self.segments)} segment(s) too fast for the servo limits: {lines}. "
-            "Give those keyframes more time, or pass --allow-late to stretch them (later keyframes shift)"
+            "Give those keyframes more time, or allow late transitions to stretch them (later keyframes shift)"
         )

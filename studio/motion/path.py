@@ -21,6 +21,7 @@ collide).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -28,7 +29,8 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from studio.motion.detour import DetourConfig, rrt_connect
-from studio.motion.errors import PathError
+from studio.motion.errors import PathError, check_cancel
+from studio.progress import ProgressFn, report
 from studio.sim.hand import Hand
 from studio.sim.physics import CollisionWorld
 
@@ -150,19 +152,22 @@ def spline_path(hand: Hand, key_times: np.ndarray, key_poses: np.ndarray, rate_h
 
 
 class _Walker:
-    """Pass 2 state: one collision world, a random generator and a check counter."""
+    """Pass 2 state: one collision world, a random generator, a check counter and the cancel event (every collision
+    query first raises :class:`~studio.motion.errors.PlanCancelled` once it is set)."""
 
-    def __init__(self, hand: Hand, world: CollisionWorld, cfg: PathConfig, rng: np.random.Generator):
-        self.hand, self.world, self.cfg, self.rng = hand, world, cfg, rng
+    def __init__(self, hand: Hand, world: CollisionWorld, cfg: PathConfig, rng: np.random.Generator, cancel=None):
+        self.hand, self.world, self.cfg, self.rng, self.cancel = hand, world, cfg, rng, cancel
         self.checks = 0
 
     def score(self, q: np.ndarray) -> np.ndarray:
+        check_cancel(self.cancel)
         q = np.atleast_2d(q)
         self.checks += len(q)
         return self.world.collision_score(q, check=False)
 
     def motion_free(self, a: np.ndarray, b: np.ndarray) -> bool:
         """True when the straight joint-space motion a → b is penetration-free (checked every check_step_deg)."""
+        check_cancel(self.cancel)
         n = int(np.ceil(np.abs(b - a).max() / np.radians(self.cfg.check_step_deg)))
         if n <= 1:
             return True
@@ -172,6 +177,7 @@ class _Walker:
 
     def free_step(self, a: np.ndarray, b: np.ndarray) -> bool:
         """True when ``b`` and the straight motion a → b are penetration-free (the detour's edge test)."""
+        check_cancel(self.cancel)
         self.checks += 1
         return not self.world.in_collision(b, check=False)[0] and self.motion_free(a, b)
 
@@ -282,13 +288,19 @@ def string_pull(n: int, free: Callable[[int, int], bool]) -> list[int]:
 
 
 def build_path(
-    hand: Hand, world: CollisionWorld, key_times: np.ndarray, key_poses: np.ndarray, cfg: PathConfig | None = None
-) -> Path:
-    """Run the three passes on ``key_poses (K, 21)`` at ``key_times (K,)`` (home included, first at 0)."""
+    hand: Hand, world: CollisionWorld, key_times: np.ndarray, key_poses: np.ndarray, cfg: PathConfig | None = None,
+    progress: ProgressFn | None = None, cancel: threading.Event | None = None,
+) -> Path:  # fmt: skip
+    """Run the three passes on ``key_poses (K, 21)`` at ``key_times (K,)`` (home included, first at 0).
+
+    Stage "path": step ``s + 1`` of ``K + 1`` after segment ``s`` is walked, ``K`` after the fingertip pass, ``K + 1``
+    after the corners. Raises :class:`~studio.motion.errors.PlanCancelled` within one collision query of ``cancel``
+    being set."""
     cfg = cfg or PathConfig()
-    walker = _Walker(hand, world, cfg, np.random.default_rng(cfg.seed))
+    walker = _Walker(hand, world, cfg, np.random.default_rng(cfg.seed), cancel)
     times, poses, key_index = spline_path(hand, key_times, key_poses, cfg.path_rate_hz)
     out_t, out_q, out_rep, out_key = [], [], [], []
+    steps = len(key_index) + 1  # K − 1 segments, the fingertip pass, the corners
     for s in range(len(key_index) - 1):
         a, b = key_index[s], key_index[s + 1]
         seg, rep = walker.segment(poses[a:b], key_poses[s + 1], times[a], times[b])
@@ -300,6 +312,7 @@ def build_path(
         out_t += t
         out_q += seg
         out_rep += rep
+        report(progress, "path", s + 1, steps)
     out_key.append(len(out_q))
     out_t.append(times[-1])
     out_q.append(key_poses[-1])
@@ -313,8 +326,10 @@ def build_path(
     nearest = key_index[np.argmin(np.abs(t[:, None] - kt[None]), axis=1)]
     dip = [i for i, n in enumerate(hand.joint_names) if n.endswith("_dip")]
     refined = refine_fingertips(walker, q, key_mask, q[nearest].copy(), dip)
+    report(progress, "path", steps - 1, steps)
     corner = key_mask.copy()
     for a, b in zip(key_index, key_index[1:]):
         keep = string_pull(b - a + 1, lambda i, j, a=a: walker.motion_free(q[a + i], q[a + j]))
         corner[a + np.array(keep)] = True
+    report(progress, "path", steps, steps)
     return Path(t, q, key_index, np.array(out_rep), refined, corner, walker.checks)

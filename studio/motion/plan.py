@@ -24,18 +24,20 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path as FilePath
 from typing import Any
 
 import numpy as np
 
-from studio.motion.errors import KeyframeCollisionError, PlanError
+from studio.motion.errors import KeyframeCollisionError, PlanError, check_cancel
 from studio.motion.limits import JointLimits, LimitsConfig
 from studio.motion.path import Path, PathConfig, build_path, keyframe_spline
 from studio.motion.show import KeyframeMarker, Show
 from studio.motion.timing import TimedTrajectory, TimingConfig, time_path
+from studio.progress import ProgressFn, report
 from studio.sim.hand import Hand
 from studio.sim.physics import CollisionWorld
 
@@ -164,7 +166,7 @@ def check_keyframes(world: CollisionWorld, poses: np.ndarray, times: np.ndarray)
             parts.append(f"t = {times[i]:.3f} s ({touching})")
         raise KeyframeCollisionError(
             f"{bad.size} keyframe(s) are in self-collision: {'; '.join(parts)}. Keyframes are never moved: "
-            "refine those poses (shadow-studio refine) or edit them"
+            "optimise those keyframes again or edit their poses"
         )
 
 
@@ -173,10 +175,18 @@ def plan_show(
     keyframes: Keyframes,
     cfg: PlanConfig | None = None,
     world: CollisionWorld | None = None,
-    progress: Callable[[str, float], None] | None = None,
+    progress: ProgressFn | None = None,
     title: str | None = None,
+    cancel: threading.Event | None = None,
 ) -> PlanResult:
-    """Plan a show through ``keyframes``. Raises ``KeyframeCollisionError``, ``PathError``, ``SegmentTooFastError``."""
+    """Plan a show through ``keyframes``. Raises ``KeyframeCollisionError``, ``PathError``, ``SegmentTooFastError``.
+
+    Reports stages "path" (:func:`~studio.motion.path.build_path`: a step per segment walked and repaired, then the
+    fingertip pass and the corners), "timing" (:func:`~studio.motion.timing.time_path`: a step per segment timed and
+    collision-checked along the trajectory) and "show" (1 of 1: sampled). Setting ``cancel`` raises
+    :class:`~studio.motion.errors.PlanCancelled` (a :class:`~studio.errors.Cancelled`, not a ``PlanError``) between
+    the stages and within one collision query or timing round inside them: half a plan is no show, so there is
+    nothing to return."""
     cfg = cfg or PlanConfig()
     own_world = world is None
     world = world or CollisionWorld(hand)
@@ -184,18 +194,16 @@ def plan_show(
         times, poses, at_rest, home = with_home(hand, keyframes)
         if (np.diff(times) < cfg.min_segment_s).any():
             raise PlanError(f"keyframes must be at least {cfg.min_segment_s} s apart (home is at t = 0)")
+        check_cancel(cancel)
         check_keyframes(world, poses, times)
         limits = JointLimits.from_hand(hand, cfg.limits)
-        if progress:
-            progress("path", 0.0)
-        path = build_path(hand, world, times, poses, cfg.path)
-        if progress:
-            progress("timing", 0.5)
+        path = build_path(hand, world, times, poses, cfg.path, progress, cancel)
+        check_cancel(cancel)
         kv = keyframe_velocities(times, poses, at_rest, hand)
-        traj = time_path(path, kv, limits, world, cfg.timing)
+        traj = time_path(path, kv, limits, world, cfg.timing, progress, cancel)
+        check_cancel(cancel)
         show = sample_show(hand, traj, keyframes, home, limits, cfg, title)
-        if progress:
-            progress("done", 1.0)
+        report(progress, "show", 1, 1)
     finally:
         if own_world:
             world.close()

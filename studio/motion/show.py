@@ -226,8 +226,7 @@ def load_show(path: str | Path, hand: Hand | None = None) -> Show:
         doc = json.loads(text)
     except json.JSONDecodeError as e:
         raise ShowError(
-            f"not valid JSON (truncated or corrupt?) at line {e.lineno} column {e.colno}: {e.msg}; "
-            "re-export the show with `shadow-studio plan`",
+            f"not valid JSON (truncated or corrupt?) at line {e.lineno} column {e.colno}: {e.msg}; plan the show again",
             path,
         ) from None
     hand = hand or load_hand()

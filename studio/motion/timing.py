@@ -20,15 +20,17 @@ Open-source Ruckig plans one state-to-state motion at a time, so the trajectory 
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
 from ruckig import InputParameter, Result, Ruckig, Synchronization, Trajectory
 from scipy.interpolate import CubicSpline
 
-from studio.motion.errors import PathError, PlanError, SegmentTiming, SegmentTooFastError
+from studio.motion.errors import PathError, PlanError, SegmentTiming, SegmentTooFastError, check_cancel
 from studio.motion.limits import JointLimits
 from studio.motion.path import Path
+from studio.progress import ProgressFn, report
 from studio.sim.physics import CollisionWorld
 
 
@@ -218,7 +220,7 @@ def _colliding(world: CollisionWorld, pieces: list[Piece], t0: float, t1: float,
     return t, world.in_collision(pos, check=False)
 
 
-def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg):
+def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, cancel=None):
     """Rounds of timing + checking for segment ``s``; returns (pieces, restart previous?, checks).
 
     Round 1 times keyframe to keyframe directly; when that collides, the segment's path corners become via-points
@@ -229,6 +231,7 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg):
     t0 = float(np.sum(duration[:s]))
     idx, stop, checks = [a, b], set(), 0
     for _ in range(cfg.max_rounds):
+        check_cancel(cancel)
         tau, q = path.times[idx], path.poses[idx]
         at_rest = np.array([i in stop or (i == a and not kv[s].any()) or (i == b and not kv[s + 1].any()) for i in idx])
         v = timer.via_velocities(tau, q, kv[s], kv[s + 1], at_rest)
@@ -237,6 +240,7 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg):
             slow[s] = SegmentTiming(s, float(req_t[s]), float(req_t[s + 1]), feasible)
             duration[s] = feasible  # stretched: reported unless allow_late
             continue
+        check_cancel(cancel)
         t, bad = _colliding(world, got, t0, t0 + duration[s], rate)
         checks += len(t)
         over = [k for k, p in enumerate(got) if _overshoots(p.traj, timer.limits)]  # a time-filling swing
@@ -271,12 +275,16 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg):
 
 
 def time_path(
-    path: Path, key_velocity: np.ndarray, limits: JointLimits, world: CollisionWorld, cfg: TimingConfig | None = None
-) -> TimedTrajectory:
+    path: Path, key_velocity: np.ndarray, limits: JointLimits, world: CollisionWorld, cfg: TimingConfig | None = None,
+    progress: ProgressFn | None = None, cancel: threading.Event | None = None,
+) -> TimedTrajectory:  # fmt: skip
     """Time ``path`` through its keyframes (``key_velocity (K, 21)`` rad/s at each) into a checked trajectory.
 
-    Raises ``SegmentTooFastError`` (every segment that cannot meet its time, with its feasible time) unless
-    ``cfg.allow_late``, and ``PathError`` when a segment cannot be made collision-free.
+    Stage "timing": step ``s + 1`` of ``K − 1`` once segment ``s`` is timed and collision-checked along the
+    trajectory (a step back when a keyframe must be re-timed at rest). Raises ``SegmentTooFastError`` (every segment
+    that cannot meet its time, with its feasible time) unless ``cfg.allow_late``, ``PathError`` when a segment cannot
+    be made collision-free, and :class:`~studio.motion.errors.PlanCancelled` within a timing round of ``cancel``
+    being set.
     """
     cfg = cfg or TimingConfig()
     timer = SegmentTimer(_Solver(limits), limits, cfg)
@@ -289,13 +297,15 @@ def time_path(
     pieces: list[list[Piece]] = [[] for _ in duration]
     checks, s = 0, 0
     while s < len(duration):
-        got, restart, n = _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg)
+        got, restart, n = _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, cancel)
         checks += n
         if restart:  # keyframe s must now be passed at rest: re-time the segment before it
             s -= 1
+            report(progress, "timing", s, len(duration))
             continue
         pieces[s] = got
         s += 1
+        report(progress, "timing", s, len(duration))
     late = [slow[k] for k in sorted(slow)]
     if late and not cfg.allow_late:
         raise SegmentTooFastError(late)

@@ -42,6 +42,7 @@ class VideoTiming:
     cluster: np.ndarray  # (M,) int, keyframe (cluster) number of its pose
     runs: list[tuple[int, int]]  # (first, last) sampled frame of each run, in time order
     end_s: float  # the show's end, s (the last planner keyframe's time)
+    frame_times: np.ndarray | None = None  # (N,) s, the show time of every sampled frame (None: not computed)
 
     def late_transitions(self, segments: Sequence[SegmentTiming], home_added: bool) -> list[dict]:
         """The planner's late ``segments`` as video transitions: frames, clusters, needed versus given seconds.
@@ -139,4 +140,4 @@ def video_keyframes(
         kf.target = [targets[c] for c in kcluster_a]
     if losses is not None:
         kf.extra["keyframe_losses"] = [None if losses[c] is None else float(losses[c]) for c in kcluster_a]
-    return VideoTiming(kf, kframe_a, kcluster_a, runs, float(end_s))
+    return VideoTiming(kf, kframe_a, kcluster_a, runs, float(end_s), t.copy())

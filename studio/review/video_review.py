@@ -1,7 +1,8 @@
 """What a person looks at after a video's imitation: the frame contact sheet and the side-by-side video.
 
-Pure numpy + OpenCV (the Rerun recording is :func:`studio.review.rerun.log_video`). Frames follow the rest of the
-studio's display convention (dark shadow on a light backdrop, expressive regions tinted, :mod:`studio.review.sheets`).
+Pure numpy + OpenCV (the Rerun recording is :class:`studio.review.recording.ProjectRecording`). Frames follow the
+rest of the studio's display convention (dark shadow on a light backdrop, expressive regions tinted,
+:mod:`studio.review.sheets`).
 
 - :func:`contact_sheet`: one ``target | shadow`` cell per sampled frame, labelled with its frame number, source
   time and keyframe; the shadow is that keyframe's pose, the pose the frame plays.
@@ -13,11 +14,12 @@ studio's display convention (dark shadow on a light backdrop, expressive regions
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from studio.progress import ProgressFn, report
 from studio.review.sheets import fit_tile, label, pair_sheet, shadow_tile, side_by_side, tint, write_png, write_video
 
 
@@ -62,24 +64,24 @@ def side_by_side_frame(source: np.ndarray | None, mask: np.ndarray, expressive: 
 
 def write_side_by_side(
     path: str | Path,
-    frames: np.ndarray | None,
+    frames: Sequence[np.ndarray | None] | None,
     masks: np.ndarray,
     expressive: np.ndarray,
     times: np.ndarray,
     shadows: np.ndarray,
     fps: float,
     tile: int = 160,
-    progress: Callable[[str, int, int], None] | None = None,
+    progress: ProgressFn | None = None,
 ) -> Path:
-    """Write ``side_by_side.mp4``: at output time ``m / fps`` the sampled frame played then (``frames (N, S, S, 3)``
-    RGB or None, ``masks``/``expressive`` ``(N, S, S)``, ``times (N,)`` s) beside ``shadows[m]`` (``(M, R, R)``, one
-    per output frame, :func:`video_times`). ``progress("video", m, M)``. Returns the path."""
+    """Write ``side_by_side.mp4``: at output time ``m / fps`` the sampled frame played then (``frames``: one
+    ``(S, S, 3)`` RGB image or None per frame, or None: the masks are shown; ``masks``/``expressive`` ``(N, S, S)``,
+    ``times (N,)`` s) beside ``shadows[m]`` (``(M, R, R)``, one per output frame, :func:`video_times`). Progress
+    events "video" m of M. Returns the path."""
     out_t = np.arange(len(shadows)) / fps
     k = frame_at(times, out_t)
     rows = []
     for m, (t, i) in enumerate(zip(out_t, k)):
         source = None if frames is None else frames[i]
         rows.append(side_by_side_frame(source, masks[i], expressive[i], shadows[m], f"{t:.2f}s #{i}", tile))
-        if progress is not None:
-            progress("video", m + 1, len(shadows))
+        report(progress, "video", m + 1, len(shadows))
     return write_video(path, rows, fps)

@@ -25,7 +25,6 @@ from __future__ import annotations
 import logging
 import re
 import threading
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,6 +33,7 @@ import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
 from studio.errors import TargetError
+from studio.progress import ProgressFn, report
 from studio.targets.images import IMAGE_SUFFIXES
 
 log = logging.getLogger(__name__)
@@ -41,8 +41,6 @@ log = logging.getLogger(__name__)
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".webm", ".mkv", ".m4v")  # decoded by OpenCV (FFmpeg)
 GIF_DEFAULT_MS = 100.0  # shown duration of a GIF frame that gives none (or 0), as browsers do
 FOLDER_FPS = 24.0  # the rate of a frame folder when none is given (DAVIS is 24 fps)
-
-Progress = Callable[[str, int, int], None]  # progress(stage, step, total)
 
 
 @dataclass
@@ -118,7 +116,7 @@ def _rgb(im: Image.Image) -> np.ndarray:
 def _check_rate(path: Path, fps: float, hz: float, what: str) -> None:
     if hz > fps * (1 + 1e-9):
         raise TargetError(
-            f"sampling rate {hz:g} Hz is above the source's {what} {fps:g} fps: use hz ≤ {fps:g} (--hz): {path}"
+            f"sampling rate {hz:g} Hz is above the source's {what} {fps:g} fps: sample at {fps:g} Hz or less: {path}"
         )
 
 
@@ -133,9 +131,8 @@ def _check_bad(path: Path, skipped: list[tuple[int, str]], sampled: int, max_bad
         )
 
 
-def _tick(progress: Progress | None, step: int, total: int) -> None:
-    if progress is not None:
-        progress("read", step, total)
+def _tick(progress: ProgressFn | None, step: int, total: int) -> None:
+    report(progress, "read", step, total)
 
 
 def _stopped(cancel: threading.Event | None) -> bool:
@@ -143,13 +140,13 @@ def _stopped(cancel: threading.Event | None) -> bool:
 
 
 def read_folder(
-    folder: Path, fps: float, hz: float, max_bad_share: float, progress: Progress | None, cancel
+    folder: Path, fps: float, hz: float, max_bad_share: float, progress: ProgressFn | None, cancel
 ) -> Footage:
     """Sampled frames of a folder of image files at ``fps``."""
     files = sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES), key=natural_key)
     if not files:
         raise TargetError(f"frame folder holds no image files ({', '.join(IMAGE_SUFFIXES)}): {folder}")
-    _check_rate(folder, fps, hz, "frame folder's (--fps)")
+    _check_rate(folder, fps, hz, "frame folder's rate")
     size, bad = None, {}
     for p in files:  # headers only: sizes must agree before any frame is used
         try:
@@ -189,7 +186,7 @@ def read_folder(
     return _footage(folder, fps, hz, len(files) / fps, len(files), times[kept], idx[kept], frames, skipped, cancelled)
 
 
-def read_gif(path: Path, hz: float, max_bad_share: float, progress: Progress | None, cancel) -> Footage:
+def read_gif(path: Path, hz: float, max_bad_share: float, progress: ProgressFn | None, cancel) -> Footage:
     """Sampled frames of a GIF by its real per-frame durations (Pillow composes each frame onto the last)."""
     try:
         im = Image.open(path)
@@ -225,7 +222,7 @@ def read_gif(path: Path, hz: float, max_bad_share: float, progress: Progress | N
     return _footage(path, fps, hz, duration_s, len(d), times, idx, [composed[i] for i in idx], [], False)
 
 
-def read_video_file(path: Path, hz: float, max_bad_share: float, progress: Progress | None, cancel) -> Footage:
+def read_video_file(path: Path, hz: float, max_bad_share: float, progress: ProgressFn | None, cancel) -> Footage:
     """Sampled frames of a video file through OpenCV at the file's own constant rate."""
     cap = cv2.VideoCapture(str(path))
     try:
@@ -290,11 +287,11 @@ def read_footage(
     hz: float,
     fps: float | None = None,
     max_bad_share: float = 0.25,
-    progress: Progress | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
 ) -> Footage:
     """The frames of a video file, GIF or frame folder sampled at ``hz`` (module doc); ``fps`` is a folder's rate
-    (default :data:`FOLDER_FPS`; a file's own rate is used otherwise). ``progress("read", step, total)``."""
+    (default :data:`FOLDER_FPS`; a file's own rate is used otherwise). ``Progress("read", step, total)`` events."""
     path = Path(path)
     if not path.exists():
         raise TargetError(f"video not found: {path}")

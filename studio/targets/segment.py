@@ -25,18 +25,16 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable
 
 import cv2
 import numpy as np
 
 from studio.errors import TargetError
+from studio.progress import ProgressFn, report, stopped
 from studio.targets.segment_config import SegmentConfig
 from studio.targets.segment_track import Tracker, WorkFrames, first_from_box
 
 log = logging.getLogger(__name__)
-
-Progress = Callable[[str, int, int], None]  # progress(stage, step, total); stage "segment"
 
 
 def check_inputs(frames: np.ndarray, box, first_mask) -> tuple[tuple[int, int, int, int] | None, np.ndarray | None]:
@@ -82,14 +80,15 @@ def segment_video(
     box: tuple[int, int, int, int] | None = None,
     first_mask: np.ndarray | None = None,
     cfg: SegmentConfig | None = None,
-    progress: Progress | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
 ) -> np.ndarray:
     """The object's masks ``(N, H, W)`` uint8 {0, 1} in RGB ``frames`` ``(N, H, W, 3)`` uint8, given in frame 0 as a
     ``box`` (x, y, w, h) px or a ``first_mask`` ``(H, W)`` (nonzero = object), one of the two.
 
-    ``progress("segment", step, total)`` after each frame; setting ``cancel`` stops within a frame and returns the
-    masks of the frames done so far (fewer than N). Bad input raises :class:`TargetError` saying what to fix.
+    Reports ``Progress("segment", step, total)`` after each frame; setting ``cancel`` stops within a frame and
+    returns the masks of the frames done so far (fewer than N). Bad input raises :class:`TargetError` saying what to
+    fix.
     """
     cfg = cfg or SegmentConfig()
     box, mask = check_inputs(frames, box, first_mask)
@@ -124,13 +123,12 @@ def _classical(frames, box, mask, cfg: SegmentConfig, progress, cancel) -> np.nd
             out[0] = mask
         else:
             out[t] = cv2.resize(m.astype(np.float32), (w_src, h_src), interpolation=cv2.INTER_LINEAR) >= 0.5
-        if progress is not None:
-            progress("segment", t + 1, n)
+        report(progress, "segment", t + 1, n)
 
     emit(0, cur)
     track = Tracker(work, cur, cfg)
     for t in range(1, n):
-        if cancel is not None and cancel.is_set():
+        if stopped(cancel):
             log.info("segmentation cancelled after %d of %d frames", t, n)
             return out[:t]
         cur = track.step(t, cur)

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from studio.errors import TargetError
+from studio.progress import ProgressFn, report, stopped
 
 log = logging.getLogger(__name__)
 
@@ -108,10 +109,11 @@ def segment_video_sam(
     box: tuple[int, int, int, int] | None,
     mask: np.ndarray | None,
     cfg,
-    progress=None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
 ) -> np.ndarray:
-    """Masks ``(N, H, W)`` uint8 {0, 1} by Segment Anything box prompts (see the module docstring)."""
+    """Masks ``(N, H, W)`` uint8 {0, 1} by Segment Anything box prompts (see the module docstring); reports
+    ``Progress("segment", step, total)`` after each frame, ``cancel`` returns the frames done."""
     predictor = _predictor(cfg)
     n, h, w = frames.shape[:3]
     out = np.zeros((n, h, w), np.uint8)
@@ -121,7 +123,7 @@ def segment_video_sam(
     else:
         prompt = _grown(mask, 0.0)
     for t in range(n):
-        if cancel is not None and cancel.is_set():
+        if stopped(cancel):
             log.info("segmentation cancelled after %d of %d frames", t, n)
             return out[:t]
         if t == 0 and mask is not None:
@@ -133,6 +135,5 @@ def segment_video_sam(
         nxt = _grown(out[t], cfg.sam_box_grow)
         if nxt is not None:
             prompt = nxt
-        if progress is not None:
-            progress("segment", t + 1, n)
+        report(progress, "segment", t + 1, n)
     return out

@@ -15,8 +15,9 @@ video files through OpenCV, GIFs through Pillow with their real frame durations,
    frame to its own box). The source frames are cropped the same way for review.
 
 Raw colour footage needs segmentation (:mod:`studio.targets.segment`), so ``kind="auto"`` never thresholds it:
-it raises :class:`SegmentationNeeded`, which carries the sampled RGB frames; :func:`read_frames` gives them
-directly, and :func:`video_from_masks` frames masks made by segmentation like any others.
+it raises :class:`SegmentationNeeded`, which carries the sampled RGB frames (:func:`studio.targets.source.raw_frames`
+gives them directly), and :func:`video_from_masks` frames masks made by segmentation like any others;
+:func:`studio.targets.source.open_source` does both.
 """
 
 from __future__ import annotations
@@ -31,8 +32,9 @@ import numpy as np
 
 from studio.assets import asset
 from studio.errors import TargetError
+from studio.progress import ProgressFn, report
 from studio.targets.cleanup import clean_shadow
-from studio.targets.footage import Footage, Progress, read_footage, sample_times
+from studio.targets.footage import Footage, read_footage, sample_times
 from studio.targets.images import (
     TargetConfig,
     detect_polarity,
@@ -50,7 +52,6 @@ __all__ = [
     "detect_kind",
     "load_video",
     "read_footage",
-    "read_frames",
     "sample_times",
     "video_from_masks",
 ]
@@ -122,21 +123,6 @@ class SegmentationNeeded(TargetError):
         self.footage = footage  # the sampled RGB frames and times, for studio.targets.segment
 
 
-def read_frames(
-    path: str | Path,
-    cfg: VideoConfig | None = None,
-    progress: Progress | None = None,
-    cancel: threading.Event | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """The raw sampled frames of a source: ``(frames (N, H, W, 3) uint8 RGB, times (N,) s, indices (N,), fps)``.
-
-    Corrupt frames are skipped (see :func:`read_footage` for the list); errors as :func:`load_video`.
-    """
-    cfg = cfg or VideoConfig()
-    f = read_footage(path, cfg.hz, cfg.fps, cfg.max_bad_share, progress, cancel)
-    return f.frames, f.times, f.frame_index, f.fps
-
-
 def _grey(frames: np.ndarray) -> np.ndarray:
     """RGB ``(N, H, W, 3)`` → luminance ``(N, H, W)`` uint8."""
     return np.stack([cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames]) if len(frames) else frames[..., 0]
@@ -195,11 +181,11 @@ def video_from_masks(
     skipped: list[tuple[int, str]] | None = None,
     kind: str = "segmented",
     polarity: str = "bright",
-    progress: Progress | None = None,
+    progress: ProgressFn | None = None,
 ) -> Video:
     """Frame source-size masks ``(N, H, W)`` (1 = shadow, one per sampled frame of ``footage``) in one square frame.
 
-    Empty masks are skipped (with the frames ``skipped`` before) and counted; ``progress("frame", step, total)``.
+    Empty masks are skipped (with the frames ``skipped`` before) and counted; ``Progress("frame", step, total)`` events.
     """
     cfg = cfg or VideoConfig()
     skipped = list(footage.skipped) + list(skipped or [])
@@ -221,8 +207,7 @@ def video_from_masks(
             kept.append(k)
             if cfg.keep_frames:
                 out_frames.append(np.clip(crop_square(footage.frames[k], box, cfg.size) + 0.5, 0, 255).astype(np.uint8))
-        if progress is not None:
-            progress("frame", step + 1, len(keep))
+        report(progress, "frame", step + 1, len(keep))
     if not out_masks:
         raise TargetError(f"every shadow vanishes at {cfg.size}×{cfg.size} pixels (a larger size?): {footage.source}")
     skipped.sort()
@@ -252,15 +237,15 @@ def video_from_masks(
 def load_video(
     path: str | Path,
     cfg: VideoConfig | None = None,
-    progress: Progress | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
 ) -> Video:
     """Load a video target: masks ``(N, S, S)`` uint8 in one square frame, with source times (module doc).
 
-    ``progress(stage, step, total)`` for the stages "read", "binarise" and "frame"; setting ``cancel`` stops the
-    reading (the slow part) early: the frames read so far are binarised and the result is flagged ``cancelled``.
-    Raises :class:`~studio.errors.TargetError` naming the file
-    for bad input, and :class:`SegmentationNeeded` for colour footage with ``kind="auto"``.
+    Progress events for the stages "read", "binarise" and "frame"; setting ``cancel`` stops the reading (the slow
+    part) early: the frames read so far are binarised and the result is flagged ``cancelled``. Raises
+    :class:`~studio.errors.TargetError` naming the file for bad input, and :class:`SegmentationNeeded` for colour
+    footage with ``kind="auto"``.
     """
     cfg = cfg or VideoConfig()
     footage = read_footage(path, cfg.hz, cfg.fps, cfg.max_bad_share, progress, cancel)
@@ -287,9 +272,8 @@ def load_video(
         kind = detect_kind(footage.frames, cfg.colour_spread)
         if kind == "colour":
             raise SegmentationNeeded(
-                f"colour footage: {footage.source.name} is raw video, not shadow footage or masks, and a threshold "
-                "would turn it into garbage; segment the object first (imitate-video --box x,y,w,h or --first-mask "
-                "PNG; studio.targets.segment), or force VideoConfig(kind='shadow') to threshold it anyway: "
+                f"{footage.source.name} is colour footage, not shadow footage or masks, and a threshold would turn it "
+                "into noise: give the object's box or mask in its first frame so that it is segmented: "
                 f"{footage.source}",
                 footage,
             )
@@ -303,8 +287,7 @@ def load_video(
                 masks[k] = shadow_mask(grey[k], polarity, cfg, source=f"frame {footage.frame_index[k]}")
             except TargetError as e:
                 skipped.append((int(footage.frame_index[k]), str(e)))
-        if progress is not None:
-            progress("binarise", k + 1, len(grey))
+        report(progress, "binarise", k + 1, len(grey))
     video = video_from_masks(footage, masks, cfg, skipped, kind, polarity, progress)
     log.info(
         "video %s: %d of %d sampled frames (%s, %s polarity) at %g Hz, frame %s",
