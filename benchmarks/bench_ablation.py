@@ -149,7 +149,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--per-folder", type=int, default=1, help="images per sub-folder (default 1: one per letter)")
     p.add_argument("--limit", type=int, default=None, help="only the first N targets (quick checks)")
     p.add_argument("--search-batch", type=int, default=CPU_SEARCH.batch, help="joint vectors searched together")
-    p.add_argument("--search-iters", type=int, default=CPU_SEARCH.iterations, help="gradient steps of the search")
+    p.add_argument("--search-iterations", type=int, default=CPU_SEARCH.iterations, help="gradient steps of the search")
     return p.parse_args(argv)
 
 
@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     t0 = time.perf_counter()
     files = gather_targets([args.targets], args.per_folder)[: args.limit]
-    search = replace(CPU_SEARCH, batch=args.search_batch, iterations=args.search_iters, seed=args.seed)
+    search = replace(CPU_SEARCH, batch=args.search_batch, iterations=args.search_iterations, seed=args.seed)
     rows, actions, per_target = {}, {}, {}
     for inp in INPUTS:
         cfg = train_config(args, inp)

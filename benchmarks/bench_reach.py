@@ -2,10 +2,10 @@
 
 Draws ``--count`` self-exploration poses (seeded; :mod:`studio.evaluate.reachable`), frames each one's fine render
 like an image file, and imitates it with the studio's method, the studio's without the block sweep, and the
-paper's configuration (``--method paper``: sampled search, hill climbing 8 × 1000), all with the shipped 128²
-self-model and no CLIP. Prints a Markdown table (mean IoU loss, its floor — the known pose's own shadow — the
-excess over the floor, the share of targets within 0.02 of it, the share in collision, seconds per target) and,
-last, a JSON line with the same and the ratios of each method's excess to the paper configuration's (below 1:
+paper's configuration (``--preset paper`` at the CPU budget: sampled search, hill climbing 8 × 1000), all with the
+shipped 128² self-model and no CLIP. Prints a Markdown table (mean IoU loss, its floor — the known pose's own shadow
+— the excess over the floor, the share of targets within 0.02 of it, the share in collision, seconds per target)
+and, last, a JSON line with the same and the ratios of each method's excess to the paper configuration's (below 1:
 closer to the floor).
 
     python benchmarks/bench_reach.py [--count 12] [--seed 7] [--methods studio no-sweep paper]
@@ -36,7 +36,8 @@ from studio.imitate.config import (
 from studio.imitate.still import Imitator
 from studio.targets.expressive import still_expressive
 
-METHODS = {  # name → (search, refine, imitate, sweep): `--method studio|paper`, and the studio's before the sweep
+METHODS = {  # name → (search, refine, imitate, sweep): `--preset studio|paper` (paper at the CPU budget),
+    # and the studio's before the sweep
     "studio": (STUDIO_SEARCH, CPU_REFINE, ImitateConfig(), SweepConfig()),
     "no-sweep": (CPU_SEARCH, CPU_REFINE, ImitateConfig(), PAPER_SWEEP),
     "paper": (CPU_SEARCH, PAPER_REFINE, PAPER_IMITATE, PAPER_SWEEP),

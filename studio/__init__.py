@@ -6,6 +6,8 @@
     keyframes = studio.Keyframes.at([2.0], [result.theta])          # hold that pose at t = 2 s
     show = studio.plan_show(studio.load_hand(), keyframes).show      # jerk-limited, collision-checked
     studio.save_show(show, "show.json")
+    horse = studio.imitate_video(studio.DEFAULT_VIDEO, "out/horse")     # a video → a project, its poses, the show
+    horse.show, horse.report.late                                      # (None without a show: report.message says)
 
 Names are imported on first use (``studio.X`` loads only the stage that defines ``X``), so ``import studio`` and
 the command line stay quick; ``dir(studio)`` lists them all.
@@ -31,53 +33,76 @@ _API: dict[str, str] = {
     "Rig": "studio.sim.shadow",
     "ShadowRenderer": "studio.sim.shadow",
     "CollisionWorld": "studio.sim.physics",
-    # learning
-    "SelfModel": "studio.learn.selfmodel",
-    "load_selfmodel": "studio.learn.selfmodel",
-    # targets and imitation
+    # footage: stills, videos, segmentation, expressive masks, keyframes
     "DEFAULT_TARGET": "studio.targets.images",
     "SAMPLE_DIR": "studio.targets.images",
-    "TargetError": "studio.errors",
+    "TargetConfig": "studio.targets.images",
     "load_target": "studio.targets.images",
     "find_holes": "studio.targets.images",
-    "LossConfig": "studio.imitate.config",
-    "ImageLoss": "studio.imitate.losses",
-    "SearchConfig": "studio.imitate.config",
-    "CPU_SEARCH": "studio.imitate.config",
-    "RefineConfig": "studio.imitate.config",
-    "Imitator": "studio.imitate.still",
-    "ImitationResult": "studio.imitate.still",
-    "imitate_still": "studio.imitate.still",
-    # videos
     "DEFAULT_VIDEO": "studio.targets.video",
     "VideoConfig": "studio.targets.video",
     "Video": "studio.targets.video",
-    "load_video": "studio.targets.video",
+    "open_source": "studio.targets.source",
     "SegmentConfig": "studio.targets.segment_config",
     "segment_video": "studio.targets.segment",
     "expressive_masks": "studio.targets.expressive",
     "KeyframeConfig": "studio.targets.keyframes",
     "cluster_keyframes": "studio.targets.keyframes",
+    # learning
+    "SelfModel": "studio.learn.selfmodel",
+    "load_selfmodel": "studio.learn.selfmodel",
+    # imitation
+    "LossConfig": "studio.imitate.config",
+    "ImageLoss": "studio.imitate.losses",
+    "SearchConfig": "studio.imitate.config",
+    "RefineConfig": "studio.imitate.config",
     "SequenceConfig": "studio.imitate.config",
-    "CPU_SEQUENCE": "studio.imitate.config",
-    "PAPER_SEQUENCE": "studio.imitate.config",
+    "PRESETS": "studio.imitate.config",
+    "Imitator": "studio.imitate.still",
+    "ImitationResult": "studio.imitate.still",
+    "imitate_still": "studio.imitate.still",
     "imitate_sequence": "studio.imitate.sequence",
+    "find_clip": "studio.imitate.clip_loss",
     # motion and the show file
     "Keyframes": "studio.motion.plan",
     "load_keyframes": "studio.motion.plan",
     "PlanConfig": "studio.motion.plan",
     "plan_show": "studio.motion.plan",
-    "video_keyframes": "studio.motion.video_timing",
-    "video_end": "studio.motion.video_timing",
     "Show": "studio.motion.show",
     "save_show": "studio.motion.show",
     "load_show": "studio.motion.show",
     "export_csv": "studio.motion.show",
-    # projects
+    # projects and the pipeline every face runs
     "Project": "studio.project.project",
-    "ProjectError": "studio.project.state",
-    # errors
+    "RunConfig": "studio.project.run",
+    "RunReport": "studio.project.run",
+    "SourceSettings": "studio.project.pipeline",
+    "VideoResult": "studio.project.pipeline",
+    "imitate_video": "studio.project.pipeline",
+    # progress
+    "Progress": "studio.progress",
+    # the typed errors a user can meet
     "StudioError": "studio.errors",
+    "TargetError": "studio.errors",
+    "SegmentationNeeded": "studio.targets.video",
+    "ClipWeightsError": "studio.imitate.clip_loss",
+    "CheckpointError": "studio.learn.checkpoint",
+    "PlanError": "studio.motion.errors",
+    "KeyframeCollisionError": "studio.motion.errors",
+    "PathError": "studio.motion.errors",
+    "SegmentTooFastError": "studio.motion.errors",
+    "ShowError": "studio.motion.show",
+    "ProjectError": "studio.project.state",
+    "ResultsNeeded": "studio.project.state",
+    "ShowNeeded": "studio.project.state",
+    "SourceMissing": "studio.project.status",
+    "SourceChanged": "studio.project.status",
+    "OtherProject": "studio.project.pipeline",
+    "ShardError": "studio.errors",
+    "ClosedError": "studio.errors",
+    "Cancelled": "studio.errors",
+    "PlanCancelled": "studio.motion.errors",
+    "ReviewError": "studio.review.recording",
 }
 
 __all__ = sorted(_API)

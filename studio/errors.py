@@ -7,6 +7,12 @@ class StudioError(Exception):
     """Base class of every error the CLI reports as one clear line (no traceback)."""
 
 
+class Cancelled(StudioError):
+    """A long engine call stopped because its cancel event was set and has nothing worth returning (planning a show:
+    half a plan is no show). Calls that can return what they finished return it instead; a job that ends with this
+    is reported ``cancelled``, not failed."""
+
+
 class ShardError(StudioError):
     """A dataset shard is missing, truncated, corrupt, or was made for another hand or rig."""
 

@@ -12,7 +12,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "benchmarks" / "bench_ablation.py"
-TINY = ["--batch-size", "4", "--eval-size", "16", "--limit", "2", "--search-batch", "4", "--search-iters", "5"]
+TINY = ["--batch-size", "4", "--eval-size", "16", "--limit", "2", "--search-batch", "4", "--search-iterations", "5"]
 
 
 def _run(out: Path, targets: Path, steps: int) -> tuple[str, dict]:

@@ -152,12 +152,12 @@ def test_crashing_values_are_one_line_errors(tmp_path):
 @pytest.mark.parametrize(
     ("argv", "words"),
     [
-        (("imitate", "t.png", "--out", "o", "--search-iters", "0"), "--search-iters: must be ≥ 1, got 0"),
+        (("imitate", "t.png", "--out", "o", "--search-iterations", "0"), "--search-iterations: must be ≥ 1, got 0"),
         (("imitate", "t.png", "--out", "o", "--refine-steps", "-1"), "argument --refine-steps: must be ≥ 0, got -1"),
-        (("imitate", "t.png", "--out", "o", "--at", "-1"), "argument --at: must be ≥ 0, got -1"),
-        (("imitate", "t.png", "--out", "o", "--at", "inf"), "argument --at: expected a finite number, got 'inf'"),
-        (("imitate", "t.png", "--out", "o", "--threshold", "255"), "argument --threshold: must be in [0, 255)"),
-        (("imitate", "t.png", "--out", "o", "--otsu", "--threshold", "9"), "not allowed with argument --otsu"),
+        (("imitate", "t.png", "--out", "o", "--gap-s", "-1"), "argument --gap-s: must be ≥ 0, got -1"),
+        (("imitate", "t.png", "--out", "o", "--still-hold-s", "inf"), "expected a finite number, got 'inf'"),
+        (("imitate", "t.png", "--out", "o", "--still-threshold", "255"), "--still-threshold: must be in [0, 255)"),
+        (("imitate", "t.png", "--out", "o", "--preset", "cpu"), "invalid choice: 'cpu'"),
         (("evaluate", "t.png", "--out", "o", "--search-batch", "0"), "argument --search-batch: must be ≥ 1, got 0"),
         (("evaluate", "t.png", "--out", "o", "--refine-restarts", "0"), "argument --refine-restarts: must be ≥ 1"),
         (("evaluate", "t.png", "--out", "o", "--threads", "-1"), "argument --threads: must be ≥ 0, got -1"),

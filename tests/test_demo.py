@@ -15,11 +15,11 @@ from hardware.calibration import load_calibration
 from studio.cli.main import main
 from studio.motion.show import load_show
 from studio.project.project import Project
-from studio.review.rerun import read_recording, scalar_series
+from studio.review.readback import read_recording, scalar_series
 from studio.sim.hand import load_hand
 
 CLI = [sys.executable, "-m", "studio.cli.main"]
-SMALL = ["--first-batch", "8", "--first-iters", "30", "--next-batch", "8", "--next-iters", "15",
+SMALL = ["--search-batch", "8", "--search-iterations", "30", "--next-batch", "8", "--next-iterations", "15",
          "--refine-steps", "40", "--refine-restarts", "2", "--candidates", "1", "--quiet",
          "--sweep-draws", "96", "--sweep-passes", "1"]  # fmt: skip
 

@@ -17,6 +17,7 @@ from studio.imitate.refine import Refiner
 from studio.imitate.search import gradient_search, initial_poses
 from studio.imitate.still import DEFAULT_MODEL, Imitator
 from studio.learn.selfmodel import SelfModel, SelfModelConfig, load_selfmodel
+from studio.progress import Progress
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import sample_poses
 from studio.sim.shadow import Rig, ShadowRenderer, iou
@@ -84,8 +85,9 @@ def test_cancel_stops_search_early(hand):
     cancel = threading.Event()
     seen = []
 
-    def progress(step, total, best):
-        seen.append(step)
+    def progress(p: Progress):
+        assert p.stage == "search" and p.total == 100
+        seen.append(p.step)
         cancel.set()
 
     loss_fn = ImageLoss(target, LossConfig(use_clip=False, crop_size=32))
@@ -170,59 +172,39 @@ def test_refinement_never_worsens_a_free_start(hand):
     assert [b for _, b in res.curve] == sorted((b for _, b in res.curve), reverse=True)
 
 
-def test_review_recording_reads_back(imitator, hand, tmp_path):
-    from studio.review.rerun import log_imitation, read_recording, scalar_series
-
-    imitator_fast = Imitator(imitator.model, loss_cfg=imitator.loss_cfg,
-                             search=replace(CPU_SEARCH, iterations=30), refine=RefineConfig(steps=100))  # fmt: skip
-    target = imitator.renderer.render_one(free_poses(hand, 1, seed=3)[0])
-    result = imitator_fast.imitate(target)
-    path = log_imitation(tmp_path / "review.rrd", result, hand, name="t")
-    rec = read_recording(path)
-    for entity in ("/images/target", "/images/self_model", "/images/rendered", "/images/overlay"):
-        assert entity in rec, sorted(rec)
-    assert rec["/images/target"]["static"]
-    search = scalar_series(rec, "/loss/search/best")
-    assert [t for t, _ in search] == [s for s, _, _ in result.search.curve]
-    # refinement continues the timeline after the search; steps before a first collision-free pose have no value
-    n = result.search.iterations
-    finite = [(n + s, b) for s, b in result.refine.curve if np.isfinite(b)]
-    got = scalar_series(rec, "/loss/refine/best")
-    assert finite and [t for t, _ in got] == [t for t, _ in finite]
-    assert [b for _, b in got] == pytest.approx([b for _, b in finite])
-    shells = [e for e in rec if e.endswith(("/shell/capsules", "/shell/boxes"))]
-    assert len(shells) == 22 and all(rec[e]["static"] for e in shells)  # one shell per link, static
-    assert "/world/hand/forearm/palm/index_knuckle/index_proximal" in rec
-    assert "opt_step" in rec["/world/hand/forearm/palm"]["timelines"]
+def _imitate_cli(*args: str, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "studio.cli", "imitate", *args], capture_output=True, text=True,
+                          timeout=600, **kw)  # fmt: skip
 
 
-def test_imitate_cli_writes_everything(tmp_path):
-    target = SAMPLE_DIR / "asl_v.jpeg"
+def test_imitate_cli_writes_the_files_of_every_source(tmp_path):
+    """A still through ``imitate``: a one-source project, and the files ``imitate-video`` writes; the target's
+    opening is its expressive region, the keyframes file plans to a show holding the pose."""
+    from studio.motion.show import load_show
+    from studio.targets.images import DEFAULT_TARGET
+
     out = tmp_path / "out"
-    proc = subprocess.run(
-        [sys.executable, "-m", "studio.cli", "imitate", str(target), "--out", str(out), "--no-clip", "--quiet",
-         "--search-iters", "5", "--refine-steps", "20"],
-        capture_output=True, text=True, timeout=600,
-    )  # fmt: skip
+    proc = _imitate_cli(str(DEFAULT_TARGET), "--out", str(out), "--no-clip", "--quiet", "--search-iterations", "5",
+                        "--refine-steps", "60")  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert summary["collision_free"] is True and summary["no_clip"] is True
-    assert 0 <= summary["iou_loss"] <= 1 and summary["total"] > 0 and summary["seconds"] > 0
-    for name in ("pose.json", "shadow.png", "compare.png", "review.rrd"):
+    assert summary["collision_free"] is True and summary["no_clip"] is True and summary["frames"] == 1
+    for name in ("keyframes.json", "show.json", "contact.png", "side_by_side.mp4", "review.rrd"):
         assert (out / name).is_file(), name
-    pose = json.loads((out / "pose.json").read_text())
-    assert len(pose["pose"]) == 21 and pose["provenance"]["no_clip"] is True
+    doc = json.loads((out / "keyframes.json").read_text())
+    (pose,) = doc["poses"]
+    assert len(pose["pose"]) == 21 and doc["provenance"]["no_clip"] is True and doc["complete"]
     assert pose["loss"]["clip"] is None  # not computed: recorded as null, never as a fake 0
-    # pose.json is a keyframes file: plan a show from it (rest pose at t = 0 → this pose at t = 2 s)
-    assert pose["keyframes"][0]["t"] == 2.0 and pose["keyframes"][0]["pose"] == pose["pose"]
-    show = out / "show.json"
-    planned = subprocess.run([sys.executable, "-m", "studio.cli", "plan", str(out / "pose.json"), "--out", str(show)],
-                             capture_output=True, text=True, timeout=300)  # fmt: skip
-    assert planned.returncode == 0, planned.stderr
-    from studio.motion.show import load_show
-
+    assert pose["loss"]["exp_iou"] is not None and 0 <= pose["loss"]["exp_iou"] <= 1  # the "o"'s opening
+    assert pose["loss"]["total"] == pytest.approx(pose["loss"]["base"] + pose["loss"]["expr"])
+    assert [k["t"] for k in doc["keyframes"]] == [0.0, 2.0]  # reached at once, held 2 s (--still-hold-s)
+    show = out / "replanned.json"
+    planned = subprocess.run([sys.executable, "-m", "studio.cli", "plan", str(out / "keyframes.json"), "--out",
+                              str(show)], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert planned.returncode == 0 and "Traceback" not in planned.stderr, planned.stderr
     loaded = load_show(show)
-    assert np.allclose(loaded.positions[-1], [pose["pose"][n] for n in loaded.joint_names], atol=1e-9)
+    expected = [pose["pose"][n] for n in loaded.joint_names]
+    assert loaded.duration == pytest.approx(2.0) and np.allclose(loaded.positions, expected, atol=1e-9)
 
 
 def test_imitate_cli_errors(tmp_path, in_process):
@@ -266,11 +248,11 @@ def test_cancel_before_refinement_returns_a_flagged_result(hand):
         assert np.isfinite(result.loss["total"])
         # cancelled during the search: still no refinement, still flagged
         cancel.clear()
-        result = imitator.imitate(target, progress=lambda stage, s, n, b: s >= 3 and cancel.set(), cancel=cancel)
+        result = imitator.imitate(target, progress=lambda p: p.step >= 3 and cancel.set(), cancel=cancel)
         assert result.cancelled and result.search.iterations == 3 and result.refine is None
         # cancelled during refinement: the best free pose so far, flagged
         cancel.clear()
-        result = imitator.imitate(target, progress=lambda stage, s, n, b: stage == "refine" and cancel.set(),
+        result = imitator.imitate(target, progress=lambda p: p.stage == "refine" and cancel.set(),
                                   cancel=cancel)  # fmt: skip
         assert result.cancelled and result.refine is not None and result.refine.cancelled
         assert not imitator.imitate(target).cancelled
@@ -286,63 +268,32 @@ def test_zero_candidates_is_refused(hand):
     assert len(distinct_best(theta, np.arange(6.0), 2)) == 2
 
 
-def _imitate_cli(*args: str, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "studio.cli", "imitate", *args], capture_output=True, text=True,
-                          timeout=600, **kw)  # fmt: skip
-
-
-def test_imitate_at_zero_uses_the_opening_and_plans_to_a_held_pose(tmp_path):
-    """The default target (ASL "o") has an opening: it is the expressive region, so Exp. IoU is computed; the
-    single keyframe at t = 0 plans to a show that holds the pose (this used to raise IndexError in timing)."""
-    from studio.motion.show import load_show
-    from studio.targets.images import DEFAULT_TARGET
-
-    out = tmp_path / "o"
-    proc = _imitate_cli(str(DEFAULT_TARGET), "--out", str(out), "--no-clip", "--quiet", "--at", "0",
-                        "--search-iters", "5", "--refine-steps", "60")  # fmt: skip
-    assert proc.returncode == 0, proc.stderr  # seeded: collision-free within 60 steps
-    pose = json.loads((out / "pose.json").read_text())
-    assert pose["provenance"]["expressive_pixels"] > 0 and pose["cancelled"] is False
-    assert pose["loss"]["exp_iou"] is not None and 0 <= pose["loss"]["exp_iou"] <= 1
-    assert pose["loss"]["total"] == pytest.approx(pose["loss"]["base"] + pose["loss"]["expr"])
-    assert pose["provenance"]["target_config"]["threshold"] == 25.0
-    assert pose["keyframes"][0]["t"] == 0.0
-    assert pose["collision_free"]
-    show = out / "show.json"
-    planned = subprocess.run([sys.executable, "-m", "studio.cli", "plan", str(out / "pose.json"), "--out", str(show)],
-                             capture_output=True, text=True, timeout=300)  # fmt: skip
-    assert planned.returncode == 0 and "Traceback" not in planned.stderr, planned.stderr
-    loaded = load_show(show)
-    assert loaded.times.tolist() == [0.0]
-    assert np.array_equal(loaded.positions[0], [pose["pose"][n] for n in loaded.joint_names])
-
-
 def test_imitate_threshold_flags_reach_the_target(tmp_path):
     import cv2
 
-    from studio.cli.imitate import target_config_from_args
     from studio.cli.main import build_parser
+    from studio.cli.source_flags import still_config_from_args
     from studio.targets.images import TargetConfig
 
     def cfg(*flags: str) -> TargetConfig:
-        return target_config_from_args(build_parser().parse_args(["imitate", "t.png", "--out", "o", *flags]))
+        return still_config_from_args(build_parser().parse_args(["imitate", "t.png", "--out", "o", *flags]))
 
     assert cfg() == TargetConfig()  # 25, or Otsu by itself where the border is not dark
     assert cfg("--otsu").threshold is None
-    assert cfg("--threshold", "25") == TargetConfig(threshold=25.0, auto_otsu=False)  # asked for: always used
+    assert cfg("--still-threshold", "25") == TargetConfig(threshold=25.0, auto_otsu=False)  # asked for: always used
     grey = np.full((96, 96), 170, np.uint8)  # a light-grey wall (shadowness 85) with a dark disc
     cv2.circle(grey, (48, 48), 30, 30, -1)
     path = tmp_path / "grey_wall.png"
     cv2.imwrite(str(path), grey)
-    fixed = _imitate_cli(str(path), "--out", str(tmp_path / "o"), "--no-clip", "--threshold", "25")
+    fixed = _imitate_cli(str(path), "--out", str(tmp_path / "o"), "--no-clip", "--still-threshold", "25")
     assert fixed.returncode == 2 and "Traceback" not in fixed.stderr, fixed.stderr
     assert fixed.stderr.strip().splitlines() == [
         f"shadow-studio imitate: error: every pixel is shadow (no backdrop, check the polarity/threshold): {path}"
     ]
 
 
-def test_ctrl_c_stops_imitate_and_keeps_the_best_pose(tmp_path):
-    """The first Ctrl-C cancels the search: the best pose so far is written, one line says so, exit code 130."""
+def test_ctrl_c_stops_imitate_and_the_same_command_resumes(tmp_path):
+    """The first Ctrl-C cancels the search: one line says so, exit code 130, the project stays (nothing finished)."""
     import os
     import signal
     import time
@@ -350,7 +301,7 @@ def test_ctrl_c_stops_imitate_and_keeps_the_best_pose(tmp_path):
     out = tmp_path / "o"
     proc = subprocess.Popen(
         [sys.executable, "-m", "studio.cli", "imitate", str(SAMPLE_DIR / "asl_v.jpeg"), "--out", str(out),
-         "--no-clip", "--search-iters", "100000", "--refine-steps", "20"],
+         "--no-clip", "--search-iterations", "100000", "--refine-steps", "20"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE,
     )  # fmt: skip
     seen, deadline = b"", time.monotonic() + 300
@@ -364,13 +315,14 @@ def test_ctrl_c_stops_imitate_and_keeps_the_best_pose(tmp_path):
     stdout, stderr = proc.communicate(timeout=300)
     stderr = (seen + stderr).decode(errors="replace")
     assert proc.returncode == 130 and "Traceback" not in stderr, stderr
-    assert (
-        stderr.strip().splitlines()[-1]
-        == f"shadow-studio imitate: cancelled: wrote the best pose found so far to {out}"
+    assert stderr.strip().splitlines()[-1] == (
+        f"shadow-studio imitate: cancelled: the finished keyframes are kept in {out / 'asl_v.shadow'}; the same "
+        "command resumes"
     )
     summary = json.loads(stdout.decode().strip().splitlines()[-1])
-    pose = json.loads((out / "pose.json").read_text())
-    assert summary["cancelled"] is True and pose["cancelled"] is True and len(pose["pose"]) == 21
+    doc = json.loads((out / "keyframes.json").read_text())
+    assert summary["cancelled"] is True and not doc["complete"] and doc["poses"] == []
+    assert (out / "asl_v.shadow" / "project.json").is_file()
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")

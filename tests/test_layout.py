@@ -159,13 +159,15 @@ def test_the_cycle_finder_sees_function_level_and_type_checking_imports(tmp_path
     a = tmp_path / "a.py"
     a.write_text("import b\n")
     b = tmp_path / "b.py"
-    b.write_text(textwrap.dedent("""
+    b.write_text(
+        textwrap.dedent("""
         from typing import TYPE_CHECKING
         if TYPE_CHECKING:
             from c import X
         def f():
             from a import g
-    """))
+    """)
+    )
     known = frozenset({"a", "b", "c"})
     g = {"a": imports(a, "a", known=known), "b": imports(b, "b", known=known), "c": set()}
     assert cycle(g) == ["a", "b", "a"]

@@ -24,7 +24,7 @@ from PIL import Image
 from studio.motion.show import Show, load_show
 from studio.project.project import Project, ProjectError
 from studio.project.project_format import state_doc
-from studio.targets.video import VideoConfig
+from studio.targets.video import SegmentationNeeded, VideoConfig
 
 S = 32  # mask side: small and fast
 VIDEO = VideoConfig(size=S, fps=8.0, hz=8.0)
@@ -364,13 +364,13 @@ def test_colour_footage_needs_and_uses_a_first_frame_box(tmp_path):
         frame = ground.copy()
         frame[20:44, 10 + 6 * i : 34 + 6 * i] = (220, 40, 40)  # a red square moving right
         Image.fromarray(frame).save(folder / f"{i:05d}.png")
-    with pytest.raises(ProjectError, match="colour footage.*--box"):
+    with pytest.raises(SegmentationNeeded, match="colour footage.*box"):
         Project.create(tmp_path / "c.shadow", sources=[str(folder)], video=VIDEO)
     assert not (tmp_path / "c.shadow").exists()  # nothing made for a project that could not be
     p = Project.create(tmp_path / "c.shadow", sources=[str(folder)], video=VIDEO, box=(8, 18, 28, 28))
     assert p.sources[0].footage == "segmented" and p.sources[0].box == (8, 18, 28, 28) and len(p.frames) == 4
     assert p.state.targets.any(axis=(1, 2)).all()
-    with pytest.raises(ProjectError, match="colour footage"):
+    with pytest.raises(SegmentationNeeded, match="colour footage"):
         p.set_segmentation(0)  # no box, no mask: it cannot be read any more, and nothing changes
     assert p.sources[0].box == (8, 18, 28, 28) and not p.can_undo
     first = np.zeros((64, 80), np.uint8)

@@ -82,6 +82,6 @@ def test_still_threshold_and_otsu_flags_reach_the_configs(tmp_path, sources):
             "--size", "32", cwd=tmp_path)  # fmt: skip
     assert r.returncode == 0, r.stderr
     p = Project.open(tmp_path / "t.shadow")
-    assert p.state.still == TargetConfig(threshold=60.0)
+    assert p.state.still == TargetConfig(threshold=60.0, auto_otsu=False)  # a level asked for is always used
     assert p.state.video.threshold is None and p.state.video.size == 32
     assert os.path.isabs(p.sources[0].absolute)

@@ -22,7 +22,7 @@ from studio.project.show_timing import ShowLayout
 from studio.targets.video import DEFAULT_VIDEO
 
 STILL = asset("targets/asl_o.jpeg")
-TINY = ["--first-batch", "8", "--first-iters", "20", "--next-batch", "8", "--next-iters", "10",
+TINY = ["--search-batch", "8", "--search-iterations", "20", "--next-batch", "8", "--next-iterations", "10",
         "--refine-steps", "30", "--refine-restarts", "2", "--candidates", "1", "--sweep-draws", "96",
         "--sweep-passes", "1"]  # fmt: skip
 TINY_SEQUENCE = SequenceConfig(
@@ -95,7 +95,7 @@ def test_run_sets_results_and_a_show_and_a_second_run_does_nothing(tmp_path, cap
     assert rc == 0, text
     assert summary["keyframes_optimised"] == [0] and summary["keyframes_skipped"] == []
     assert summary["show"] == "planned" and summary["show_seconds"] == pytest.approx(2.0)
-    assert summary["clip"] is False and summary["seconds"] > 0
+    assert summary["clip"] is None and summary["seconds"] > 0  # CLIP off: no weights here
     project = Project.open(path)
     assert project.pending_keyframes() == [] and not project.is_show_stale()
     result = project.results[0]
@@ -146,7 +146,7 @@ def test_too_fast_without_allow_late_keeps_the_keyframes_and_lists_the_transitio
     rc, summary, text = run_cli(capsys, "project", "run", str(path), *TINY)
     assert rc == 1, text
     assert summary["keyframes_optimised"] == ids and summary["show"] is None and summary["late_transitions"]
-    assert "too fast:" in text and "--allow-late" in summary["message"]
+    assert "too fast:" in text and "allow late" in summary["message"] and "--allow-late" in text
     assert summary["transitions"] == len(ids) - 1
     project = Project.open(path)
     assert project.pending_keyframes() == [] and project.show is None

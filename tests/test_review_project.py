@@ -26,8 +26,8 @@ from hardware.dry_run import play_on_emulator
 from studio.motion.plan import Keyframes, plan_show
 from studio.review.blueprint import part
 from studio.review.frames import KeyframeReview
+from studio.review.readback import read_recording, scalar_series
 from studio.review.recording import ProjectRecording, ReviewError
-from studio.review.rerun import read_recording, scalar_series
 from studio.review.rig3d import RigReview, show_instants
 from studio.review.sheets import SHADOW, tint
 from studio.sim.hand import load_hand

@@ -78,9 +78,9 @@ def test_installed_copy_renders_and_imitates_from_outside(installed, tmp_path):
 
     target = installed / "studio" / "assets" / "targets" / "asl_v.jpeg"
     out = run_installed(installed, tmp_path, "imitate", str(target), "--out", "o", "--no-clip", "--quiet",
-                        "--search-iters", "5", "--refine-steps", "50")  # fmt: skip
+                        "--search-iterations", "5", "--refine-steps", "50")  # fmt: skip
     assert out.returncode == 0, out.stderr
     summary = json.loads(out.stdout.strip().splitlines()[-1])
-    assert summary["out"] == "o" and summary["collision_free"] and (tmp_path / "o" / "pose.json").is_file()
-    pose = json.loads((tmp_path / "o" / "pose.json").read_text())
-    assert pose["provenance"]["model"].startswith(str(installed))
+    assert summary["out"] == "o" and summary["collision_free"] and (tmp_path / "o" / "keyframes.json").is_file()
+    doc = json.loads((tmp_path / "o" / "keyframes.json").read_text())
+    assert doc["provenance"]["model"].startswith(str(installed)) and len(doc["poses"]) == 1

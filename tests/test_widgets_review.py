@@ -15,7 +15,7 @@ import pytest
 from studio.project.jobs import queue_for
 from studio.project.project import Project
 from studio.review.blueprint import RENDERED, TARGET
-from studio.review.rerun import read_recording
+from studio.review.readback import read_recording
 from studio.targets.video import DEFAULT_VIDEO
 from widgets.optimise import mask_picture
 from widgets.review import ReviewConfig, notebook_viewer_missing, review_panel

@@ -6,8 +6,9 @@ is one edit, not fifty.
     panel = WeightsPanel(state)      # panel.widget goes in the notebook; tests set slider values and .click()
 
 The CLIP sliders are disabled, with the reason beside them, while no local CLIP weights are configured: the studio
-never downloads them (DESIGN §6). They are configured by putting a checkpoint path in ``state.extras["clip_weights"]``
-(or an encoder in ``state.extras["clip"]``), or by having them in the open_clip / Hugging Face cache.
+never downloads them (DESIGN §6). The one CLIP rule of every face holds here (:func:`studio.imitate.clip_loss.
+find_clip`): weights the artist gives (the panel's "CLIP weights file" box, kept in ``state.extras["clip_weights"]``)
+or weights in the open_clip / Hugging Face cache turn the terms on.
 """
 
 from __future__ import annotations
@@ -71,8 +72,8 @@ def clip_unavailable(state: StudioState) -> str | None:
     except Exception as e:  # open_clip missing or its tables changed: the terms stay off, and we say why
         log.debug("cannot look for cached CLIP weights: %s", e)
     return (
-        "no local CLIP weights are configured (they are never downloaded): set state.extras['clip_weights'] to an "
-        f"open_clip {CLIP_MODEL} checkpoint, or start the lab with --clip-weights PATH; the CLIP terms are left out"
+        "no local CLIP weights on this machine (they are never downloaded): type the path of an open_clip "
+        f"{CLIP_MODEL} checkpoint file in the box below; until then the CLIP terms are left out"
     )
 
 
@@ -94,13 +95,18 @@ class WeightsPanel:
         self.reset = w.Button(description="Reset to paper defaults", icon="undo", layout=w.Layout(width="220px"))
         self.reset.on_click(lambda _: self.reset_defaults())
         self.clip_reason = w.HTML("")
+        self.clip_path = w.Text(placeholder="/path/to/open_clip_model.safetensors", description="CLIP weights file",
+                                style={"description_width": "120px"}, layout=w.Layout(width="520px"))  # fmt: skip
+        self.clip_use = w.Button(description="Use these weights", icon="check", layout=w.Layout(width="180px"))
+        self.clip_use.on_click(lambda _: self.use_clip_weights(self.clip_path.value))
         self.sync()
         self._stop = state.on_change(self._on_change)
         defaults = ", ".join(f"{s.label} {v:g}" for s, v in zip(SLIDERS, paper_weights().values(), strict=True))
         self.widget = w.VBox([
             title("Weights"),
             w.HTML(f"<span style='color:#555'>paper defaults: {html.escape(defaults)}</span>"),
-            *self.sliders.values(), self.clip_reason, self.reset, self.messages.widget,
+            *self.sliders.values(), self.clip_reason, w.HBox([self.clip_path, self.clip_use]), self.reset,
+            self.messages.widget,
         ])  # fmt: skip
 
     # ---------------------------------------------------------------- project → widgets
@@ -136,6 +142,25 @@ class WeightsPanel:
         self.messages.run(self.state.edit, "set_weights", **{name: float(change["new"])})
         if float(getattr(self.state.project.weights, name)) != float(change["new"]):  # refused: show what holds
             self.sync()
+
+    def use_clip_weights(self, path: str) -> bool:
+        """Load the CLIP weights file at ``path`` for this studio (the CLIP terms then count); a message says what
+        is wrong with a file that cannot be used, and nothing changes. True when loaded."""
+        from studio.imitate.clip_loss import find_clip
+
+        path = path.strip()
+        if not path:
+            self.messages.say("type the path of a CLIP weights file first", error=True)
+            return False
+        try:
+            clip, line = find_clip(Path(path).expanduser())
+        except Exception as e:  # an unreadable file: say why, keep what was there
+            self.messages.say(str(e), error=True)
+            return False
+        self.state.extras |= {"clip_weights": str(Path(path).expanduser()), "clip": clip, "clip_line": line}
+        self.messages.say(line)
+        self.sync()
+        return True
 
     def reset_defaults(self) -> None:
         """Every weight back to the paper's default (one edit; nothing when they already are)."""

@@ -19,79 +19,51 @@ playback stopped (the message says why); 2 bad input; 130 Ctrl-C (finished keyfr
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import functools
 import json
 import shutil
 import sys
 import time
 from pathlib import Path
 
-from studio.assets import asset
-from studio.cli.project import add_run_flags, clip_of, print_run, run_config_from_args, run_with_bars
-
-DEMO_STILL = asset("targets/asl_o.jpeg")  # the bundled still the demo starts with
-PROJECT_NAME = "demo.shadow"  # the project folder inside --out
+from studio.cli.clip_flags import clip_from_args
+from studio.cli.run_flags import add_budget_flags, add_engine_flags, add_show_flags, run_config_from_args
+from studio.cli.runs import print_run, run_with_bars
 
 
 def _project(out: Path, force: bool):
-    """The demo's project in ``out``: reused when there, made fresh (``force``: after removing the old one)."""
-    from studio.project.project import Project, ProjectError
+    """The demo's project in ``out`` (:func:`studio.project.demo.demo_project`): reused when there, made fresh
+    (``force``: after removing the old one)."""
+    from studio.project.demo import PROJECT_NAME, demo_project
+    from studio.project.project import ProjectError
     from studio.project.project_format import DOC
-    from studio.targets.video import DEFAULT_VIDEO
 
     path = out / PROJECT_NAME
     if path.exists() and force:
         if not (path / DOC).is_file() and any(path.iterdir()):
             raise ProjectError(f"{path} is not a project folder; --force removes only a project: move it away")
         shutil.rmtree(path)
-    if (path / DOC).is_file():
-        project = Project.open(path)
+    project, fresh = demo_project(out)
+    if not fresh:
         print(f"reusing {path} (--force starts fresh)", file=sys.stderr)
-        return project, False
-    return Project.create(path, sources=[DEMO_STILL, DEFAULT_VIDEO], title="demo"), True
+    return project, fresh
 
 
-def _self_model(model_path: Path | None):
-    """θ (K, 21) rad → the self-model's shadows (K, R, R), for the review's self-model view."""
-    import numpy as np
-    import torch
-
-    from studio.imitate.still import DEFAULT_MODEL
-    from studio.learn.selfmodel import load_selfmodel
-
-    model, _ = load_selfmodel(Path(model_path or DEFAULT_MODEL), device="cpu")
-
-    def predict(theta: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return model(torch.as_tensor(np.asarray(theta), dtype=torch.float32))[:, 0].numpy()
-
-    return predict
-
-
-def _play(project, show, quiet: bool):
-    """Play ``show`` on the emulator as a job of the project's queue (a bar, Ctrl-C cancels) → the finished job."""
-    from studio.cli.progress import ctrl_c_cancels
-    from studio.jobs import TqdmBars
-    from studio.project.jobs import queue_for
+def _play(show, queue, cancel, **_):
+    """Play ``show`` on the emulator as a job of ``queue`` until it ends or ``cancel`` is set → the finished job."""
     from studio.project.play import play_job
 
-    queue = queue_for(project)
-    bars = TqdmBars(disable=quiet)
-    unsubscribe = queue.subscribe(bars)
-    try:
-        with ctrl_c_cancels() as cancel:
-            job = queue.submit(play_job(show, title="demo show"))
-            while not job.finished:
-                if cancel.is_set():
-                    job.cancel()
-                job.wait(0.1)
-    finally:
-        unsubscribe()
-        bars.close()
+    job = queue.submit(play_job(show, title="demo show"))
+    while not job.finished:
+        if cancel.is_set():
+            job.cancel()
+        job.wait(0.1)
     return job
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from studio.project.jobs import queue_for
+    from studio.project.outputs import self_model_predictor
     from studio.project.project import ProjectError
     from studio.review.recording import ProjectRecording
 
@@ -101,20 +73,23 @@ def _demo(args: argparse.Namespace) -> int:
         raise ValueError(f"--out {out} is a file; give a folder for demo.shadow, show.json and review.rrd")
     out.mkdir(parents=True, exist_ok=True)
     project, fresh = _project(out, args.force)
-    cfg = run_config_from_args(args)
-    clip = clip_of(args)
+    cfg = dataclasses.replace(run_config_from_args(args), device=args.device)
+    clip = clip_from_args(args)
     summary = {"project": str(project.path), "show": None, "review": str(out / "review.rrd"),
                "keyframes": len(project.keyframes), "played": False}  # fmt: skip
     with ProjectRecording(path=out / "review.rrd") as review:
-        queue_for(project).subscribe(review.job_progress())  # every job's loss and live shadow on opt_step
-        try:
-            report = run_with_bars(project, cfg, clip, args.quiet, args.model)
+        try:  # every job's loss and live shadow on opt_step
+            report = run_with_bars(
+                lambda progress, **kw: project.run(cfg, clip=clip, model_path=args.model, **kw),
+                args.quiet,
+                review.job_progress(),
+            )
         except ProjectError as e:
             raise ProjectError(f"{e} (or start fresh: shadow-studio demo --out {out} --force)") from None
         print_run(report)
         summary |= {k: v for k, v in report.summary().items() if k not in ("project", "show", "seconds", "error")}
         summary["fresh_project"] = fresh
-        review.log_project(project, _self_model(args.model))
+        review.log_project(project, self_model_predictor(args.model))
         if report.cancelled or not report.ok:
             summary["seconds"] = round(time.perf_counter() - t0, 2)
             print(json.dumps(summary))
@@ -123,7 +98,7 @@ def _demo(args: argparse.Namespace) -> int:
         summary["show"] = str(show_path)
         print(f"wrote {show_path}: {project.show.duration:.2f} s, {len(project.show.times)} samples; playing it on "
               "the emulator", file=sys.stderr)  # fmt: skip
-        job = _play(project, project.show, args.quiet)
+        job = run_with_bars(functools.partial(_play, project.show), args.quiet)
         played = job.result
         if played is not None:
             review.log_playback(played)
@@ -148,5 +123,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="the bundled still and video end to end: project, poses, show, emulator, review")
     p.add_argument("--out", required=True, help="folder for demo.shadow (the project), show.json and review.rrd")
     p.add_argument("--force", action="store_true", help="start a fresh project (default: reuse DIR/demo.shadow)")
-    add_run_flags(p, allow_late=True)  # the horse is faster than the servos: stretch and say so (--no-allow-late)
+    add_budget_flags(p)
+    add_show_flags(p, allow_late=True)  # the horse is faster than the servos: stretch and say so (--no-allow-late)
+    add_engine_flags(p)
     p.set_defaults(func=_demo)

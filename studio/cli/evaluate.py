@@ -2,7 +2,7 @@
 2: the six video rows over sequences, :mod:`studio.evaluate.table2`) and ``shadow-studio train-inverse``.
 
 ``evaluate-video`` loads every sequence first (sampled frames, expressive masks, keyframes, once for all rows),
-then runs the rows with the CPU preset (``--preset paper`` for the paper's GPU sizes; single budget flags override
+then runs the rows with the studio preset (``--preset paper`` for the paper's sizes; single budget flags override
 either). Ctrl-C stops within a search or refinement step and still writes the table of the finished runs (exit
 code 130)."""
 
@@ -16,11 +16,10 @@ from pathlib import Path
 from studio.assets import asset
 from studio.cli.device_flags import add_device_flags, torch_threads
 from studio.cli.flags import add_config_flags, config_from_args, ranged
-from studio.cli.imitate import add_target_flags, target_config_from_args
-from studio.cli.progress import CountBar, StageBars, add_quiet_flag, ctrl_c_cancels
-from studio.cli.sequence_flags import add_sequence_flags, sequence_config_from_args
-from studio.cli.still_flags import add_still_flags, still_configs
-from studio.imitate.config import SearchConfig
+from studio.cli.progress import add_quiet_flag, ctrl_c_cancels
+from studio.cli.run_flags import add_budget_flags, sequence_from_args
+from studio.cli.source_flags import add_source_flags, still_config_from_args
+from studio.imitate.config import still_configs
 from studio.targets.images import gather_targets
 
 DEFAULT_INVERSE = asset("models/inverse_cpu128.pt", must_exist=False)
@@ -47,11 +46,12 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
     from studio.evaluate.config import EvalConfig
     from studio.evaluate.table1 import Evaluator, write_table
     from studio.imitate.still import DEFAULT_MODEL, Imitator
+    from studio.jobs import TqdmBars
     from studio.learn.selfmodel import load_selfmodel
     from studio.targets.images import load_target
 
-    target_cfg = target_config_from_args(args)
-    search, refine, config, sweep = still_configs(args, args.seed)
+    target_cfg = still_config_from_args(args)
+    search, refine, config, sweep = still_configs(sequence_from_args(args))
     model, _ = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
     size = model.cfg.resolution
     score_side = args.score_resolution or size
@@ -61,10 +61,10 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
     ]
     clip = clip_from_args(args, device=next(model.parameters()).device)  # CLIP sits with the self-model
     imitator = Imitator(model, clip=clip, search=search, refine=refine, config=config, sweep=sweep)
-    eval_cfg = EvalConfig(seed=args.seed, score_resolution=args.score_resolution)
+    eval_cfg = EvalConfig(seed=0 if args.seed is None else args.seed, score_resolution=args.score_resolution)
     with imitator, Evaluator(imitator, Path(args.inverse), Path(args.nn_data), eval_cfg) as evaluator:
-        with CountBar(len(targets), "evaluate", "target", args.quiet) as bar:
-            result = evaluator.run(targets, progress=bar)
+        with TqdmBars(disable=args.quiet) as bars:
+            result = evaluator.run(targets, progress=bars)
     paths = write_table(result, Path(args.out))
     if not args.quiet:
         print(Path(paths["markdown"]).read_text())
@@ -85,7 +85,7 @@ def _run_video_evaluation(args: argparse.Namespace) -> int:
     import torch
 
     from studio.cli.clip_flags import clip_from_args
-    from studio.evaluate.table2 import ROWS, VideoEvaluator, gather_sequences, json_rows, prepare_sequence, write_table
+    from studio.evaluate.table2 import VideoEvaluator, gather_sequences, json_rows, prepare_sequence, write_table
     from studio.imitate.config import LossConfig
     from studio.imitate.sequence import SequenceImitator
     from studio.imitate.still import DEFAULT_MODEL
@@ -96,7 +96,10 @@ def _run_video_evaluation(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     sources = gather_sequences(args.sources)
-    cfg = sequence_config_from_args(args)
+    from studio.jobs import TqdmBars
+    from studio.progress import report
+
+    cfg = sequence_from_args(args)
     transition = config_from_args(args, TransitionConfig, prefix="transition-")
     model, _ = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
     video_cfg = config_from_args(args, VideoConfig, size=model.cfg.resolution)
@@ -104,19 +107,18 @@ def _run_video_evaluation(args: argparse.Namespace) -> int:
     names = [p.name for p in sources]
     names = [n if names.count(n) == 1 else str(p) for n, p in zip(names, sources, strict=True)]
     sequences = []  # every sequence loads before the slow part
-    with CountBar(len(sources), "load", "sequence", args.quiet) as loaded:
+    with TqdmBars(disable=args.quiet) as loaded:
         for i, (p, name) in enumerate(zip(sources, names, strict=True)):
             sequences.append(prepare_sequence(p, video_cfg, keyframe_cfg, name))
-            loaded(i + 1, len(sources), name)
+            report(loaded, "load", i + 1, len(sources), item=name)
     clip = clip_from_args(args, device=next(model.parameters()).device)
     loss_cfg = LossConfig(use_clip=clip is not None, crop_size=model.cfg.resolution)
     with (
-        CountBar(len(sequences) * len(ROWS), "evaluate-video", "run", args.quiet) as runs,
-        StageBars(args.quiet, leave=False) as steps,
+        TqdmBars(disable=args.quiet) as bars,
         SequenceImitator(model, cfg, loss_cfg=loss_cfg, clip=clip) as seq,
         ctrl_c_cancels() as cancel,
     ):
-        result = VideoEvaluator(seq, cfg, transition).run(sequences, steps, runs, cancel)
+        result = VideoEvaluator(seq, cfg, transition).run(sequences, bars, cancel)
     result.settings |= {"model": str(args.model or DEFAULT_MODEL), "preset": args.preset, "video": asdict(video_cfg),
                         "keyframes": asdict(keyframe_cfg), "threads": torch.get_num_threads()}  # fmt: skip
     paths = write_table(result, Path(args.out))
@@ -146,16 +148,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="take the first N images of each sub-folder (default: all)")  # fmt: skip
     p.add_argument("--per-class", type=ranged(int, "[1, ∞)"), default=None, metavar="N",
                    help="then the first N images of each class (the name before its last '-': camel-1)")  # fmt: skip
-    add_target_flags(p)
-    add_still_flags(p)
+    add_source_flags(p, video=False)
+    add_budget_flags(p, video=False)
     add_config_flags(p, EvalConfig, ("score_resolution",))
-    p.add_argument(
-        "--seed",
-        type=ranged(int, "[0, ∞)"),
-        default=SearchConfig.seed,
-        metavar="N",
-        help=f"seed of the search, refinement and Random baseline (default: {SearchConfig.seed})",
-    )
     add_device_flags(p, zero_threads=True)
     add_quiet_flag(p, "no progress bar and no table on stdout (JSON only)")
     add_clip_arguments(p)
@@ -173,7 +168,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--model", default=None, help="self-model checkpoint (default assets/models/selfmodel_cpu128.pt)")
     add_config_flags(v, VideoConfig, ("hz", "fps"))
     add_config_flags(v, KeyframeConfig, ("tau",))
-    add_sequence_flags(v, ("candidates", "retrieve"))
+    add_budget_flags(v, modes=False)
     add_config_flags(v, TransitionConfig, ("total",), prefix="transition-")
     add_device_flags(v, zero_threads=True)
     add_quiet_flag(v, "no progress bars and no table on stdout (JSON only)")

@@ -45,7 +45,12 @@ _RANGE = re.compile(r"\s*([\[(])\s*([^,\[\]()]+?)\s*,\s*([^,\[\]()]+?)\s*([\])])
 
 
 class CliParser(argparse.ArgumentParser):
-    """An argument parser whose errors are one line on stderr (``PROG: error: …``), exit code 2."""
+    """An argument parser whose errors are one line on stderr (``PROG: error: …``), exit code 2. Flags are never
+    abbreviated (``--mode`` must not quietly mean ``--model``)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> typing.NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")

@@ -1,149 +1,106 @@
-"""``shadow-studio imitate TARGET --out DIR``: one still target end to end.
+"""``shadow-studio imitate TARGET --out DIR`` and ``shadow-studio imitate-video SRC --out DIR``: one source end to
+end, a thin face over :func:`studio.project.pipeline.imitate_video` (what ``project run`` and the notebook run).
 
-Writes ``pose.json`` (joint names → radians, plus losses and provenance; its ``keyframes`` list is what
-``shadow-studio plan`` reads), ``shadow.png`` (the final pose's rendered
-shadow), ``compare.png`` (target | self-model | rendered | overlay), ``review.rrd`` (Rerun) and prints a JSON
-summary last. The target's holes (its openings) are the expressive region, as in ``evaluate``. Ctrl-C stops the
-search or refinement early and still writes the best pose found so far (exit code 130); a second Ctrl-C stops at
-once.
+The source becomes the project ``DIR/<name>.shadow`` (``shadow-studio lab DIR/<name>.shadow`` opens it in the
+studio); every keyframe is optimised (``--preset`` and the budget flags), the show is planned at the video's clock
+(a still is held ``--still-hold-s``), and ``keyframes.json`` (what ``shadow-studio plan`` reads), ``show.json``,
+``contact.png``, ``side_by_side.mp4`` and ``review.rrd`` are written into DIR; a JSON summary comes last. Run again
+on the same DIR, the project is reopened and only what is missing or stale is computed (``--fresh`` starts over).
+
+Exit codes: 0 a show; 1 no show (a transition too fast for the servos: each is printed, ``--allow-late`` stretches
+them; a keyframe in collision or a failed job) or a keyframe pose that collides; 2 bad input (one line); 130 Ctrl-C
+(the first stops the work and writes the files of the keyframes finished so far; the same command resumes).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
-from dataclasses import asdict
+import time
+from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
-from studio.atomic import write_bytes, write_json
-from studio.cli.device_flags import add_device_flags, torch_threads
-from studio.cli.flags import add_config_flags, config_from_args, given, ranged
-from studio.cli.progress import StageBars, add_quiet_flag, ctrl_c_cancels
-from studio.cli.still_flags import add_still_flags, still_configs
-from studio.imitate.config import SearchConfig
-from studio.targets.images import TargetConfig
-
-
-def _finite(d: dict) -> dict:
-    """JSON-safe loss dict: NaN (a term not computed) becomes null."""
-    return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in d.items()}
-
-
-def write_compare_png(path: Path, result) -> None:
-    """target | self-model | rendered | overlay, each in display convention, side by side."""
-    import cv2
-
-    from studio.review.rerun import display, overlay
-
-    tiles = [display(result.target), display(result.predicted), display(result.shadow)]
-    tiles = [np.repeat(t[..., None], 3, axis=2) for t in tiles] + [overlay(result.target, result.shadow)]
-    gap = np.full((tiles[0].shape[0], 4, 3), 128, np.uint8)
-    row = np.concatenate([x for t in tiles for x in (t, gap)][:-1], axis=1)
-    ok, png = cv2.imencode(".png", cv2.cvtColor(row, cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise OSError(f"could not encode {path} as PNG")
-    write_bytes(path, png.tobytes())
-
-
-def add_target_flags(parser: argparse.ArgumentParser) -> None:
-    """``--threshold N`` or ``--otsu``: how target images are thresholded (:class:`TargetConfig`)."""
-    group = parser.add_mutually_exclusive_group()
-    add_config_flags(group, TargetConfig, ("threshold",))
-    group.add_argument("--otsu", action="store_true", help="threshold the target by Otsu's method")
-
-
-def target_config_from_args(args: argparse.Namespace) -> TargetConfig:
-    """``--threshold N`` (a fixed level, always used) or ``--otsu``; neither: the defaults (Otsu by itself on a
-    backdrop that is not dark)."""
-    if args.otsu:
-        return TargetConfig(threshold=None)
-    return config_from_args(args, TargetConfig, auto_otsu=not given(args, "threshold"))
+from studio.cli.device_flags import torch_threads
+from studio.cli.run_flags import add_budget_flags, add_engine_flags, add_show_flags, run_config_from_args
+from studio.cli.runs import print_run, run_with_bars
+from studio.cli.source_flags import add_source_flags, source_settings_from_args
 
 
 def _imitate(args: argparse.Namespace) -> int:
+    from studio.targets.source import source_kind
+
+    src = Path(args.src)
+    if not src.exists():
+        raise FileNotFoundError(f"source not found: {src}")
+    if args.verb == "imitate" and source_kind(src) in ("video", "folder"):
+        raise ValueError(f"{src} is a video: imitate it with shadow-studio imitate-video {src} --out ...")
     with torch_threads(args.threads):
-        return _run(args)
+        return _run(args, src)
 
 
-def _run(args: argparse.Namespace) -> int:
+def _run(args: argparse.Namespace, src: Path) -> int:
+    import torch
+
     from studio.cli.clip_flags import clip_from_args
-    from studio.cli.hand import write_shadow_png
-    from studio.imitate.config import LossConfig
-    from studio.imitate.still import DEFAULT_MODEL, Imitator
+    from studio.imitate.still import DEFAULT_MODEL
     from studio.learn.selfmodel import load_selfmodel
-    from studio.review.rerun import log_imitation
-    from studio.targets.expressive import still_expressive
-    from studio.targets.images import load_target
+    from studio.project.pipeline import imitate_video
 
-    target_path = Path(args.target)
-    target_cfg = target_config_from_args(args)
-    model, info = load_selfmodel(Path(args.model or DEFAULT_MODEL), device=args.device)
-    search, refine, config, sweep = still_configs(args, args.seed)
-    target = load_target(target_path, size=model.cfg.resolution, cfg=target_cfg)  # before CLIP and the slow set-up
-    clip = clip_from_args(args, device=next(model.parameters()).device)
-    loss_cfg = LossConfig(use_clip=clip is not None, crop_size=model.cfg.resolution)
-    imitator = Imitator(model, loss_cfg=loss_cfg, clip=clip, search=search, refine=refine, config=config, sweep=sweep)
-    expressive = still_expressive(target)  # a still target's openings (as `evaluate` does)
+    t0 = time.perf_counter()
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with imitator, StageBars(args.quiet) as bars, ctrl_c_cancels() as cancel:
-        result = imitator.imitate(target, expressive, refine=not args.no_refine, progress=bars, cancel=cancel)
-    hand = imitator.hand
-    provenance = {
-        "target": str(target_path), "target_config": asdict(target_cfg),
-        "expressive_pixels": 0 if expressive is None else int(expressive.sum()),
-        "model": str(args.model or DEFAULT_MODEL), "model_metrics": info.metrics,
-        "clip": None if clip is None else clip.name, "no_clip": clip is None, "loss_config": loss_cfg.to_dict(),
-        "method": args.method, "search": asdict(search), "refine": asdict(refine), "imitate": asdict(config),
-        "sweep": asdict(sweep), "hand_hash": hand.hash,
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file; give a folder for the project and its files")
+    settings = source_settings_from_args(args)  # a bad source or flag is reported before the model loads
+    model, _ = load_selfmodel(Path(args.model or DEFAULT_MODEL), device="cpu")
+    settings = replace(settings, video=replace(settings.video, size=model.cfg.resolution))  # the model's own frame
+    if args.verb == "imitate":  # a bad still is said before anything else (reading it again later costs little)
+        from studio.targets.images import load_target
+
+        load_target(src, size=settings.video.size, cfg=settings.still)
+    cfg = replace(run_config_from_args(args), device=args.device)
+    clip = clip_from_args(args, device=args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    provenance = {"verb": f"shadow-studio {args.verb}", "preset": args.preset, "no_clip": clip is None}
+    result = run_with_bars(
+        lambda **kw: imitate_video(src, out, settings, cfg, clip=clip, model_path=args.model, fresh=args.fresh,
+                                   provenance=provenance, **kw),
+        args.quiet,
+    )  # fmt: skip
+    report, project = result.report, result.project
+    print_run(report)
+    summary = report.summary() | {
+        "project": str(project.path), "frames": len(project.frames), "keyframes": len(project.keyframes),
+        "show": None if result.show is None else str(result.files["show.json"]),
+        "video_seconds": round(project.show_timing().end_s, 4) if not project.status().pending else None,
+        "files": {k: str(v) for k, v in result.files.items()}, "fresh_project": result.fresh,
+        "no_clip": clip is None, "out": str(out), "seconds": round(time.perf_counter() - t0, 2),
     }  # fmt: skip
-    keyframe = {"t": args.at, "pose": hand.pose_to_dict(result.theta), "hold": True, "target": str(target_path),
-                "loss": result.loss["total"]}  # fmt: skip
-    write_json(out / "pose.json", {
-        "keyframes": [keyframe],  # the shape `shadow-studio plan` reads
-        "pose": hand.pose_to_dict(result.theta), "loss": _finite(result.loss), "collision_free": result.collision_free,
-        "cancelled": result.cancelled,
-        "unrefined": {"pose": hand.pose_to_dict(result.unrefined_theta), "loss": _finite(result.unrefined_loss),
-                      "collides": result.unrefined_collides, "self_model_loss": result.search.loss},
-        "provenance": provenance,
-    })  # fmt: skip
-    write_shadow_png(out / "shadow.png", result.shadow)
-    write_compare_png(out / "compare.png", result)
-    notes = "CLIP term off (--no-clip)" if clip is None else f"CLIP: {clip.name}"
-    log_imitation(out / "review.rrd", result, hand, name=target_path.stem, notes=notes)
-    summary = {
-        "total": result.loss["total"], "iou_loss": result.loss["iou_loss"], "collision_free": result.collision_free,
-        "exp_iou": result.loss["exp_iou"], "seconds": round(result.seconds, 2), "no_clip": clip is None,
-        "cancelled": result.cancelled, "out": str(out),
-    }  # fmt: skip
-    if result.refine is not None and not result.refine.collision_free:
-        summary["warning"] = result.refine.message
-    print(json.dumps(_finite(summary)))
-    if result.cancelled:
-        print(f"shadow-studio imitate: cancelled: wrote the best pose found so far to {out}", file=sys.stderr)
+    summary["collision_free"] = bool(
+        result.show is not None and all(r.collision_free for r in project.results.values())
+    )
+    print(json.dumps(summary))
+    if report.cancelled:
+        print(f"shadow-studio {args.verb}: cancelled: the finished keyframes are kept in {project.path}; the same "
+              "command resumes", file=sys.stderr)  # fmt: skip
         return 130
-    return 0 if result.collision_free else 1
+    return 0 if report.ok and summary["collision_free"] else 1
+
+
+def _register(sub: argparse._SubParsersAction, verb: str, video: bool) -> None:
+    what = "a video (file, GIF or frame folder)" if video else "a still target image"
+    p = sub.add_parser(verb, help=f"{what} end to end: a project, its keyframes' poses, the show and review files")
+    p.add_argument("src", help="video file (mp4, avi, mov, webm, GIF) or folder of frames (PNG/JPEG)" if video else
+                   "target image (PNG, JPEG, GIF, BMP): a silhouette, either polarity")  # fmt: skip
+    p.add_argument("--out", required=True, help="folder for the project (<name>.shadow), keyframes.json, show.json, "
+                   "contact.png, side_by_side.mp4 and review.rrd")  # fmt: skip
+    p.add_argument("--fresh", action="store_true", help="start a new project even when OUT holds one of this source")
+    add_source_flags(p, video=video, still=not video)
+    add_budget_flags(p, video=video)
+    add_show_flags(p, layout=not video)
+    add_engine_flags(p)
+    p.set_defaults(func=_imitate)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from studio.cli.clip_flags import add_clip_arguments
-
-    p = sub.add_parser("imitate", help="find a collision-free hand pose whose shadow matches a still target")
-    p.add_argument("target", help="target image (PNG, JPEG, GIF, BMP): a silhouette, either polarity")
-    p.add_argument("--out", required=True, help="folder for pose.json, shadow.png, compare.png, review.rrd")
-    p.add_argument("--model", default=None, help="self-model checkpoint (default: the shipped CPU model)")
-    add_target_flags(p)
-    add_still_flags(p)
-    p.add_argument("--no-refine", action="store_true", help="skip the collision-aware refinement")
-    p.add_argument("--at", type=ranged(float, "[0, ∞)"), default=2.0, metavar="S",
-                   help="time of this pose in a show, s (the pose.json keyframe; default: 2.0; ≥ 0)")  # fmt: skip
-    p.add_argument("--seed", type=ranged(int, "[0, ∞)"), default=SearchConfig.seed, metavar="N",
-                   help=f"seed of the search and the refinement (default: {SearchConfig.seed}; ≥ 0)")  # fmt: skip
-    add_device_flags(p)
-    add_quiet_flag(p)
-    add_clip_arguments(p)
-    p.set_defaults(func=_imitate)
+    _register(sub, "imitate", video=False)
+    _register(sub, "imitate-video", video=True)

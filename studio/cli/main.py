@@ -16,6 +16,7 @@ import traceback
 from collections.abc import Iterable
 
 from studio.cli.flags import CliParser
+from studio.cli.runs import advice
 from studio.errors import StudioError
 
 # Modules that contribute verbs, in --help order.
@@ -26,7 +27,6 @@ VERB_MODULES = (
     "studio.cli.evaluate",
     "studio.cli.imitate",
     "studio.cli.video",
-    "studio.cli.imitate_video",
     "studio.cli.servos",
     "studio.cli.plan",
     "studio.cli.project",
@@ -47,7 +47,7 @@ VERBS = {
     "train-inverse": "studio.cli.evaluate",
     "imitate": "studio.cli.imitate",
     "keyframes": "studio.cli.video",
-    "imitate-video": "studio.cli.imitate_video",
+    "imitate-video": "studio.cli.imitate",
     "emulate": "studio.cli.servos",
     "scan": "studio.cli.servos",
     "calibrate": "studio.cli.servos",
@@ -100,7 +100,7 @@ def main(argv: list[str] | None = None, verb_modules: Iterable[str] | None = Non
     except (StudioError, ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as e:
         if args.verbose:
             traceback.print_exc()
-        print(f"shadow-studio {args.verb}: error: {e}", file=sys.stderr)
+        print(f"shadow-studio {args.verb}: error: {e}{advice(e)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"shadow-studio {args.verb}: interrupted", file=sys.stderr)

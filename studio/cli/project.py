@@ -6,14 +6,16 @@
 - ``project info NAME.shadow``: sources (missing or changed?), frames, keyframes and their results (current,
   stale or missing), the show; human lines, then a JSON summary last.
 - ``project run NAME.shadow``: optimise every keyframe whose result is missing or stale (one job each, sequential
-  from the keyframe before it in its source, the CPU preset's budget unless flags say otherwise; no CLIP unless
-  ``--clip-weights`` names local weights), then plan the show when it is missing or stale
-  (:func:`studio.project.jobs.run_project`); a bar per job and stage, a JSON summary last. Exit 0 done (or nothing
+  from the keyframe before it in its source, ``--preset`` and the budget flags; CLIP by the one rule of
+  :mod:`studio.cli.clip_flags`), then plan the show when it is missing or stale
+  (:meth:`studio.project.project.Project.run`, what ``imitate``, ``imitate-video`` and the notebook run); a bar per
+  job and stage, a JSON summary last. Exit 0 done (or nothing
   to do); 1 a keyframe job failed or no show (a transition too fast without ``--allow-late``, listed; the
   keyframes are saved); 2 the project cannot run (a source missing or changed: nothing changed); 130 Ctrl-C (the
   keyframes finished before it are saved, nothing else changed).
 - ``project export NAME.shadow --out show.json``: write the planned show (an error if none is planned yet or
-  it is stale).
+  it is stale); ``--files DIR`` also writes what ``imitate-video`` writes (:mod:`studio.project.outputs`:
+  ``keyframes.json``, ``show.json``, ``contact.png``, ``side_by_side.mp4``, ``review.rrd``).
 
 Each verb is registered by a ``_register_*`` function.
 """
@@ -23,13 +25,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
-from studio.cli.flags import add_config_flags, config_from_args
-from studio.cli.footage import parse_box
-from studio.targets.images import TargetConfig
-from studio.targets.keyframes import KeyframeConfig
-from studio.targets.video import VideoConfig
+from studio.cli.clip_flags import clip_from_args
+from studio.cli.run_flags import add_budget_flags, add_engine_flags, add_show_flags, run_config_from_args
+from studio.cli.runs import print_run, run_with_bars
+from studio.cli.source_flags import add_source_flags, source_settings_from_args
 
 
 def print_info(project) -> dict:
@@ -62,21 +64,17 @@ def print_info(project) -> dict:
 
 
 def _new(args: argparse.Namespace) -> int:
+    from studio.jobs import TqdmBars
     from studio.project.project import Project
+    from studio.targets.source import read_first_mask
 
-    video = config_from_args(args, VideoConfig)
-    if args.otsu:
-        video = config_from_args(args, VideoConfig, threshold=None)
-    project = Project.create(
-        Path(args.name),
-        sources=args.source,
-        title=args.title,
-        video=video,
-        still=config_from_args(args, TargetConfig, prefix="still-"),
-        clustering=KeyframeConfig(tau=args.tau),  # by hand: config_from_args would give it VideoConfig's --size
-        box=args.box,
-        first_mask=args.first_mask,
-    )
+    settings = source_settings_from_args(args)
+    first = None if settings.first_mask is None else read_first_mask(settings.first_mask)
+    with TqdmBars() as bars:  # reading and segmenting the sources
+        project = Project.create(
+            Path(args.name), sources=args.source, title=args.title, video=settings.video, still=settings.still,
+            clustering=settings.clustering, box=settings.box, first_mask=first, progress=bars,
+        )  # fmt: skip
     print_info(project)
     return 0
 
@@ -95,99 +93,33 @@ def _export(args: argparse.Namespace) -> int:
     out = project.export_show(Path(args.out))
     show = project.show
     print(f"wrote {out}: {show.duration:.2f} s, {len(show.times)} samples, {len(show.keyframes)} keyframes")
-    print(json.dumps({"project": str(project.path), "show": str(out), "duration_s": show.duration}))
+    summary = {"project": str(project.path), "show": str(out), "duration_s": show.duration}
+    if args.files is not None:
+        from studio.project.outputs import self_model_predictor, write_outputs
+
+        files = write_outputs(project, args.files, self_model=self_model_predictor())
+        print(f"wrote {', '.join(str(f) for f in files.values())}")
+        summary["files"] = {k: str(v) for k, v in files.items()}
+    print(json.dumps(summary))
     return 0
 
 
-def run_with_bars(project, cfg, clip=None, quiet: bool = False, model_path: Path | None = None):
-    """:func:`studio.project.jobs.run_project` with a tqdm bar per job and stage on stderr (none when ``quiet``) and
-    the first Ctrl-C cancelling it (a second stops at once); returns its ``RunReport``."""
-    from tqdm import tqdm
-
-    from studio.cli.progress import ctrl_c_cancels
-    from studio.jobs import TqdmBars
-    from studio.project.jobs import queue_for
-    from studio.project.run import run_project
-
-    queue = queue_for(project)
-    bars = TqdmBars(disable=quiet)
-    unsubscribe = queue.subscribe(bars)
-
-    def on_job(job, what: str) -> None:
-        if not quiet:
-            tqdm.write(f"job #{job.id}: {what}", file=sys.stderr)
-
-    try:
-        with ctrl_c_cancels() as cancel:
-            return run_project(project, cfg, clip, queue, cancel, model_path, on_job)
-    finally:
-        unsubscribe()
-        bars.close()
-
-
-def print_run(report) -> None:
-    """The human lines of a run: what it did, the late transitions, why it stopped."""
-    from studio.cli.video_outputs import print_late
-
-    print_late(report.late, stretched=report.show is not None)
-    print(report.message, file=sys.stderr if report.error or report.cancelled or report.show is None else sys.stdout)
-
-
-def run_config_from_args(args: argparse.Namespace):
-    """The ``RunConfig`` of ``project run``'s flags (and ``demo``'s)."""
-    from studio.cli.sequence_flags import sequence_config_from_args
-    from studio.motion.limits import LimitsConfig
-    from studio.motion.plan import PlanConfig
-    from studio.project.run import RunConfig
-    from studio.project.show_timing import ShowLayout
-
-    return RunConfig(
-        sequence=sequence_config_from_args(args), plan=PlanConfig(limits=config_from_args(args, LimitsConfig)),
-        allow_late=args.allow_late, layout=config_from_args(args, ShowLayout),
-    )  # fmt: skip
-
-
-def add_run_flags(p: argparse.ArgumentParser, allow_late: bool = False) -> None:
-    """The flags ``project run`` and ``demo`` share: sequence budgets, show layout and limits, CLIP, model;
-    ``allow_late``: the default of ``--allow-late/--no-allow-late``."""
-    from studio.cli.progress import add_quiet_flag
-    from studio.cli.sequence_flags import add_sequence_flags
-    from studio.motion.limits import LimitsConfig
-    from studio.motion.timing import TimingConfig
-    from studio.project.show_timing import ShowLayout
-
-    add_sequence_flags(p, ("mode", "expressive", "temporal", "candidates", "refine_enabled", "retrieve"))
-    add_config_flags(p, TimingConfig, ("allow_late",), base=TimingConfig(allow_late=allow_late))
-    add_config_flags(p, ShowLayout)
-    add_config_flags(p, LimitsConfig, ("velocity_scale",), ranges={"velocity_scale": "(0, 1]"})
-    p.add_argument("--clip-weights", type=Path, default=None, metavar="PATH",
-                   help="a local CLIP checkpoint: adds the CLIP loss terms (never downloaded; default: none, no "
-                        "CLIP)")  # fmt: skip
-    p.add_argument("--clip-model", default="ViT-B-32", help="open_clip model name of --clip-weights")
-    p.add_argument("--model", type=Path, default=None, help="self-model checkpoint (default: the shipped CPU model)")
-    add_quiet_flag(p)
-
-
-def clip_of(args: argparse.Namespace):
-    """The CLIP encoder of ``--clip-weights`` (None without it: the CLIP terms are off)."""
-    if args.clip_weights is None:
-        return None
-    from studio.imitate.clip_loss import load_clip
-
-    return load_clip(args.clip_model, weights=args.clip_weights)
-
-
 def _run(args: argparse.Namespace) -> int:
+    from studio.cli.device_flags import torch_threads
     from studio.project.project import Project
 
     project = Project.open(Path(args.name))
     if args.reload_sources and project.changed_sources:
         print(f"re-reading changed source(s) {project.changed_sources}", file=sys.stderr)
         project.reload_sources()
-    cfg = run_config_from_args(args)
-    report = run_with_bars(project, cfg, clip_of(args), args.quiet, args.model)
+    cfg = replace(run_config_from_args(args), device=args.device)
+    clip = clip_from_args(args)
+    with torch_threads(args.threads):
+        report = run_with_bars(
+            lambda progress, **kw: project.run(cfg, clip=clip, model_path=args.model, **kw), args.quiet
+        )
     print_run(report)
-    summary = report.summary() | {"clip": args.clip_weights is not None and str(args.clip_weights)}
+    summary = report.summary() | {"clip": None if clip is None else clip.name}
     print(json.dumps(summary))
     if report.cancelled:
         return 130
@@ -197,7 +129,9 @@ def _run(args: argparse.Namespace) -> int:
 def _register_run(verbs: argparse._SubParsersAction) -> None:
     p = verbs.add_parser("run", help="optimise every missing or stale keyframe, then plan the show (JSON last)")
     p.add_argument("name", help="the project folder, NAME.shadow")
-    add_run_flags(p)
+    add_budget_flags(p)
+    add_show_flags(p)
+    add_engine_flags(p)
     p.add_argument("--reload-sources", action="store_true",
                    help="re-read sources that changed on disk first (their keyframes are then recomputed)")  # fmt: skip
     p.set_defaults(func=_run)
@@ -209,15 +143,7 @@ def _register_new(verbs: argparse._SubParsersAction) -> None:
     p.add_argument("--source", nargs="+", required=True, metavar="FILE",
                    help="stills, video files (mp4, GIF, …) or folders of frames (masks or footage)")  # fmt: skip
     p.add_argument("--title", default=None, help="the project's title (default: NAME)")
-    add_config_flags(p, VideoConfig, ("hz", "fps", "threshold", "size"))
-    p.add_argument("--otsu", action="store_true", help="videos: Otsu's threshold instead of --threshold")
-    add_config_flags(p, TargetConfig, ("threshold",), prefix="still-")
-    add_config_flags(p, KeyframeConfig, ("tau",))
-    seg = p.add_mutually_exclusive_group()
-    seg.add_argument("--box", type=parse_box, default=None, metavar="X,Y,W,H",
-                     help="colour footage: the object's box in the first frame, source pixels")  # fmt: skip
-    seg.add_argument("--first-mask", default=None, metavar="PNG",
-                     help="colour footage: the object's mask in the first frame (white = object)")  # fmt: skip
+    add_source_flags(p, size=True)
     p.set_defaults(func=_new)
 
 
@@ -231,6 +157,13 @@ def _register_export(verbs: argparse._SubParsersAction) -> None:
     p = verbs.add_parser("export", help="write a project's planned show to a show file")
     p.add_argument("name", help="the project folder, NAME.shadow")
     p.add_argument("--out", required=True, help="the show file to write (show.json)")
+    p.add_argument(
+        "--files",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="also write keyframes.json, show.json, contact.png, side_by_side.mp4 and review.rrd there",
+    )
     p.set_defaults(func=_export)
 
 

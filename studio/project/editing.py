@@ -20,8 +20,9 @@ import numpy as np
 
 from studio.imitate.config import LossConfig
 from studio.motion.show import Show
+from studio.progress import ProgressFn
 from studio.project import edits
-from studio.project.sources import Progress, load_sources, locate, make_source
+from studio.project.sources import load_sources, locate, make_source
 from studio.project.state import PoseResult, ProjectError, ProjectState, frozen
 from studio.targets.images import read_grey
 
@@ -57,7 +58,7 @@ class Editing:
         return paths
 
     def _reloaded(
-        self, state: ProjectState, progress: Progress | None = None, paths: list[Path] | None = None
+        self, state: ProjectState, progress: ProgressFn | None = None, paths: list[Path] | None = None
     ) -> ProjectState:
         """``state`` with its sources re-read (from ``paths``, default where the current sources are) at its
         settings, re-clustered (ids kept for unchanged clusters), results of keyframes that no longer exist dropped;
@@ -72,13 +73,13 @@ class Editing:
         results = {k: r for k, r in state.results.items() if k in ids}
         return replace(new, keyframes=keyframes, next_id=next_id, results=results)
 
-    def _edit_reloading(self, label: str, progress: Progress | None = None, **changes: Any) -> None:
+    def _edit_reloading(self, label: str, progress: ProgressFn | None = None, **changes: Any) -> None:
         with self._lock:
             new = self._reloaded(replace(self._state, **changes), progress)
             self._commit(label, new)
             self._check_sources()
 
-    def set_sampling(self, hz: float = KEEP, fps: float | None = KEEP, progress: Progress | None = None) -> None:
+    def set_sampling(self, hz: float = KEEP, fps: float | None = KEEP, progress: ProgressFn | None = None) -> None:
         """Re-sample the videos at ``hz`` (and a frame folder's ``fps``): frames, masks and keyframes recomputed."""
         cfg = replace(self._state.video, **{k: v for k, v in (("hz", hz), ("fps", fps)) if v is not KEEP})
         self._edit_reloading(f"sampling {cfg.hz:g} Hz", progress, video=cfg)
@@ -95,7 +96,7 @@ class Editing:
         source: int,
         box: tuple[int, int, int, int] | None = None,
         first_mask: np.ndarray | str | Path | None = None,
-        progress: Progress | None = None,
+        progress: ProgressFn | None = None,
     ) -> None:
         """How colour footage ``source`` is segmented: a first-frame ``box`` (x, y, w, h) or ``first_mask`` (an
         ``(H, W)`` array or a PNG path), or neither (no segmentation). Frames and keyframes recomputed."""
@@ -108,7 +109,7 @@ class Editing:
                                first_mask=mask, first_mask_path=path)  # fmt: skip
         self._edit_reloading(f"segmentation of source {source}", progress, sources=tuple(srcs))
 
-    def relink_source(self, source: int, path: str | Path, progress: Progress | None = None) -> None:
+    def relink_source(self, source: int, path: str | Path, progress: ProgressFn | None = None) -> None:
         """Source ``source`` is now at ``path``: the same content keeps every result; other content is re-read."""
         with self._lock:
             srcs = list(self._state.sources)
@@ -123,7 +124,7 @@ class Editing:
             self._commit(f"relink source {source} to {path}", new)
             self._check_sources()
 
-    def reload_sources(self, progress: Progress | None = None) -> None:
+    def reload_sources(self, progress: ProgressFn | None = None) -> None:
         """Re-read every source (after one changed on disk): frames, masks and keyframes recomputed."""
         self._edit_reloading("reload sources", progress)
 
@@ -132,7 +133,7 @@ class Editing:
         path: str | Path,
         box: tuple[int, int, int, int] | None = None,
         first_mask: np.ndarray | str | Path | None = None,
-        progress: Progress | None = None,
+        progress: ProgressFn | None = None,
     ) -> int:
         """Add ``path`` (a still, a video or a folder of frames) as the last source; returns its index. ``box`` /
         ``first_mask`` segment colour footage (as :meth:`set_segmentation`). Frames, masks and keyframes

@@ -23,16 +23,16 @@ import numpy as np
 
 from studio.jobs.engine import imitate_keyframe_job, imitate_video_job, plan_job
 from studio.jobs.queue import DEFAULT_WORKER, Job, JobQueue
+from studio.project.status import ProjectHandle
 
 if TYPE_CHECKING:
     from studio.imitate.config import LossConfig, RefineConfig, SearchConfig, SequenceConfig
     from studio.motion.plan import Keyframes, PlanConfig
-    from studio.project.project import Project
 
 _QUEUES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def queue_for(project: Project, worker: str = DEFAULT_WORKER) -> JobQueue:
+def queue_for(project: ProjectHandle, worker: str = DEFAULT_WORKER) -> JobQueue:
     """The project's job queue (made on first use; one per ``Project`` object; a closed one is replaced)."""
     queue = _QUEUES.get(project)
     if queue is None or queue._closed:
@@ -40,14 +40,14 @@ def queue_for(project: Project, worker: str = DEFAULT_WORKER) -> JobQueue:
     return queue
 
 
-def project_loss(project: Project, side: int, clip: Any = None) -> LossConfig:
+def project_loss(project: ProjectHandle, side: int, clip: Any = None) -> LossConfig:
     """The project's loss weights for crops of ``side`` pixels; the CLIP terms only with an encoder."""
     w = project.weights
     return replace(w, use_clip=bool(w.use_clip and clip is not None), crop_size=side)
 
 
 def keyframe_job(
-    project: Project,
+    project: ProjectHandle,
     k: int,
     *,
     search: SearchConfig | None = None,
@@ -66,15 +66,17 @@ def keyframe_job(
         project.set_result(k, r.theta, r.loss, r.shadow, inputs=inputs, collision_free=r.collision_free,
                            seconds=r.seconds)  # fmt: skip
 
-    return imitate_keyframe_job(
+    job = imitate_keyframe_job(
         target, expressive if expressive.any() else None, search=search, refine=refine, candidates=candidates,
         loss_cfg=project_loss(project, target.shape[-1], clip), clip=clip, model_path=model_path, preview=preview,
         apply=apply, title=f"keyframe {k}",
     )  # fmt: skip
+    job.meta["keyframes"] = [k]
+    return job
 
 
 def video_job(
-    project: Project,
+    project: ProjectHandle,
     keyframes: list[int] | None = None,
     *,
     cfg: SequenceConfig | None = None,
@@ -82,6 +84,7 @@ def video_job(
     model_path: Path | None = None,
     preview: int = 64,
     previous: np.ndarray | None = None,
+    device: str | None = None,
 ) -> Job:
     """Imitate the project's keyframes as one sequence, in first-appearance order (``keyframes``: ids, default
     all) → ``project.set_result`` for each on completion (:func:`.engine.imitate_video_job`). ``previous (21,)
@@ -103,14 +106,17 @@ def video_job(
             project.set_result(k, kr.theta, kr.loss, kr.shadow, inputs=inputs[k], evaluation=kr.evaluation,
                                collision_free=kr.collision_free, seconds=kr.seconds)  # fmt: skip
 
-    return imitate_video_job(
+    job = imitate_video_job(
         masks, np.stack([np.array(e) for _, e in pairs]), cfg=cfg,
         loss_cfg=project_loss(project, masks.shape[-1], clip), clip=clip, model_path=model_path, preview=preview,
-        previous=previous, apply=apply, title=f"keyframe {ids[0]}" if len(ids) == 1 else f"{len(ids)} keyframes",
+        previous=previous, device=device, apply=apply,
+        title=f"keyframe {ids[0]}" if len(ids) == 1 else f"{len(ids)} keyframes",
     )  # fmt: skip
+    job.meta["keyframes"] = list(ids)
+    return job
 
 
-def show_job(project: Project, keyframes: Keyframes, *, cfg: PlanConfig | None = None) -> Job:
+def show_job(project: ProjectHandle, keyframes: Keyframes, *, cfg: PlanConfig | None = None) -> Job:
     """Plan a show through ``keyframes`` (the project's poses on their times) → ``project.set_show`` on
     completion (:func:`.engine.plan_job`)."""
     inputs = project.show_inputs()

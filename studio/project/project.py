@@ -3,13 +3,9 @@
     project = Project.create("horse.shadow", sources=["horse.gif"])   # frames, expressive masks, keyframes
     project.move_frame(5, k=0)                                         # every edit is saved atomically …
     project.undo()                                                     # … and can be undone / redone
-    for k in project.pending_keyframes():                             # missing or stale results (what `run` does)
-        target, expressive = project.keyframe_masks(k)
-        inputs = project.keyframe_inputs(k)                            # captured before the (long) work
-        ...
-        project.set_result(k, pose, loss, shadow, inputs=inputs)
+    report = project.run()                                             # every missing or stale keyframe, the show
+    project.status()                                                   # missing/stale keyframes, sources, show
     keyframes = project.show_timing().keyframes                        # the planner's, on the show clock
-    project.set_show(show, inputs=...)
 
 Every edit makes a new :class:`~studio.project.project_format.ProjectState` (plain data, arrays read-only), saves
 it (:func:`~studio.project.project_format.save_state`: a save killed midway leaves the previous project readable)
@@ -39,13 +35,25 @@ import numpy as np
 from studio.imitate.config import LossConfig
 from studio.motion.show import Show, save_show
 from studio.motion.video_timing import VideoTiming
+from studio.progress import ProgressFn
 from studio.project import edits
 from studio.project.editing import KEEP, Editing, _mask_arg
 from studio.project.inputs import keyframe_inputs, show_inputs
 from studio.project.project_format import DOC, SUFFIX, load_state, save_state
+from studio.project.run import Running
 from studio.project.show_timing import ShowLayout, project_timing
-from studio.project.sources import Progress, hash_source, load_sources, locate, make_source
-from studio.project.state import Frame, Keyframe, PoseResult, ProjectError, ProjectState, Source, frozen, same
+from studio.project.sources import hash_source, load_sources, locate, make_source
+from studio.project.state import (
+    Frame,
+    Keyframe,
+    PoseResult,
+    ProjectError,
+    ProjectState,
+    ShowNeeded,
+    Source,
+    frozen,
+    same,
+)
 from studio.project.status import MissingSource, ProjectStatus
 from studio.project.summary import summarise
 from studio.targets.images import TargetConfig
@@ -72,7 +80,7 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-class Project(Editing):
+class Project(Editing, Running):
     """An open project folder (module doc). Make one with :meth:`create` or :meth:`open`."""
 
     _now = staticmethod(_now)
@@ -100,7 +108,7 @@ class Project(Editing):
         weights: LossConfig | None = None,
         box: tuple[int, int, int, int] | None = None,
         first_mask: np.ndarray | str | Path | None = None,
-        progress: Progress | None = None,
+        progress: ProgressFn | None = None,
     ) -> Project:
         """A new project at ``path`` (a folder named ``*.shadow``, not yet a project) from ``sources`` (stills,
         videos, frame folders): frames, expressive masks and keyframes at the given settings (defaults: the
@@ -297,11 +305,11 @@ class Project(Editing):
     def export_show(self, out: str | Path) -> Path:
         """Write the planned show to ``out`` (a show file); a ProjectError when none is planned or it is stale."""
         if self._state.show is None:
-            raise ProjectError(f"{self.path} has no planned show yet: run `shadow-studio project run {self.path}`")
+            raise ShowNeeded(f"{self.path} has no planned show yet: optimise its keyframes and plan the show first")
         if self.is_show_stale():
-            raise ProjectError(
+            raise ShowNeeded(
                 f"{self.path}'s planned show is stale (its sources, settings, keyframes or results changed since it "
-                f"was planned): re-plan it with `shadow-studio project run {self.path}`"
+                "was planned): plan it again"
             )
         return save_show(self._state.show, out)
 
@@ -315,6 +323,6 @@ class Project(Editing):
             return ProjectStatus(
                 path=str(self.path), missing_sources=tuple(self.missing_sources),
                 changed_sources=tuple(self.changed_sources), missing=tuple(self.missing_keyframes()),
-                stale=tuple(self.stale_keyframes()), show_stale=self.is_show_stale(), can_undo=self.can_undo,
-                can_redo=self.can_redo,
+                stale=tuple(self.stale_keyframes()), pending=tuple(self.pending_keyframes()),
+                show_stale=self.is_show_stale(), can_undo=self.can_undo, can_redo=self.can_redo,
             )  # fmt: skip

@@ -1,36 +1,35 @@
-"""Bring a project up to date: optimise every keyframe whose result is missing or stale, then plan its show.
+"""Bring a project up to date: optimise every keyframe whose result is missing or stale, then plan its show. What
+``project run``, ``imitate``, ``imitate-video``, ``demo`` and the notebook's Optimise tab all run.
 
-    report = run_project(project, RunConfig(allow_late=True), cancel=event)   # what ``project run`` does
+    report = project.run(RunConfig(allow_late=True), cancel=event)       # or run_project(project, ...)
     report.optimised, report.skipped, report.show, report.late, report.transitions
 
-Keyframes run one job each on the project's queue (:func:`~.project_jobs.queue_for`), in first-appearance order,
-so a finished keyframe is saved the moment it completes (one edit each) and its progress shows as its own job. In
+Keyframes run one job each on the project's queue (:func:`~.jobs.queue_for`), in first-appearance order, so a
+finished keyframe is saved the moment it completes (one edit each) and its progress shows as its own job (its
+keyframe ids travel on the job: ``job.meta["keyframes"]``, its place in the run: ``job.meta["of"]``). In
 ``sequential`` mode a keyframe continues from the keyframe before it in its source (its current result's pose: the
 search starts there and the temporal term holds to it), exactly as one sequence imitation would; the first
 keyframe of a source (a still's only one) is searched from scratch. A keyframe whose result is current is skipped,
-never recomputed; the show is re-planned only when it is missing or stale (:meth:`Project.is_show_stale`), at the
-show clock of :meth:`Project.show_timing`.
+never recomputed, unless the run names it (``keyframes=[...]``: the artist asked for those); the show is re-planned
+only when it is missing or stale, at the show clock of :meth:`Project.show_timing`.
 
 Nothing is applied from a job that fails or is cancelled: a cancel (``cancel`` set, Ctrl-C in the CLI) stops within
 a second and leaves the project as it was except for the keyframes that completed before it. A run refuses to start
 when a source is missing (moved or deleted) or changed on disk since it was read, since the keyframes' inputs would
-no longer be what the project shows: the :class:`~studio.project.state.ProjectError` says what to do.
+no longer be what the project shows: the :class:`~studio.project.state.ProjectError` says so.
 """
 
 from __future__ import annotations
 
 import functools
-import math
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
-from studio.imitate.transitions import TransitionConfig, transition_success
+from studio.imitate.transitions import TransitionConfig
 from studio.jobs.engine import _plan
 from studio.jobs.events import JobError, JobState, Reporter
 from studio.jobs.queue import Job, JobQueue
@@ -38,21 +37,23 @@ from studio.motion.plan import PlanConfig
 from studio.project.jobs import queue_for, video_job
 from studio.project.show_timing import ShowLayout
 from studio.project.state import ProjectError
+from studio.project.status import ProjectHandle, check_sources
+from studio.project.summary import project_transitions
 
 if TYPE_CHECKING:
     from studio.motion.plan import Keyframes
-    from studio.project.project import Project
 
 
 @dataclass(frozen=True)
 class RunConfig:
-    """What a project run does (``shadow-studio project run``'s flags)."""
+    """What a project run does (every face's: ``project run``'s flags, the notebook's settings)."""
 
     sequence: SequenceConfig = CPU_SEQUENCE  # search/refine budgets and mode of every keyframe (CPU preset)
     plan: PlanConfig = field(default_factory=PlanConfig)  # the show's planner (timing.allow_late: see allow_late)
     allow_late: bool = False  # stretch transitions too fast for the servos (later keyframes shift) instead of no show
     layout: ShowLayout = field(default_factory=ShowLayout)  # how the sources share the show clock
     transitions: TransitionConfig = field(default_factory=TransitionConfig)  # the transition-success test
+    device: str | None = None  # where the self-model and CLIP run: "cpu", "cuda" (None: CUDA when present)
 
 
 @dataclass
@@ -78,6 +79,7 @@ class RunReport:
     cancelled: bool = False  # the cancel event stopped the run
     error: JobError | None = None  # why a job failed (nothing of it was applied)
     message: str = ""  # one line: what happened
+    too_fast: bool = False  # no show because transitions are too fast for the servos (``late`` lists them)
     seconds: float = 0.0  # wall time of the run
 
     @property
@@ -97,29 +99,20 @@ class RunReport:
         }  # fmt: skip
 
 
-def check_sources(project: Project) -> None:
-    """A ProjectError when a source is missing or changed on disk (module doc), saying what to do."""
-    if project.missing_sources:
-        m = project.missing_sources[0]
-        raise ProjectError(
-            f"{project.path}: source {m.index} is missing: it was at {m.absolute} (given as {m.path}); put it back, "
-            f"or relink it (Project.relink_source({m.index}, NEW_PATH)), then run again. Nothing was changed"
-        )
-    if project.changed_sources:
-        i = project.changed_sources[0]
-        raise ProjectError(
-            f"{project.path}: source {i} ({project.sources[i].path}) changed on disk since it was read; re-read it "
-            "(project run --reload-sources, or Project.reload_sources()) and run again. Nothing was changed"
-        )
-
-
-def _previous(project: Project, k: int) -> tuple[int, int | None]:
+def _previous(project: ProjectHandle, k: int) -> tuple[int, int | None]:
     """``(position of keyframe k within its source, id of the keyframe before it there or None)``."""
     s = project.state
     src = s.frames[s.keyframe(k).representative].source
     same = [kf.id for kf in s.keyframes if s.frames[kf.representative].source == src]
     pos = same.index(k)
     return pos, (same[pos - 1] if pos else None)
+
+
+def source_keyframes(project: ProjectHandle, k: int) -> list[int]:
+    """The ids of the keyframes of keyframe ``k``'s source, first-appearance order (the whole video it is in)."""
+    s = project.state
+    src = s.frames[s.keyframe(k).representative].source
+    return [kf.id for kf in s.keyframes if s.frames[kf.representative].source == src]
 
 
 def keyframe_config(cfg: SequenceConfig, position: int) -> SequenceConfig:
@@ -148,74 +141,65 @@ def _plan_or_late(report: Reporter, cancel, *, keyframes, cfg, show_title):
         return TooFast(e.segments, home, str(e))
 
 
-def plan_project_job(project: Project, keyframes: Keyframes, cfg: PlanConfig) -> Job:
-    """Plan the project's show (``project.set_show`` on completion); a transition too fast without
-    ``allow_late`` ends the job ``done`` with a :class:`TooFast` result, nothing applied."""
+def plan_project_job(project: ProjectHandle, keyframes: Keyframes, cfg: PlanConfig) -> Job:
+    """Plan the project's show (``project.set_show`` on completion; its media the first source when that is a video);
+    a transition too fast without ``allow_late`` ends the job ``done`` with a :class:`TooFast` result, nothing
+    applied."""
+    from studio.motion.show import MediaRef
+
     inputs = project.show_inputs()
+    first = project.state.sources[0]  # a video that opens the show plays beside it from show time 0
+    media = None if first.kind == "still" else MediaRef(first.absolute, "video", 0.0)
 
     def apply(r: Any) -> None:
         if not isinstance(r, TooFast):
-            project.set_show(r.show, inputs=inputs)
+            project.set_show(replace(r.show, media=media) if media is not None else r.show, inputs=inputs)
 
     run = functools.partial(_plan_or_late, keyframes=keyframes, cfg=cfg, show_title=project.state.title)
     return Job("plan", run, apply, "show")
 
 
-def project_transitions(project: Project, cfg: TransitionConfig | None = None) -> dict:
-    """Transition success between consecutive keyframes of each source (first-appearance order), summed over the
-    sources: ``{"success", "transitions", "rate"}`` (rate None with no transition). Endpoint totals as ``cfg.total``
-    reads them from each result's evaluation (its losses where it has none)."""
-    cfg = cfg or TransitionConfig()
-    from studio.sim.hand import load_hand
-
-    names = load_hand().joint_names
-    s = project.state
-    ok = n = 0
-    for i in range(len(s.sources)):
-        ids = [kf.id for kf in s.keyframes if s.frames[kf.representative].source == i and kf.id in s.results]
-        if len(ids) < 2:
-            continue
-        results = [s.results[k] for k in ids]
-        parts = {"base": ("base",), "image": ("base", "expr"), "full": ("base", "expr", "temporal")}[cfg.total]
-        totals = []
-        for r in results:
-            e = r.evaluation or r.loss
-            vals = [e.get(p, math.nan) for p in parts]
-            totals.append(vals[0] + sum(0.0 if math.isnan(v) else v for v in vals[1:]))
-        good, _ = transition_success(np.stack([r.theta(names) for r in results]), np.array(totals), cfg)
-        ok, n = ok + int(good.sum()), n + len(good)
-    return {"success": ok, "transitions": n, "rate": (ok / n) if n else None}
-
-
 def run_project(
-    project: Project,
+    project: ProjectHandle,
     cfg: RunConfig | None = None,
     clip: Any = None,
     queue: JobQueue | None = None,
     cancel: threading.Event | None = None,
     model_path: Any = None,
     on_job: Callable[[Job, str], None] | None = None,
+    keyframes: list[int] | None = None,
+    plan: bool = True,
 ) -> RunReport:
-    """Optimise every missing or stale keyframe of ``project``, then plan its show when missing or stale (module
-    doc) → :class:`RunReport`. ``clip``: a CLIP encoder for the CLIP terms (None: off); ``queue``: where the jobs
-    run (default the project's, :func:`queue_for`; subscribe bars to it); ``cancel``: stops the run (within 1 s);
-    ``on_job(job, what)``: told of each job as it is submitted (``what``: one line, "keyframe 3 (2 of 5)").
-    Raises ProjectError before any work when a source is missing or changed."""
+    """Optimise every missing or stale keyframe of ``project`` (or exactly the ids in ``keyframes``, current or not),
+    then, with ``plan``, plan its show when missing or stale (module doc) → :class:`RunReport`. ``clip``: a CLIP
+    encoder for the CLIP terms (None: off); ``queue``: where the jobs run (default the project's,
+    :func:`queue_for`; subscribe bars to it); ``cancel``: stops the run (within 1 s); ``on_job(job, what)``: told
+    of each job as it is submitted (``what``: one line, "keyframe 3 (2 of 5)"). Raises SourceMissing or
+    SourceChanged before any work, and a ProjectError naming an id that is not a keyframe."""
     t0 = time.perf_counter()
     cfg = cfg or RunConfig()
     check_sources(project)
     queue = queue or queue_for(project)
     report = RunReport(str(project.path))
-    pending = project.pending_keyframes()
-    report.skipped = [kf.id for kf in project.keyframes if kf.id not in pending]
+    ids = [kf.id for kf in project.keyframes]
+    if keyframes is None:
+        pending = list(project.status().pending)
+    else:
+        unknown = sorted(set(keyframes) - set(ids))
+        if unknown:
+            raise ProjectError(f"{project.path}: no keyframe {unknown}; the keyframes are {ids}")
+        pending = [k for k in ids if k in set(keyframes)]
+    report.skipped = [k for k in ids if k not in pending]
     seq = cfg.sequence
     for n, k in enumerate(pending):
         pos, before = _previous(project, k)
         previous = None
         if seq.mode == "sequential" and before is not None:
             previous = project.results[before].theta(_joint_names())
-        job = queue.submit(video_job(project, [k], cfg=keyframe_config(seq, pos), clip=clip, previous=previous,
-                                     model_path=model_path))  # fmt: skip
+        job = video_job(project, [k], cfg=keyframe_config(seq, pos), clip=clip, previous=previous,
+                        model_path=model_path, device=cfg.device)  # fmt: skip
+        job.meta["of"] = (n + 1, len(pending))
+        queue.submit(job)
         if on_job is not None:
             on_job(job, f"keyframe {k} ({n + 1} of {len(pending)})")
         state = _wait(job, cancel)
@@ -226,13 +210,21 @@ def run_project(
         what = "cancelled" if report.cancelled else f"failed ({job.error})"
         report.message = f"keyframe {k} {what}; {len(report.optimised)} keyframe(s) finished and saved before it"
         return _finish(report, project, cfg, t0)
-    if project.show is not None and not project.is_show_stale():
+    if not plan:
+        report.message = f"optimised {len(report.optimised)} keyframe(s)"
+        return _finish(report, project, cfg, t0)
+    status = project.status()
+    if status.missing or status.stale:
+        report.message = (f"optimised {len(report.optimised)} keyframe(s); the show needs every keyframe current "
+                          f"(still to optimise: {list(status.pending)})")  # fmt: skip
+        return _finish(report, project, cfg, t0)
+    if project.show is not None and not status.show_stale:
         report.show, report.message = "current", _nothing(report)
         report.late = _late(project.show_timing(cfg.layout), project.show)
         return _finish(report, project, cfg, t0)
     timing = project.show_timing(cfg.layout)
-    plan = replace(cfg.plan, timing=replace(cfg.plan.timing, allow_late=cfg.allow_late))
-    job = queue.submit(plan_project_job(project, timing.keyframes, plan))
+    plan_cfg = replace(cfg.plan, timing=replace(cfg.plan.timing, allow_late=cfg.allow_late))
+    job = queue.submit(plan_project_job(project, timing.keyframes, plan_cfg))
     if on_job is not None:
         on_job(job, f"the show ({len(timing.keyframes.times)} planner keyframes, {timing.end_s:.2f} s)")
     state = _wait(job, cancel)
@@ -242,9 +234,10 @@ def run_project(
         return _finish(report, project, cfg, t0)
     if isinstance(job.result, TooFast):
         report.late = timing.late_transitions(job.result.segments, job.result.home_added)
+        report.too_fast = True
         report.message = (
-            f"no show: {len(report.late)} transition(s) too fast for the servos at the show's clock; pass "
-            "--allow-late to stretch them (the show then runs longer), or give those keyframes more time"
+            f"no show: {len(report.late)} transition(s) too fast for the servos at the show's clock; allow late "
+            "transitions to stretch them (the show then runs longer), or give those keyframes more time"
         )
         return _finish(report, project, cfg, t0)
     planned = job.result
@@ -254,6 +247,26 @@ def run_project(
     report.message = (f"optimised {len(report.optimised)} keyframe(s), skipped {len(report.skipped)} current; "
                       f"planned a {planned.show.duration:.2f} s show{stretched}")  # fmt: skip
     return _finish(report, project, cfg, t0)
+
+
+class Running:
+    """``Project.run`` (mixed into :class:`~studio.project.project.Project`): :func:`run_project` on itself."""
+
+    def run(
+        self,
+        cfg: RunConfig | None = None,
+        *,
+        clip: Any = None,
+        queue: JobQueue | None = None,
+        cancel: threading.Event | None = None,
+        model_path: Any = None,
+        on_job: Callable[[Job, str], None] | None = None,
+        keyframes: list[int] | None = None,
+        plan: bool = True,
+    ) -> RunReport:
+        """Bring this project up to date (:func:`run_project`): optimise what is missing or stale (or ``keyframes``),
+        then plan the show; the jobs run on the project's queue unless ``queue`` is given."""
+        return run_project(self, cfg, clip, queue, cancel, model_path, on_job, keyframes, plan)  # type: ignore[arg-type]
 
 
 def _late(timing, show) -> list[dict]:
@@ -276,9 +289,9 @@ def _joint_names() -> list[str]:
     return load_hand().joint_names
 
 
-def _finish(report: RunReport, project: Project, cfg: RunConfig, t0: float) -> RunReport:
+def _finish(report: RunReport, project: ProjectHandle, cfg: RunConfig, t0: float) -> RunReport:
     if project.show is not None and report.show is not None:
         report.show_seconds = round(project.show.duration, 4)
-    report.transitions = project_transitions(project, cfg.transitions)
+    report.transitions = project_transitions(project.state, cfg.transitions)
     report.seconds = time.perf_counter() - t0
     return report

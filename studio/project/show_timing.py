@@ -18,10 +18,11 @@ The artist's keyframe settings (:meth:`~studio.project.project.Project.set_keyfr
   next is a :class:`~studio.project.state.ProjectError` naming the keyframe.
 - ``hold`` makes the hand come to rest at every appearance of that keyframe's pose.
 
-Every keyframe needs a current result (its pose): a missing or stale one is a ProjectError that says to run
-``shadow-studio project run``. The returned :class:`~studio.motion.video_timing.VideoTiming` names, for each
-planner keyframe, the project frame it stands at and the keyframe *id* it plays, so ``late_transitions`` names
-the frames and keyframes of a transition too fast for the servos.
+Every keyframe needs a current result (its pose): a missing or stale one is a
+:class:`~studio.project.state.ResultsNeeded` error naming them. The returned
+:class:`~studio.motion.video_timing.VideoTiming` names, for each planner keyframe, the project frame it stands at and
+the keyframe *id* it plays, so ``late_transitions`` names the frames and keyframes of a transition too fast for the
+servos.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ import numpy as np
 
 from studio.motion.plan import Keyframes
 from studio.motion.video_timing import VideoTiming, runs_of, video_end, video_keyframes
-from studio.project.state import ProjectError, ProjectState
+from studio.project.state import ProjectError, ProjectState, ResultsNeeded
 from studio.project.status import ProjectStatus
 
 
@@ -61,9 +62,7 @@ def _poses(s: ProjectState, status: ProjectStatus, joint_names: list[str]) -> di
         parts = ([f"no result for keyframe(s) {missing}"] if missing else []) + (
             [f"stale result(s) for keyframe(s) {stale}"] if stale else []
         )
-        raise ProjectError(
-            f"{status.path}: cannot time a show: {' and '.join(parts)}; optimise them first"
-        )
+        raise ResultsNeeded(f"{status.path}: cannot time a show: {' and '.join(parts)}; optimise them first")
     return {k: r.theta(joint_names) for k, r in s.results.items()}
 
 
@@ -87,6 +86,7 @@ def project_timing(
     target: list[str | None] = []
     losses: list[float | None] = []
     runs: list[tuple[int, int]] = []
+    frame_times = np.zeros(len(s.frames))
     start = 0.0  # the next source's span starts here
     for i, src in enumerate(s.sources):
         idx = np.array([n for n, f in enumerate(s.frames) if f.source == i])
@@ -126,6 +126,7 @@ def project_timing(
         target += list(vt.keyframes.target)
         losses += list(vt.keyframes.extra["keyframe_losses"])
         runs += [(int(idx[a]), int(idx[b])) for a, b in runs_of(local)]
+        frame_times[idx] = t_src + start
         start = float(k_times[-1]) + layout.gap_s
     t = np.array(times)
     bad = np.flatnonzero(np.diff(t) <= 0)
@@ -133,8 +134,8 @@ def project_timing(
         j = int(bad[0]) + 1
         raise ProjectError(
             f"{status.path}: keyframe {cluster[j]} would be at {t[j]:.3f} s, not after keyframe {cluster[j - 1]} at "
-            f"{t[j - 1]:.3f} s: change or clear its time (Project.set_keyframe_time({cluster[j]}, None))"
+            f"{t[j - 1]:.3f} s: change or clear its time"
         )
     planner = Keyframes(t, np.stack([poses[k] for k in cluster]), np.array(hold), source_frame, target,
                         {"title": s.title, "loss_weights": s.weights.to_dict(), "keyframe_losses": losses})  # fmt: skip
-    return VideoTiming(planner, np.array(frame), np.array(cluster), runs, float(t[-1]))
+    return VideoTiming(planner, np.array(frame), np.array(cluster), runs, float(t[-1]), frame_times)

@@ -2,10 +2,9 @@
 
 A source is a still (an image file; a one-frame GIF), a video (a video file or an animated GIF) or a folder of
 frames. Its content hash is the sha256 of the file, or for a folder of its sorted file names and their contents, so
-a changed source is told apart from a moved one. Loading goes through the engine's loaders: stills through
-:func:`~studio.targets.images.load_target` (framed at the project's size), videos through
-:func:`~studio.targets.video.load_video`, colour footage segmented from its first-frame box or mask
-(:mod:`studio.targets.segment`). Expressive masks are computed per source (what moves within that source, plus
+a changed source is told apart from a moved one. Loading goes through the one reader every face uses,
+:func:`~studio.targets.source.open_source` (stills framed at the project's size, colour footage segmented densely
+from its first-frame box or mask). Expressive masks are computed per source (what moves within that source, plus
 holes): a still's is its holes.
 """
 
@@ -14,20 +13,21 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
+from studio.errors import StudioError
+from studio.progress import ProgressFn
 from studio.project.state import Frame, ProjectError, Source
 from studio.targets.expressive import expressive_masks
-from studio.targets.images import IMAGE_SUFFIXES, TargetConfig, load_target
-from studio.targets.video import SegmentationNeeded, VideoConfig, load_video, video_from_masks
+from studio.targets.images import TargetConfig
+from studio.targets.source import open_source, source_kind
+from studio.targets.video import VideoConfig
 
 log = logging.getLogger(__name__)
 
-Progress = Callable[[str, int, int], None]  # progress(stage, step, total)
 _CHUNK = 1 << 20
 
 
@@ -51,21 +51,6 @@ def hash_source(path: str | Path) -> str:
     return h.hexdigest()
 
 
-def source_kind(path: str | Path) -> str:
-    """``"folder"``, ``"still"`` (an image file with one frame) or ``"video"`` (anything else: a video file, an
-    animated GIF or WebP)."""
-    path = Path(path)
-    if path.is_dir():
-        return "folder"
-    if path.suffix.lower() in IMAGE_SUFFIXES:
-        try:
-            with Image.open(path) as im:
-                return "still" if getattr(im, "n_frames", 1) == 1 else "video"
-        except OSError:
-            return "still"  # load_target says what is wrong with it
-    return "video"
-
-
 def make_source(path: str | Path) -> Source:
     """A new :class:`Source` for ``path`` (as given), hashed; a ProjectError when it does not exist."""
     p = Path(path).expanduser()
@@ -84,32 +69,17 @@ def locate(src: Source, folder: Path) -> Path | None:
     return next((c for c in candidates if c.exists()), None)
 
 
-def _load_video(src: Source, path: Path, cfg: VideoConfig, progress: Progress | None):
-    try:
-        return load_video(path, cfg, progress)
-    except SegmentationNeeded as e:
-        if src.box is None and src.first_mask is None:
-            raise ProjectError(
-                f"{path.name} is colour footage: the object must be segmented first; give its first-frame box or "
-                "mask (project new --box x,y,w,h or --first-mask PNG; Project.set_segmentation)"
-            ) from None
-        from studio.targets.segment import segment_video
-
-        seg = (lambda s, i, n: progress(s, i, n)) if progress else None
-        masks = segment_video(e.footage.frames, box=src.box, first_mask=src.first_mask, progress=seg)
-        return video_from_masks(e.footage, masks, cfg, progress=progress)
-
-
 def load_source(
-    index: int, src: Source, path: Path, video: VideoConfig, still: TargetConfig, progress: Progress | None = None
+    index: int, src: Source, path: Path, video: VideoConfig, still: TargetConfig, progress: ProgressFn | None = None
 ) -> tuple[Source, list[Frame], np.ndarray]:
     """Read source number ``index`` from ``path``: the source updated with what loading found (hash, absolute
-    path, rate, frame), its frames and their masks ``(n, S, S)`` uint8, S = ``video.size``."""
+    path, rate, frame), its frames and their masks ``(n, S, S)`` uint8, S = ``video.size``. Colour footage without
+    a first-frame box or mask raises :class:`~studio.targets.video.SegmentationNeeded`."""
     src = dataclasses.replace(src, absolute=str(path.resolve()), sha256=hash_source(path), kind=source_kind(path))
+    box, first_mask = (None, None) if src.kind == "still" else (src.box, src.first_mask)
+    v = open_source(path, dataclasses.replace(video, keep_frames=False), still, box, first_mask, progress)
     if src.kind == "still":
-        mask = load_target(path, size=video.size, cfg=still)
-        return dataclasses.replace(src, footage="still"), [Frame(index, 0, 0.0)], mask[None]
-    v = _load_video(src, path, dataclasses.replace(video, keep_frames=False), progress)
+        return dataclasses.replace(src, footage="still"), [Frame(index, 0, 0.0)], v.masks
     frames = [Frame(index, int(i), float(t)) for i, t in zip(v.frame_index, v.times, strict=True)]
     found = dataclasses.replace(
         src, footage=v.kind, fps=float(v.fps), duration_s=float(v.duration_s), n_source=int(v.n_source),
@@ -123,7 +93,7 @@ def load_sources(
     paths: Sequence[Path],
     video: VideoConfig,
     still: TargetConfig,
-    progress: Progress | None = None,
+    progress: ProgressFn | None = None,
 ) -> tuple[tuple[Source, ...], tuple[Frame, ...], np.ndarray, np.ndarray]:
     """Every source read from ``paths``: ``(sources updated, frames, targets (N, S, S), auto expressive (N, S, S))``,
     the expressive masks computed within each source (module doc)."""
@@ -136,3 +106,29 @@ def load_sources(
         auto.append(expressive_masks(masks))
         log.info("source %d (%s): %d frames", i, src.path, len(fr))
     return tuple(out_sources), tuple(frames), np.concatenate(targets), np.concatenate(auto)
+
+
+def framed_frames(sources: Sequence[Source], frames: Sequence[Frame], folder: Path, video: VideoConfig) -> list:
+    """Every project frame's RGB source image framed like its target, ``(S, S, 3)`` uint8 (S = ``video.size``), for
+    review; None for a still's frame and for a source that is missing or can no longer be read."""
+    from studio.targets.source import raw_frames
+    from studio.targets.video import crop_square
+
+    out: list = [None] * len(frames)
+    for i, src in enumerate(sources):
+        where = locate(src, folder)
+        mine = [n for n, f in enumerate(frames) if f.source == i]
+        if src.kind == "still" or where is None or src.frame_box is None or not mine:
+            continue
+        try:
+            footage = raw_frames(where, video)
+        except StudioError as e:
+            log.warning("source %d (%s): its frames cannot be read for review: %s", i, src.path, e)
+            continue
+        by_index = {int(j): k for k, j in enumerate(footage.frame_index)}
+        for n in mine:
+            k = by_index.get(frames[n].source_frame)
+            if k is not None:
+                framed = crop_square(footage.frames[k], src.frame_box, video.size)
+                out[n] = np.clip(framed + 0.5, 0, 255).astype(np.uint8)
+    return out

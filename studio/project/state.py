@@ -28,6 +28,14 @@ class ProjectError(StudioError):
     """A project folder is missing, damaged, of a newer format, or an edit cannot be made (the message says why)."""
 
 
+class ResultsNeeded(ProjectError):
+    """A show needs every keyframe's current result: some are missing or stale (optimise them first)."""
+
+
+class ShowNeeded(ProjectError):
+    """The project has no current show to export: optimise what is missing or stale and plan it."""
+
+
 @dataclass(frozen=True)
 class Source:
     """One source of a project (a still, a video file or a frame folder) and what loading it found."""

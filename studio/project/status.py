@@ -6,6 +6,15 @@ undo and redo can do. The pure functions that read a project (its show clock, :m
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from studio.imitate.config import LossConfig
+from studio.motion.show import Show
+from studio.motion.video_timing import VideoTiming
+from studio.project.state import Keyframe, PoseResult, ProjectError, ProjectState
 
 
 @dataclass(frozen=True)
@@ -26,15 +35,85 @@ class ProjectStatus:
     changed_sources: tuple[int, ...] = ()  # sources whose content changed since they were read
     missing: tuple[int, ...] = ()  # keyframe ids with no result, first-appearance order
     stale: tuple[int, ...] = ()  # keyframe ids whose result was computed from inputs that changed since
+    pending: tuple[int, ...] = ()  # missing or stale: what a run computes, first-appearance order
     show_stale: bool = False  # the planned show was planned from inputs that changed since (False: none or current)
     can_undo: bool = False  # an edit can be undone
     can_redo: bool = False  # an undone edit can be redone
 
-    @property
-    def pending(self) -> tuple[int, ...]:
-        """Keyframe ids a run computes (missing or stale)."""
-        return tuple(sorted(set(self.missing) | set(self.stale), key=(self.missing + self.stale).index))
-
     def result_state(self, k: int) -> str:
         """``"missing"``, ``"stale"`` or ``"current"`` for keyframe ``k``."""
         return "missing" if k in self.missing else "stale" if k in self.stale else "current"
+
+
+class ProjectHandle(Protocol):
+    """What the runners (:mod:`.jobs`, :mod:`.run`) use of an open :class:`~studio.project.project.Project`: they take
+    the object itself; this names its part they need, so that they import nothing of the class that calls them."""
+
+    path: Path
+
+    @property
+    def state(self) -> ProjectState: ...
+
+    @property
+    def keyframes(self) -> tuple[Keyframe, ...]: ...
+
+    @property
+    def results(self) -> dict[int, PoseResult]: ...
+
+    @property
+    def show(self) -> Show | None: ...
+
+    @property
+    def weights(self) -> LossConfig: ...
+
+    def status(self) -> ProjectStatus: ...
+
+    def assignment(self) -> np.ndarray: ...
+
+    def combined_masks(self) -> np.ndarray: ...
+
+    def keyframe_masks(self, k: int) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def keyframe_inputs(self, k: int) -> str: ...
+
+    def show_inputs(self) -> str: ...
+
+    def show_timing(self, layout: Any = None) -> VideoTiming: ...
+
+    def set_result(self, k: int, pose: Any, loss: Any, shadow: np.ndarray, **fields: Any) -> None: ...
+
+    def set_show(self, show: Show | None, inputs: str | None = None) -> None: ...
+
+
+class SourceMissing(ProjectError):
+    """A source of the project is not where it was read: put it back or relink it (``source`` names it)."""
+
+    def __init__(self, message: str, source: int):
+        super().__init__(message)
+        self.source = source  # the source's number
+
+
+class SourceChanged(ProjectError):
+    """A source's content changed on disk since it was read: re-read it before running (``source`` names it)."""
+
+    def __init__(self, message: str, source: int):
+        super().__init__(message)
+        self.source = source  # the source's number
+
+
+def check_sources(project: ProjectHandle) -> None:
+    """A :class:`SourceMissing` or :class:`SourceChanged` error when a source is missing or changed on disk (module
+    doc); nothing is changed."""
+    status = project.status()
+    if status.missing_sources:
+        m = status.missing_sources[0]
+        raise SourceMissing(
+            f"{project.path}: source {m.index} is missing: it was at {m.absolute} (given as {m.path}); put it back or "
+            "relink it to where it is now, then run again. Nothing was changed", m.index,
+        )  # fmt: skip
+    if status.changed_sources:
+        i = status.changed_sources[0]
+        raise SourceChanged(
+            f"{project.path}: source {i} ({project.state.sources[i].path}) changed on disk since it was read; re-read "
+            "the sources and run again. Nothing was changed", i,
+        )  # fmt: skip

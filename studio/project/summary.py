@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
+from studio.imitate.transitions import TransitionConfig, transition_success
 from studio.project.state import PoseResult, ProjectState
 from studio.project.status import ProjectStatus
+from studio.sim.hand import load_hand
 
 
 def _total(result: PoseResult | None) -> float | None:
@@ -55,3 +59,26 @@ def summarise(s: ProjectState, status: ProjectStatus) -> dict:
         "can_undo": status.can_undo,
         "can_redo": status.can_redo,
     }
+
+
+def project_transitions(s: ProjectState, cfg: TransitionConfig | None = None) -> dict:
+    """Transition success between consecutive keyframes of each source (first-appearance order), summed over the
+    sources: ``{"success", "transitions", "rate"}`` (rate None with no transition). Endpoint totals as ``cfg.total``
+    reads them from each result's evaluation (its losses where it has none)."""
+    cfg = cfg or TransitionConfig()
+    names = load_hand().joint_names
+    ok = n = 0
+    for i in range(len(s.sources)):
+        ids = [kf.id for kf in s.keyframes if s.frames[kf.representative].source == i and kf.id in s.results]
+        if len(ids) < 2:
+            continue
+        results = [s.results[k] for k in ids]
+        parts = {"base": ("base",), "image": ("base", "expr"), "full": ("base", "expr", "temporal")}[cfg.total]
+        totals = []
+        for r in results:
+            e = r.evaluation or r.loss
+            vals = [e.get(p, math.nan) for p in parts]
+            totals.append(vals[0] + sum(0.0 if math.isnan(v) else v for v in vals[1:]))
+        good, _ = transition_success(np.stack([r.theta(names) for r in results]), np.array(totals), cfg)
+        ok, n = ok + int(good.sum()), n + len(good)
+    return {"success": ok, "transitions": n, "rate": (ok / n) if n else None}

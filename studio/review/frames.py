@@ -35,9 +35,8 @@ from studio.review.blueprint import (
     part,
     set_time,
 )
-from studio.review.rerun import display
 from studio.review.rig3d import RigReview, backdrop, log_poses, urdf_tree
-from studio.review.sheets import tint
+from studio.review.sheets import display, tint
 from studio.sim.hand import Hand
 from studio.sim.shadow import Rig, ShadowRenderer
 
@@ -78,17 +77,17 @@ def log_frames(
     targets: np.ndarray,
     expressive: np.ndarray,
     keyframes: Sequence[KeyframeReview],
-    sources: np.ndarray | None = None,
+    sources: Sequence[np.ndarray | None] | None = None,
     times: np.ndarray | None = None,
     hand: Hand | None = None,
     rig: Rig | None = None,
     cfg: RigReview | None = None,
 ) -> np.ndarray:
-    """Frames ``targets (N, S, S)`` (1 = shadow) with their ``expressive (N, S, S)`` masks, RGB ``sources (N, H, W,
-    3)`` when given, and their ``keyframes`` (first-appearance order), on ``frame`` (module doc). ``times (N,)`` s,
-    when given, go into the keyframes' log lines. With ``hand`` and ``rig`` the 3D rig shows each frame's keyframe
-    pose, the backdrop its shadow (rendered at ``cfg.texture`` when a keyframe has a pose but no shadow). Returns
-    the assignment ``(N,)`` (:func:`assignment`)."""
+    """Frames ``targets (N, S, S)`` (1 = shadow) with their ``expressive (N, S, S)`` masks, RGB ``sources`` (one
+    ``(H, W, 3)`` image or None per frame) when given, and their ``keyframes`` (first-appearance order), on ``frame``
+    (module doc). ``times (N,)`` s, when given, go into the keyframes' log lines. With ``hand`` and ``rig`` the 3D
+    rig shows each frame's keyframe pose, the backdrop its shadow (rendered at ``cfg.texture`` when a keyframe has a
+    pose but no shadow). Returns the assignment ``(N,)`` (:func:`assignment`)."""
     n = len(targets)
     if expressive.shape != targets.shape:
         raise ValueError(f"expressive masks {expressive.shape} must match the targets {targets.shape}")
@@ -99,7 +98,7 @@ def log_frames(
         rec.log(TARGET, rr.Image(display(targets[k])))
         rec.log(EXPRESSIVE, rr.Image(tint(targets[k], expressive[k])))
         rec.log(KEYFRAME_OF_FRAME, rr.Scalars(float(which[k])))
-        if sources is not None:
+        if sources is not None and sources[k] is not None:
             rec.log(SOURCE, rr.Image(np.asarray(sources[k])))
         kf = keyframes[which[k]] if which[k] >= 0 else None
         if kf is None:

@@ -123,7 +123,7 @@ class ProjectRecording:
         targets: np.ndarray,
         expressive: np.ndarray,
         keyframes: Sequence[KeyframeReview],
-        sources: np.ndarray | None = None,
+        sources: Sequence[np.ndarray | None] | None = None,
         times: np.ndarray | None = None,
     ) -> np.ndarray:
         """Frames and keyframes on ``frame`` (:func:`studio.review.frames.log_frames`); returns the assignment."""
@@ -146,12 +146,15 @@ class ProjectRecording:
         """A job-queue subscriber drawing each job's progress on ``opt_step`` (``queue.subscribe(...)``)."""
         return JobProgressLog(self.rec, names)
 
-    def log_project(self, project: Any, self_model: SelfModel | None = None) -> np.ndarray:
+    def log_project(
+        self, project: Any, self_model: SelfModel | None = None, sources: Sequence[np.ndarray | None] | None = None
+    ) -> np.ndarray:
         """A project's current state: every frame's target and expressive mask, its keyframes with their results
         (pose, rendered shadow, losses, stale or not) and the planned show. ``project`` is a
         ``studio.project.Project`` (read through ``state.targets``, ``combined_masks()``, ``frames``,
         ``keyframes``, ``results``, ``is_stale(id)``, ``show``); ``self_model`` predicts the self-model's shadows of
-        the keyframes' poses. Returns the frames' assignment."""
+        the keyframes' poses; ``sources``: every frame's RGB source image framed like its target (None for none).
+        Returns the frames' assignment."""
         names = self.hand.joint_names
         results = project.results
         theta = {k: r.theta(names) for k, r in results.items()}
@@ -168,7 +171,7 @@ class ProjectRecording:
             for kf in project.keyframes
         ]  # fmt: skip
         times = np.array([f.time_s for f in project.frames], dtype=float)
-        which = self.log_frames(project.state.targets, project.combined_masks(), keyframes, times=times)
+        which = self.log_frames(project.state.targets, project.combined_masks(), keyframes, sources, times)
         if project.show is not None:
             self.log_show(project.show)
         return which

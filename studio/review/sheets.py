@@ -26,6 +26,11 @@ REPRESENTATIVE = (30, 140, 230)  # RGB frame around a cluster's representative
 GAP = 128  # grey between tiles
 
 
+def display(mask: np.ndarray) -> np.ndarray:
+    """Shadow probabilities/mask ``(H, W)`` (1 = shadow) → uint8 image, dark shadow on a light backdrop."""
+    return (255 * (1.0 - np.clip(np.asarray(mask, dtype=float), 0, 1))).astype(np.uint8)
+
+
 def tint(mask: np.ndarray, expressive: np.ndarray | None = None, tile: int | None = None) -> np.ndarray:
     """Mask ``(S, S)`` (1 = shadow) with its expressive region ``(S, S)`` tinted → RGB ``(T, T, 3)`` uint8.
 
