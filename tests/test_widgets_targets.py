@@ -16,7 +16,8 @@ from studio.jobs import JobState
 from studio.project.jobs import queue_for
 from studio.project.project import Project
 from studio.targets.images import TargetConfig
-from studio.targets.video import VideoConfig
+from studio.targets.video import VideoConfig, crop_square
+from widgets.images import ADD_RGB
 from widgets.keyframes import KeyframesPanel
 from widgets.masks import MasksPanel
 from widgets.state import StudioState
@@ -113,15 +114,20 @@ def test_threshold_preview_follows_the_slider_and_otsu_then_applies(state):
     assert np.array_equal(state.project.state.targets, before)
 
 
-def test_raw_colour_footage_waits_for_a_box_then_is_segmented_as_a_job(state, tmp_path):
-    folder = tmp_path / "colour"
+def colour_clip(folder: Path, seed: int) -> Path:
+    """Four 80 × 64 frames of a red square moving right over a noisy green ground (raw colour footage)."""
     folder.mkdir()
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(seed)
     ground = (rng.integers(0, 40, (64, 80, 3)) + np.array([40, 140, 60])).astype(np.uint8)
     for i in range(4):
         frame = ground.copy()
-        frame[20:44, 10 + 6 * i : 34 + 6 * i] = (220, 40, 40)  # a red square moving right
+        frame[20:44, 10 + 6 * i : 34 + 6 * i] = (220, 40, 40)
         Image.fromarray(frame).save(folder / f"{i:05d}.png")
+    return folder
+
+
+def test_raw_colour_footage_waits_for_a_box_then_is_segmented_as_a_job(state, tmp_path):
+    folder = colour_clip(tmp_path / "colour", seed=3)
     panel = TargetsPanel(state)
     panel.path.value = str(folder)
     panel.add_path.click()
@@ -151,6 +157,44 @@ def test_raw_colour_footage_waits_for_a_box_then_is_segmented_as_a_job(state, tm
     assert "segmented" in panel.sources.value
     state.undo()
     assert len(state.project.sources) == 1
+
+
+def test_raw_footage_segmented_from_a_mask_painted_on_its_first_frame(state, tmp_path):
+    folder = colour_clip(tmp_path / "colour", seed=5)
+    panel = TargetsPanel(state)
+    panel.path.value = str(folder)
+    panel.add_path.click()
+    first = panel.first
+    assert panel.pending == folder and first.widget.layout.display is None
+    with pytest.raises(Exception, match="paint the object"):
+        first.given.value = "mask"
+        first.prompt()
+    # a drag over the square (source px (12..30, 24..40) → canvas × 3.2), then a smaller erase at its far corner
+    first.brush.value = 12  # a mouse drag over it, as the canvas reports one
+    first.paint.mouse_down(14 * 3.2, 26 * 3.2)
+    first.paint.mouse_move(22 * 3.2, 32 * 3.2)
+    first.paint.mouse_up(30 * 3.2, 38 * 3.2)
+    assert first.given.value == "mask" and first.mask[30, 20] == 1 and first.mask[5, 70] == 0
+    painted = int(first.mask.sum())
+    first.stroke([(30 * 3.2, 38 * 3.2)], radius=3, mode="erase")
+    assert 0 < first.mask.sum() < painted and first.mask[38, 30] == 0
+    # what the artist sees: the paint tinted green over the frame, the ground untouched
+    inside, outside = panel.preview_rgb[int(30 * 3.2), int(20 * 3.2)], panel.preview_rgb[int(5 * 3.2), int(70 * 3.2)]
+    plain = crop_square(np.asarray(Image.open(folder / "00000.png")), (0, 0, 80, 80), 256)
+    plain = np.clip(plain, 0, 255).astype(np.uint8)
+    green = np.array(ADD_RGB)
+    under = plain[int(30 * 3.2), int(20 * 3.2)].astype(int)
+    assert np.abs(inside.astype(int) - green).sum() < np.abs(under - green).sum() - 100  # tinted towards green
+    assert tuple(outside) == tuple(plain[int(5 * 3.2), int(70 * 3.2)])
+    panel.segment.click()
+    job = panel.segment_job
+    assert job is not None and job.wait(60) == JobState.DONE, job.error
+    src = state.project.sources[-1]
+    assert src.footage == "segmented" and src.box is None and src.first_mask is not None
+    assert panel.pending is None and first.widget.layout.display is None  # shown to segment it again
+    # the painted mask started it and the segmentation followed the square (its last frame: columns 28..52)
+    last = [i for i, f in enumerate(state.project.frames) if f.source == len(state.project.sources) - 1][-1]
+    assert state.project.state.targets[last].any()
 
 
 def test_the_preview_is_throttled_but_ends_on_the_latest_value(state):

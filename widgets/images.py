@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import cv2
@@ -50,6 +50,21 @@ def tint(rgb: np.ndarray, mask: np.ndarray, colour: tuple[int, int, int], alpha:
     m = np.asarray(mask) != 0
     out[m] = (1 - alpha) * out[m] + alpha * np.asarray(colour, np.float32)
     return out.astype(np.uint8)
+
+
+def stroke_mask(
+    points: Sequence[tuple[float, float]], radius: float, scale: float, shape: tuple[int, int]
+) -> np.ndarray:
+    """A brush stroke through ``points`` ``[(x, y), ...]`` (canvas px) with a round brush of ``radius`` canvas px, as
+    ``shape`` ``(H, W)`` uint8 {0, 1} in pixels of ``scale`` × a canvas pixel's size."""
+    out = np.zeros(shape, np.uint8)
+    pts = [(int(round(x * scale - 0.5)), int(round(y * scale - 0.5))) for x, y in points]
+    r = max(0, int(round(radius * scale)))
+    for a, b in zip(pts, pts[1:], strict=False):
+        cv2.line(out, a, b, 1, thickness=max(1, 2 * r + 1))
+    for p in pts:
+        cv2.circle(out, p, r, 1, thickness=-1)
+    return out
 
 
 def upscale(image: np.ndarray, side: int) -> np.ndarray:

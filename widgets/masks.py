@@ -16,18 +16,24 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 
-import cv2
 import ipywidgets as w
 import numpy as np
 
 from studio.project.state import ProjectError
-from widgets.images import ADD_RGB, ERASE_RGB, MASK_RGB, Messages, frame_in_view, grey_rgb, png, tint, title, upscale
+from widgets.brush import BrushCanvas
+from widgets.images import (
+    ADD_RGB,
+    ERASE_RGB,
+    MASK_RGB,
+    Messages,
+    frame_in_view,
+    grey_rgb,
+    stroke_mask,
+    tint,
+    title,
+    upscale,
+)
 from widgets.state import StudioState
-
-try:  # the brush needs ipycanvas (a dependency); the panel still shows the masks without it
-    import ipycanvas
-except ImportError:  # pragma: no cover - depends on the environment
-    ipycanvas = None
 
 log = logging.getLogger(__name__)
 
@@ -42,27 +48,17 @@ class MasksPanel:
         self.state = state
         self.side = side  # canvas side, px
         self.messages = Messages()
-        self._points: list[tuple[float, float]] | None = None  # the stroke being dragged, canvas px
-
-        self.brush = w.IntSlider(value=8, min=1, max=60, description="brush px")
-        self.mode = w.ToggleButtons(options=list(MODES), value="add", description="mode")
+        self.paint = BrushCanvas(side, self._stroked, MODES, description="mode")  # the picture, painted on
+        self.brush, self.mode, self.canvas = self.paint.size, self.paint.mode, self.paint.canvas
+        self.mouse_down, self.mouse_move, self.mouse_up = (
+            self.paint.mouse_down,
+            self.paint.mouse_move,
+            self.paint.mouse_up,
+        )
         self.clear = w.Button(description="Clear paint", icon="eraser")
         self.undo = w.Button(description="Undo", icon="undo")
         self.info = w.Label()
-        if ipycanvas is not None:
-            self.canvas = ipycanvas.Canvas(width=side, height=side, layout=w.Layout(width=f"{side}px"))
-            self.canvas.on_mouse_down(self.mouse_down)
-            self.canvas.on_mouse_move(self.mouse_move)
-            self.canvas.on_mouse_up(self.mouse_up)
-            self.canvas.on_mouse_out(self.mouse_up)
-            picture: w.Widget = self.canvas
-            note = ""
-        else:
-            self.canvas = None
-            self.image = w.Image(format="png", width=side, height=side)
-            picture = self.image
-            note = "the brush needs ipycanvas: pip install 'ipycanvas>=0.13' and restart the kernel"
-
+        picture, note = self.paint.widget, self.paint.note
         self.clear.on_click(lambda _: self.messages.run(self._clear))
         self.undo.on_click(lambda _: self.messages.run(self.state.undo))
         self.widget = w.VBox([
@@ -111,26 +107,14 @@ class MasksPanel:
         painted = [n for n, layer in (("additions", p.state.additions), ("erasures", p.state.erasures)) if key in layer]
         self.info.value = f"frame {self.frame}" + (f" (painted: {', '.join(painted)})" if painted else "")
         self.undo.disabled = not p.can_undo
-        rgb = self.picture()
-        if self.canvas is not None:
-            self.canvas.put_image_data(rgb, 0, 0)
-        else:
-            self.image.value = png(rgb)
+        self.paint.put(self.picture())
 
     # ---------------------------------------------------------------- painting
     def rasterise(self, points: Sequence[tuple[float, float]], radius: float) -> np.ndarray:
         """A stroke through ``points`` (canvas px) with a round brush of ``radius`` (canvas px) as ``(S, S)`` uint8
         {0, 1} in the project's square frame."""
         size = self.state.project.state.auto.shape[-1]
-        scale = size / self.side
-        out = np.zeros((size, size), np.uint8)
-        pts = [(int(round(x * scale - 0.5)), int(round(y * scale - 0.5))) for x, y in points]
-        r = max(0, int(round(radius * scale)))
-        for a, b in zip(pts, pts[1:], strict=False):
-            cv2.line(out, a, b, 1, thickness=max(1, 2 * r + 1))
-        for p in pts:
-            cv2.circle(out, p, r, 1, thickness=-1)
-        return out
+        return stroke_mask(points, radius, size / self.side, (size, size))
 
     def stroke(self, points: Sequence[tuple[float, float]], radius: float, mode: str = "add") -> None:
         """Paint one stroke through ``points`` ``[(x, y), ...]`` (canvas px, origin top left) with a round brush of
@@ -155,30 +139,9 @@ class MasksPanel:
     def _clear(self) -> None:
         self.state.edit("clear_paint", self.frame)
 
-    # ---------------------------------------------------------------- the mouse (ipycanvas callbacks)
-    def mouse_down(self, x: float, y: float) -> None:
-        """A drag starts at canvas ``(x, y)``."""
-        self._points = [(x, y)]
-        self._dab(x, y)
-
-    def mouse_move(self, x: float, y: float) -> None:
-        """The drag goes on through ``(x, y)`` (drawn at once, saved on release)."""
-        if self._points is not None:
-            self._points.append((x, y))
-            self._dab(x, y)
-
-    def mouse_up(self, x: float, y: float) -> None:
-        """The drag ends: the stroke is saved (an error shows in the panel)."""
-        if self._points is None:
-            return
-        points, self._points = self._points + [(x, y)], None
-        self.messages.run(self.stroke, points, self.brush.value, self.mode.value)
-
-    def _dab(self, x: float, y: float) -> None:
-        if self.canvas is not None:
-            r, g, b = ADD_RGB if self.mode.value == "add" else ERASE_RGB
-            self.canvas.fill_style = f"rgb({r}, {g}, {b})"
-            self.canvas.fill_circle(x, y, self.brush.value)
+    def _stroked(self, points: Sequence[tuple[float, float]], radius: float, mode: str) -> None:
+        """A drag ended on the canvas: saved as a stroke (an error shows in the panel)."""
+        self.messages.run(self.stroke, points, radius, mode)
 
 
 def masks_panel(state: StudioState) -> w.Widget:

@@ -5,12 +5,13 @@ cancel it, a progress bar per stage, the live best shadow beside the target, the
     panel.start("keyframe")          # or "stale" (what `project run` does) / "video"; panel.cancel()
     panel.refresh()                  # draw every pending job event now (tests; the panel's writer does it itself)
 
-The work runs as the project's jobs (:mod:`studio.project.jobs`: ``keyframe_job``, ``run_project``, ``video_job``)
-on ``state.queue``'s worker thread, so the kernel stays free. Events reach the panel through a queue subscriber
-that only stores them; one writer thread per panel draws them at most ``redraw_hz`` times a second with widget
-trait sets alone (DESIGN §6: never ``print`` or ``with out:`` from a thread). A job that completes applies its
-result through the Project API (one undoable edit per keyframe); a cancelled or failed one leaves the project as
-it was.
+The work is :meth:`studio.project.project.Project.run` (what ``project run``, ``imitate`` and ``imitate-video`` run),
+told which keyframes: the one in view, the keyframes of its source (``source_keyframes``), or every missing or stale
+one and then the show. Its jobs run on ``state.queue``'s worker thread, so the kernel stays free. Events reach the
+panel through a queue subscriber that only stores them; one writer thread per panel draws them at most
+``redraw_hz`` times a second with widget trait sets alone (DESIGN §6: never ``print`` or ``with out:`` from a
+thread). A job that completes applies its result through the Project API (one undoable edit per keyframe); a
+cancelled or failed one leaves the project as it was.
 """
 
 from __future__ import annotations
@@ -18,7 +19,6 @@ from __future__ import annotations
 import html
 import logging
 import math
-import re
 import threading
 import time
 from collections import deque
@@ -29,8 +29,7 @@ import numpy as np
 
 from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
 from studio.jobs import Job, JobEvent, JobState
-from studio.project.jobs import keyframe_job, video_job
-from studio.project.run import RunConfig, RunReport, run_project
+from studio.project.run import RunConfig, RunReport, source_keyframes
 from widgets.images import Messages, grey_rgb, png, title, upscale
 from widgets.state import StudioState
 
@@ -43,18 +42,22 @@ KINDS = ("keyframe", "stale", "video")  # what start() optimises: the keyframe i
 class OptimiseConfig:
     """What the panel's jobs run and how it draws."""
 
-    sequence: SequenceConfig = CPU_SEQUENCE  # search/refine budgets of every job (the CPU preset)
+    sequence: SequenceConfig = CPU_SEQUENCE  # search/refine budgets of every job (the studio preset)
+    allow_late: bool = False  # "All stale" plans the show stretching transitions too fast for the servos
     redraw_hz: float = 10.0  # the most redraws a second while a job reports (DESIGN §6: 10–30 Hz)
     image_px: int = 192  # side of the target and shadow images, px
 
 
 def clip_encoder(state: StudioState):
-    """The studio's CLIP encoder (``state.extras["clip"]``, or loaded once from ``state.extras["clip_weights"]``);
-    None when none is configured (the CLIP terms are then left out)."""
-    if state.extras.get("clip") is None and state.extras.get("clip_weights"):
-        from studio.imitate.clip_loss import load_clip
+    """The studio's CLIP encoder by the one CLIP rule (:func:`studio.imitate.clip_loss.find_clip`): the weights file
+    the artist gave (``state.extras["clip_weights"]``), else weights in a local cache; None when there are none (the
+    CLIP terms are then left out). Loaded once and kept in ``state.extras["clip"]``."""
+    if state.extras.get("clip") is None:
+        from studio.imitate.clip_loss import find_clip
 
-        state.extras["clip"] = load_clip(weights=state.extras["clip_weights"])
+        clip, line = find_clip(state.extras.get("clip_weights"))
+        state.extras["clip"], state.extras["clip_line"] = clip, line
+        log.info(line)
     return state.extras.get("clip")
 
 
@@ -73,7 +76,6 @@ class OptimisePanel:
         self.cfg = cfg or OptimiseConfig()
         self.messages = Messages()
         self.jobs: list[Job] = []  # the jobs this panel started (run_project's included)
-        self._keyframes: dict[Job, list[int]] = {}  # each job of the panel → the keyframe ids it optimises
         self.report: RunReport | None = None  # the last "stale" run's report
         self.last: JobEvent | None = None  # the newest event drawn
         self.step = 0  # the newest drawn event's step within its stage
@@ -153,62 +155,49 @@ class OptimisePanel:
         """Whether a job this panel started (or its run) is still going."""
         return any(not j.finished for j in self.jobs) or (self._run is not None and self._run.is_alive())
 
-    def start(self, kind: str) -> list[Job]:
-        """Optimise ``kind`` (:data:`KINDS`) on the project's queue; returns the jobs submitted now (a "stale" run
-        submits its jobs one after another, from its own thread). Errors are shown in the panel."""
+    def start(self, kind: str) -> None:
+        """Optimise ``kind`` (:data:`KINDS`) on the project's queue: the project's run (``Project.run``) goes on in
+        its own thread, submitting its jobs one after another; each joins :attr:`jobs` as it is submitted. Errors
+        are shown in the panel."""
         if kind not in KINDS:
             raise ValueError(f"kind must be one of {KINDS}, not {kind!r}")
         if self.busy:
             self.messages.say("an optimisation is running: cancel it first, or wait for it", error=True)
-            return []
-        jobs = self.messages.run(self._start, kind)
+            return
+        self.messages.run(self._start, kind)
         self._set_running(self.busy)
         self.refresh()
-        return jobs or []
 
-    def _start(self, kind: str) -> list[Job]:
-        p, seq = self.state.project, self.cfg.sequence
-        clip = clip_encoder(self.state) if p.weights.use_clip else None
-        if kind == "stale":
-            self._run_cancel = threading.Event()
-            self.report, self._report_shown = None, False
-            self._run_floor = len(self.state.queue.jobs())
-            self._run = threading.Thread(target=self._run_stale, args=(clip,), name="optimise-run", daemon=True)
-            self._run.start()
-            self.status.value = "optimising every missing or stale keyframe, then planning the show"
-            return []
-        k = self.keyframe_in_view()
-        if kind == "keyframe":
-            job = keyframe_job(p, k, search=seq.first, refine=seq.refine, candidates=seq.candidates, clip=clip)
-            ids = [k]
-        else:
-            source = p.frames[p.state.keyframe(k).representative].source
-            ids = [kf.id for kf in p.keyframes if p.frames[kf.representative].source == source]
-            job = video_job(p, ids, cfg=seq, clip=clip)
-        self._submit(job, ids)
-        return [job]
-
-    def _submit(self, job: Job, ids: list[int]) -> None:
-        self._keyframes[job] = ids
-        self.jobs.append(job)
-        self.state.queue.submit(job)
+    def _start(self, kind: str) -> None:
+        p = self.state.project
+        use_clip = p.weights.use_clip  # the encoder is found (and loaded) by the run's thread: the kernel stays free
+        keyframes = None
+        if kind != "stale":
+            k = self.keyframe_in_view()
+            keyframes = [k] if kind == "keyframe" else source_keyframes(p, k)
+        self._run_cancel = threading.Event()
+        self.report, self._report_shown = None, False
+        self._run_floor = len(self.state.queue.jobs())
+        self._run = threading.Thread(target=self._run_jobs, args=(use_clip, keyframes), name="optimise-run",
+                                     daemon=True)  # fmt: skip
+        self._run.start()
+        what = {"keyframe": "the keyframe in view", "video": "the keyframes of this source",
+                "stale": "every missing or stale keyframe, then the show"}[kind]  # fmt: skip
+        self.status.value = f"optimising {what}"
 
     def keyframes_of(self, job_id: int) -> list[int]:
         """The keyframe ids a job of this panel optimises (empty for another's)."""
-        return next((ids for job, ids in list(self._keyframes.items()) if job.id == job_id), [])
+        return next((list(job.meta.get("keyframes", [])) for job in list(self.jobs) if job.id == job_id), [])
 
-    def _run_stale(self, clip) -> None:
-        """run_project in its own thread (it waits for each job); the panel draws its jobs' events as any."""
-
-        def on_job(job: Job, what: str) -> None:
-            found = re.match(r"keyframe (\d+)", job.title)
-            self._keyframes[job] = [int(found.group(1))] if found else []
-            self.jobs.append(job)
-
+    def _run_jobs(self, use_clip: bool, keyframes: list[int] | None) -> None:
+        """The project's run in its own thread (it waits for each job); the panel draws its jobs' events as any."""
+        cfg = RunConfig(sequence=self.cfg.sequence, allow_late=self.cfg.allow_late)
         try:
-            self.report = run_project(self.state.project, RunConfig(sequence=self.cfg.sequence), clip,
-                                      queue=self.state.queue, cancel=self._run_cancel, on_job=on_job)  # fmt: skip
-        except Exception as e:  # shown by the writer (a ProjectError says what to do)
+            clip = clip_encoder(self.state) if use_clip else None
+            self.report = self.state.project.run(cfg, clip=clip, queue=self.state.queue, cancel=self._run_cancel,
+                                                 on_job=lambda job, what: self.jobs.append(job), keyframes=keyframes,
+                                                 plan=keyframes is None)  # fmt: skip
+        except Exception as e:  # shown by the writer (a ProjectError says what happened)
             self.report = RunReport(str(self.state.project.path), message=f"{type(e).__name__}: {e}")
         self._notify()
 
@@ -312,8 +301,7 @@ class OptimisePanel:
 
     def _show_target(self, e: JobEvent) -> None:
         ids = self.keyframes_of(e.job_id)
-        found = re.match(r"keyframe (\d+)/\d+", e.stage)
-        k = ids[int(found.group(1)) - 1] if found and int(found.group(1)) <= len(ids) else (ids[0] if ids else None)
+        k = ids[0] if ids else None
         if k is not None and k != self._target_k:
             self._target_k = k
             self.target_image.value = mask_picture(self.state.project.keyframe_masks(k)[0], self.cfg.image_px)

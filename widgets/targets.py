@@ -1,6 +1,7 @@
 """The Targets panel: sources (a bundled sample, a file path or an upload), a frame scrubber, the sampling rate, the
 threshold (or Otsu) with a live preview of the binary mask over the frame, and segmentation of raw colour footage
-from a first-frame box, run as a job on the project's queue.
+from a first-frame box or a mask painted on the first frame (:mod:`widgets.first_frame`), run as a job on the
+project's queue.
 
     panel = TargetsPanel(state)      # panel.widget goes in the notebook; tests set values and .click() buttons
 
@@ -19,10 +20,13 @@ import numpy as np
 from studio.assets import asset
 
 from studio.jobs import Job
-from studio.project.sources import locate, source_kind
+from studio.progress import Progress
+from studio.project.sources import locate
 from studio.project.state import ProjectError
-from studio.targets.images import read_grey, shadowness
-from studio.targets.video import crop_square, read_frames
+from studio.targets.images import shadowness
+from studio.targets.source import raw_frames, source_kind
+from studio.targets.video import SegmentationNeeded, crop_square
+from widgets.first_frame import FirstFrame
 from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, png, tint, title
 from widgets.state import StudioState
 
@@ -50,12 +54,12 @@ class TargetsPanel:
         self.messages = Messages()
         self._raw: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # source → (grey frames (N, H, W), source indices)
         self._raw_key: object = None
-        self.pending: Path | None = None  # raw colour footage waiting for a first-frame box
+        self.pending: Path | None = None  # raw colour footage waiting for its object in the first frame
         self.preview_level = float("nan")  # the threshold the preview used (Otsu's when Otsu is on)
         self.preview_mask: np.ndarray | None = None  # (PREVIEW_PX, PREVIEW_PX) uint8 {0, 1}: the previewed mask
         self.segment_job: Job | None = None  # the last segmentation job
         self.preview_rgb: np.ndarray | None = None  # (PREVIEW_PX, PREVIEW_PX, 3) uint8: what the preview shows
-        self._first: tuple[Path, np.ndarray] | None = None  # the pending footage's first frame (H, W, 3) RGB
+        self._first_source: tuple | None = None  # (source, path, box) whose first frame the first-frame picture has
 
         samples = bundled_samples()
         self.sample = w.Dropdown(options=list(samples), description="sample")
@@ -73,7 +77,8 @@ class TargetsPanel:
         self.threshold = w.FloatSlider(min=0.0, max=254.0, step=1.0, description="threshold", continuous_update=True)
         self.otsu = w.Checkbox(description="Otsu")
         self.apply_threshold = w.Button(description="Apply threshold")
-        self.box = [w.IntText(description=n, layout=w.Layout(width="140px")) for n in ("x", "y", "w", "h")]
+        self.first = FirstFrame(PREVIEW_PX, on_change=self._first_changed)  # the object: a box or a painted mask
+        self.box = self.first.box  # x, y, w, h (source pixels)
         self.segment = w.Button(description="Segment", icon="scissors")
         self.cancel_segment = w.Button(description="Cancel", icon="stop", disabled=True)
         self.segment_info = w.Label()
@@ -88,8 +93,6 @@ class TargetsPanel:
         self.otsu.observe(lambda _: self._throttled(), names="value")
         self.apply_threshold.on_click(lambda _: self.messages.run(self._apply_threshold))
         self.segment.on_click(lambda _: self.messages.run(self._segment))
-        for t in self.box:
-            t.observe(lambda _: self._throttled(), names="value")
         self.cancel_segment.on_click(lambda _: self.segment_job is not None and self.segment_job.cancel())
 
         self.widget = w.VBox([
@@ -101,8 +104,8 @@ class TargetsPanel:
             self.preview,
             w.HBox([self.threshold, self.otsu, self.apply_threshold]),
             w.HBox([self.hz, self.apply_hz]),
-            w.HTML("<i>raw colour footage: the shape's box on the first frame (source pixels)</i>"),
-            w.HBox([*self.box, self.segment, self.cancel_segment]),
+            self.first.widget,
+            w.HBox([self.segment, self.cancel_segment]),
             self.segment_info,
             self.messages.widget,
         ])  # fmt: skip
@@ -110,6 +113,7 @@ class TargetsPanel:
             state.on_change(self._changed),
             state.queue.subscribe(self._job_event),  # the queue's thread writes only segment_info / messages
         ]
+        self.first.widget.layout.display = "none"
         self.redraw()
 
     def close(self) -> None:
@@ -133,19 +137,20 @@ class TargetsPanel:
             self._raw, self._raw_key = {}, key
         f = s.frames[frame]
         if f.source not in self._raw:
-            src = s.sources[f.source]
-            where = locate(src, self.state.project.path)
-            if where is None:
-                raise ProjectError(f"source {f.source} is missing (it was at {src.absolute}): relink it")
-            if src.kind == "still":
-                self._raw[f.source] = (read_grey(where)[None], np.zeros(1, np.int64))
-            else:
-                rgb, _, index, _ = read_frames(where, s.video)
-                grey = np.stack([cv2.cvtColor(x, cv2.COLOR_RGB2GRAY) for x in rgb])
-                self._raw[f.source] = (grey, np.asarray(index))
+            footage = raw_frames(self._where(f.source), s.video)  # as the project samples them (a still: one)
+            grey = np.stack([cv2.cvtColor(x, cv2.COLOR_RGB2GRAY) for x in footage.frames])
+            self._raw[f.source] = (grey, np.asarray(footage.frame_index))
         grey, index = self._raw[f.source]
         hit = np.flatnonzero(index == f.source_frame)
         return grey[int(hit[0]) if len(hit) else 0]
+
+    def _where(self, source: int) -> Path:
+        """Where source ``source`` is on this machine (a ProjectError when it is missing)."""
+        src = self.state.project.sources[source]
+        where = locate(src, self.state.project.path)
+        if where is None:
+            raise ProjectError(f"source {source} is missing (it was at {src.absolute}): relink it")
+        return where
 
     def _square(self, grey: np.ndarray, source: int) -> np.ndarray:
         box = self.state.project.sources[source].frame_box
@@ -168,7 +173,7 @@ class TargetsPanel:
             for i, s in enumerate(p.sources)
         ]
         if self.pending is not None:
-            rows.append(f"waiting for a first-frame box: {self.pending.name} (colour footage)")
+            rows.append(f"waiting for its object in the first frame: {self.pending.name} (colour footage)")
         self.sources.value = "<br>".join(rows)
         n = len(p.frames)
         self.scrubber.max = max(n - 1, 0)
@@ -182,42 +187,47 @@ class TargetsPanel:
                 self.otsu.value = cfg.threshold is None
                 if cfg.threshold is not None:
                     self.threshold.value = cfg.threshold
-            src = p.sources[f.source]
-            if src.box is not None:
-                for t, v in zip(self.box, src.box, strict=True):
-                    t.value = int(v)
+            self._first_of(f.source)
         self.threshold.disabled = self.otsu.value
         self.messages.run(self.refresh_preview, clear=False)
-
-    def _pending_first(self) -> np.ndarray:
-        if self._first is None or self._first[0] != self.pending:
-            rgb, _, _, _ = read_frames(self.pending, self.state.project.state.video)
-            self._first = (self.pending, rgb[0])
-        return self._first[1]
 
     def _show(self, rgb: np.ndarray) -> None:
         self.preview_rgb = rgb
         self.preview.value = png(rgb)
 
-    def _preview_box(self) -> None:
-        """The pending footage's first frame with the box drawn on it (source pixels → the preview square)."""
-        first = self._pending_first()
-        h, wd = first.shape[:2]
-        side = max(h, wd)
-        scale = PREVIEW_PX / side
-        square = np.clip(crop_square(first, (0, 0, side, side), PREVIEW_PX), 0, 255).astype(np.uint8)
-        x, y, bw, bh = (int(t.value) for t in self.box)
-        p0 = (int(round(x * scale)), int(round(y * scale)))
-        p1 = (int(round((x + bw) * scale)) - 1, int(round((y + bh) * scale)) - 1)
-        cv2.rectangle(square, p0, p1, MASK_RGB, 2)
-        self._show(square)
+    def _first_changed(self, rgb: np.ndarray) -> None:
+        """The first-frame picture changed (box typed, mask painted): it is what the panel previews."""
+        if self.pending is not None:
+            self.preview_rgb = rgb
+
+    def _first_of(self, source: int) -> None:
+        """Segmented footage selected (nothing pending): its first frame and box, to segment it again from."""
+        src = self.state.project.sources[source]
+        shown = self.pending is None and src.footage == "segmented"
+        self.first.widget.layout.display = None if shown or self.pending is not None else "none"
+        if not shown or self._first_source == (source, src.path, src.box):
+            return
+        self._first_source = (source, src.path, src.box)
+        self.first.show(raw_frames(self._where(source), self.state.project.state.video).frames[0])
+        if src.box is not None:
+            for t, v in zip(self.box, src.box, strict=True):
+                t.value = int(v)
+
+    def _waiting(self, path: Path | None, first: np.ndarray | None = None) -> None:
+        """Raw footage ``path`` with its ``first`` frame ``(H, W, 3)`` waits for its object (None: nothing waits): the
+        first frame's picture replaces the preview while it does."""
+        self.pending = path
+        self.first.widget.layout.display = None if path is not None else "none"
+        self.preview.layout.display = "none" if path is not None else None
+        if path is not None:
+            self.first.show(first)
 
     def refresh_preview(self) -> None:
         """Draw the binary mask at the slider's threshold (or Otsu's) over the selected frame, now (raw footage
-        waiting for a box: its first frame with the box)."""
+        waiting for its object: its first frame with the box or the painted mask)."""
         self.threshold.disabled = self.otsu.value
         if self.pending is not None:
-            self._preview_box()
+            self.first.redraw()
             return
         if not self.state.project.frames:
             return
@@ -253,17 +263,14 @@ class TargetsPanel:
             raise ProjectError(f"no such file or folder: {path} (give a still, a video or a folder of frames)")
         try:
             index = self.state.edit("add_source", path)
-        except ProjectError as e:
-            if "colour footage" not in str(e):
-                raise
-            self.pending = path
-            h, wd = self._pending_first().shape[:2]
-            for t, v in zip(self.box, (wd // 4, h // 4, wd // 2, h // 2), strict=True):
-                t.value = v  # a first guess: the middle of the frame
+        except SegmentationNeeded as e:
+            self._waiting(path, e.footage.frames[0])  # the box's first guess: the middle of the frame
             self.redraw()
-            self.messages.say(f"{path.name} is colour footage: give the shape's box on its first frame, then Segment")
+            self.messages.say(
+                f"{path.name} is colour footage: give the object's box on its first frame, or paint it, then Segment"
+            )
             return
-        self.pending = None
+        self._waiting(None)
         first = next(i for i, f in enumerate(self.state.project.frames) if f.source == index)
         self.state.select(frame=first)
 
@@ -289,28 +296,28 @@ class TargetsPanel:
             self.state.edit("set_threshold", video=level)
 
     def _segment(self) -> Job:
-        box = tuple(int(t.value) for t in self.box)
-        if box[2] <= 0 or box[3] <= 0:
-            raise ProjectError(f"the first-frame box needs a width and a height above 0, not {box[2]} × {box[3]}")
         project, pending = self.state.project, self.pending
         if pending is None and self._is_still(self._source_index()):
             raise ProjectError("the selected frame is a still: segmentation is for colour footage")
+        prompt = self.first.prompt()  # {"box": ...} or {"first_mask": ...}
         source = self._source_index()
 
         def run(report, cancel) -> int:
-            def progress(stage: str, step: int, total: int) -> None:
-                report(stage, step, total)
-                report.check()
+            def progress(p: Progress) -> None:
+                report(p)
+                report.check()  # a cancelled job stops within a frame
 
             if pending is not None:
-                return project.add_source(pending, box=box, progress=progress)
-            project.set_segmentation(source, box=box, progress=progress)
+                return project.add_source(pending, progress=progress, **prompt)
+            project.set_segmentation(source, progress=progress, **prompt)
             return source
 
         def apply(index: int) -> None:
             if pending is not None and self.pending == pending:
-                self.pending = None
+                self._waiting(None)
             self.state.changed("project")
+            frames = self.state.project.frames
+            self.state.select(frame=next((i for i, f in enumerate(frames) if f.source == index), 0))  # its first
 
         what = pending.name if pending is not None else f"source {source}"
         job = Job("segment", run, apply=apply, title=f"segment {what}")
