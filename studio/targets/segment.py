@@ -15,10 +15,19 @@ The classical method (``method="classical"``), at ``work_size`` (longest side, p
    (gated by its own reliability) add up to a unary term; pixels farther than ``far`` × size from the guess are
    background; the graph cut (contrast-sensitive, 8-connected) over the guess's box plus ``roi_margin`` decides;
    specks and pieces not overlapping the guess are dropped.
+3. **Occlusion.** The object's size is remembered (√area, following growth at once and shrinking by ``size_decay``
+   a frame): a mask smaller than that (the object partly hidden) is cut with room for the remembered size
+   (``size_memory``), so it grows back when the occluder leaves. When the mask vanishes, or falls below
+   ``redetect_below`` of the remembered area, the object is looked for again for ``search_frames`` frames: the
+   pixels whose colour says object (the tracked colour models) near where it was last seen, the pieces with the
+   most evidence; found, it is tracked on from there. On ``bench_segment.py``'s occlusion condition (a band of
+   background sweeping across the object, hiding all of it for a moment on some clips) this took mean J over the
+   five clips from 0.36 to 0.52, every other condition unchanged within 0.01.
 
-Measured by ``benchmarks/bench_segment.py`` on DAVIS 2016 blackswan, camel, cows and dog from the first ground-truth
-mask's box: see that file's docstring for the figures. A Segment Anything model is used instead only when its
-package and a local checkpoint exist (:mod:`studio.targets.segment_sam`; nothing is ever downloaded).
+Measured by ``benchmarks/bench_segment.py`` on DAVIS 2016 blackswan, camel, cows and dog (and bear, never tuned
+on) from the first ground-truth mask's box and under harder conditions: the README gives the figures. A Segment
+Anything model is used instead only when its package and a local checkpoint exist
+(:mod:`studio.targets.segment_sam`; nothing is ever downloaded).
 """
 
 from __future__ import annotations
@@ -94,8 +103,9 @@ def segment_video(
     box, mask = check_inputs(frames, box, first_mask)
     frames = np.asarray(frames)
     if cfg.method != "classical":
-        from studio.targets.segment_sam import segment_video_sam, unavailable
+        from studio.targets.segment_sam import segment_video_sam, unavailable, with_checkpoint
 
+        cfg = with_checkpoint(cfg)
         reason = unavailable(cfg)
         if reason is None:
             return segment_video_sam(frames, box, mask, cfg, progress, cancel)

@@ -51,10 +51,18 @@ class SegmentConfig:
     motion_clip: float = 4.0  # motion evidence clipped to ± this
     motion_fp: tuple[float, float] = (0.25, 0.45)  # motion off as its false-object share outside rises over these
     min_component_share: float = 0.05  # pieces smaller than this share of the largest are dropped
+    size_memory: float = 1.0  # a shrunken mask (partly hidden) is segmented with room for this × the remembered size
+    size_decay: float = 0.99  # the remembered size (√area) shrinks by this factor a frame while the mask is smaller
+    search_frames: int = 30  # after the mask vanishes (hidden), look for the object again for this many frames
+    redetect_level: float = 1.0  # … among pixels whose colour evidence (log-likelihood ratio) is above this …
+    redetect_share: float = 0.1  # … taking a piece of at least this share of the remembered area
+    redetect_keep: float = 0.2  # … with every other piece of at least this share of the best piece's evidence
+    redetect_below: float = 0.15  # a mask below this share of the remembered area is looked for again as well
     sam_checkpoint: str | None = None  # a local Segment Anything checkpoint (.pth for segment_anything, .pt sam2)
     sam_model: str = ""  # segment_anything model type ("vit_b", …) or sam2 config; "" = from the file name
     sam_device: str = "auto"  # torch device for Segment Anything ("auto" = cuda when available, else cpu)
-    sam_box_grow: float = 0.1  # each frame's box prompt: the previous mask's box grown by this share per side
+    sam_box_grow: float = 0.1  # SAM 1: each frame's box prompt, the previous mask's box grown by this share per side
+    sam_image_size: int = 0  # SAM 2: the model's input side, px (0: the checkpoint's own; smaller is faster on a CPU)
 
     def __post_init__(self) -> None:
         if self.method not in ("auto", "classical", "sam"):

@@ -1,12 +1,17 @@
 """Optional Segment Anything adapter for :func:`studio.targets.segment.segment_video`.
 
-Used only when its package is importable (``segment_anything``, Meta's SAM, or ``sam2``) AND
-``SegmentConfig.sam_checkpoint`` names a local file that exists. Nothing is downloaded: without either, the
+Used only when its package is importable (``segment_anything``, Meta's SAM, or ``sam2``) AND a local checkpoint
+exists: ``SegmentConfig.sam_checkpoint``, else one put in the cache's ``sam`` folder (``~/.cache/shadow-studio/sam/``,
+which every face then uses). Nothing is downloaded: without either, the
 classical method runs (``method="auto"``) or a :class:`TargetError` says which package or file to provide
 (``method="sam"``).
 
-Tracking is by box prompts: frame 0 is prompted with the artist's box (or the first mask's box, the mask itself
-kept as frame 0's answer), every later frame with the previous answer's box grown by ``sam_box_grow`` per side.
+With ``sam2`` the video predictor tracks the object itself (its memory of earlier frames carries it through
+occlusions): the frames go to it as JPEGs in a temporary folder, frame 0 is prompted with the artist's box or mask,
+and every frame's mask comes from its propagation (``sam_image_size`` sets its input side: smaller runs faster on a
+CPU). With ``segment_anything`` (images only) tracking is by box prompts: frame 0 is prompted with the box (or the
+first mask's box, the mask itself kept as frame 0's answer), every later frame with the previous answer's box grown
+by ``sam_box_grow`` per side.
 """
 
 from __future__ import annotations
@@ -15,16 +20,19 @@ import importlib.util
 import logging
 import re
 import threading
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from studio.errors import TargetError
+from studio.home import cache_dir
 from studio.progress import ProgressFn, report, stopped
 
 log = logging.getLogger(__name__)
 
 PACKAGES = ("segment_anything", "sam2")
+SAM_CACHE = "sam"  # the cache's folder where a checkpoint is found when none is given
 SAM1_TYPES = ("vit_h", "vit_l", "vit_b")  # segment_anything's sam_model_registry keys
 SAM2_SIZES = {"tiny": "t", "small": "s", "base_plus": "b+", "large": "l"}  # checkpoint name → config suffix
 
@@ -35,6 +43,24 @@ def installed_package() -> str | None:
         if importlib.util.find_spec(name) is not None:
             return name
     return None
+
+
+def cached_checkpoint() -> Path | None:
+    """A checkpoint put in the cache's ``sam`` folder (``~/.cache/shadow-studio/sam/``) for the installed package:
+    ``*.pt`` for sam2, ``*.pth`` for segment_anything (the first by name); None when there is none."""
+    package = installed_package()
+    if package is None:
+        return None
+    found = sorted((cache_dir() / SAM_CACHE).glob("*.pt" if package == "sam2" else "*.pth"))
+    return found[0] if found else None
+
+
+def with_checkpoint(cfg):
+    """``cfg`` with ``sam_checkpoint`` set to the cached one when it names none (every face then finds it)."""
+    if cfg.sam_checkpoint or cfg.method == "classical":
+        return cfg
+    found = cached_checkpoint()
+    return cfg if found is None else replace(cfg, sam_checkpoint=str(found))
 
 
 def unavailable(cfg) -> str | None:
@@ -50,7 +76,8 @@ def unavailable(cfg) -> str | None:
     if not ckpt:
         missing.append(
             "no checkpoint was given: download one yourself (e.g. sam_vit_b_01ec64.pth for segment_anything, "
-            "sam2.1_hiera_small.pt for sam2) and pass its path as SegmentConfig(sam_checkpoint=...)"
+            f"sam2.1_hiera_small.pt for sam2) and put it in {cache_dir() / SAM_CACHE} or pass its path as "
+            "SegmentConfig(sam_checkpoint=...)"
         )
     elif not Path(ckpt).is_file():
         missing.append(f"the checkpoint file {ckpt} does not exist: give the path of a local .pth/.pt file")
@@ -67,30 +94,70 @@ def _device(name: str) -> str:
     return "cuda" if torch.cuda.is_available() else "cpu"
 
 
+def _sam2_config(cfg) -> str:
+    """The sam2 config of ``cfg.sam_model`` or of the checkpoint's file name (``sam2.1_hiera_small.pt``)."""
+    if cfg.sam_model:
+        return cfg.sam_model
+    match = re.search(r"(sam2(?:\.1)?)_hiera_(tiny|small|base_plus|large)", Path(cfg.sam_checkpoint).name)
+    if match is None:
+        raise TargetError(
+            f"cannot tell the sam2 config of {Path(cfg.sam_checkpoint).name}: set sam_model (e.g. "
+            "configs/sam2.1/sam2.1_hiera_s.yaml)"
+        )
+    version, size = match.groups()
+    suffix = SAM2_SIZES[size]
+    return f"configs/sam2.1/sam2.1_hiera_{suffix}.yaml" if version == "sam2.1" else f"sam2_hiera_{suffix}.yaml"
+
+
 def _predictor(cfg):
-    """A predictor with ``set_image(rgb)`` and ``predict(box=…)`` for the installed package and the checkpoint."""
-    package, ckpt = installed_package(), Path(cfg.sam_checkpoint)
-    device = _device(cfg.sam_device)
-    if package == "segment_anything":
-        from segment_anything import SamPredictor, sam_model_registry
+    """A SAM 1 predictor with ``set_image(rgb)`` and ``predict(box=…)`` for the checkpoint."""
+    from segment_anything import SamPredictor, sam_model_registry
 
-        kind = cfg.sam_model or next((k for k in SAM1_TYPES if k in ckpt.name), "")
-        if kind not in sam_model_registry:
-            raise TargetError(f"cannot tell the SAM model type of {ckpt.name}: set sam_model to one of {SAM1_TYPES}")
-        model = sam_model_registry[kind](checkpoint=str(ckpt))
-        return SamPredictor(model.to(device))
-    from sam2.build_sam import build_sam2
-    from sam2.sam2_image_predictor import SAM2ImagePredictor
+    ckpt = Path(cfg.sam_checkpoint)
+    kind = cfg.sam_model or next((k for k in SAM1_TYPES if k in ckpt.name), "")
+    if kind not in sam_model_registry:
+        raise TargetError(f"cannot tell the SAM model type of {ckpt.name}: set sam_model to one of {SAM1_TYPES}")
+    model = sam_model_registry[kind](checkpoint=str(ckpt))
+    return SamPredictor(model.to(_device(cfg.sam_device)))
 
-    config = cfg.sam_model
-    if not config:
-        match = re.search(r"(sam2(?:\.1)?)_hiera_(tiny|small|base_plus|large)", ckpt.name)
-        if match is None:
-            raise TargetError(f"cannot tell the sam2 config of {ckpt.name}: set sam_model (e.g. sam2.1_hiera_s.yaml)")
-        version, size = match.groups()
-        suffix = SAM2_SIZES[size]
-        config = f"configs/sam2.1/sam2.1_hiera_{suffix}.yaml" if version == "sam2.1" else f"sam2_hiera_{suffix}.yaml"
-    return SAM2ImagePredictor(build_sam2(config, str(ckpt), device=device))
+
+def _sam2_video(frames, box, mask, cfg, progress, cancel) -> np.ndarray:
+    """Masks ``(N, H, W)`` by the sam2 video predictor (module doc)."""
+    import tempfile
+
+    import torch
+    from PIL import Image
+    from sam2.build_sam import build_sam2_video_predictor
+
+    n, h, w = frames.shape[:3]
+    extra = [f"++model.image_size={cfg.sam_image_size}"] if cfg.sam_image_size else []
+    try:
+        predictor = build_sam2_video_predictor(_sam2_config(cfg), str(cfg.sam_checkpoint),
+                                               device=_device(cfg.sam_device), hydra_overrides_extra=extra)  # fmt: skip
+    except Exception as e:  # noqa: BLE001 - torch.load, hydra and the state dict fail in many ways; say it in one line
+        raise TargetError(f"the sam2 checkpoint {cfg.sam_checkpoint} does not load ({type(e).__name__}: {e})") from None
+    out = np.zeros((n, h, w), np.uint8)
+    done = 0
+    with tempfile.TemporaryDirectory(prefix="sam2-frames-") as folder, torch.inference_mode():
+        for t in range(n):
+            Image.fromarray(frames[t]).save(f"{folder}/{t:05d}.jpg", quality=95)
+        state = predictor.init_state(folder, offload_video_to_cpu=True, offload_state_to_cpu=True)
+        if mask is not None:
+            predictor.add_new_mask(state, frame_idx=0, obj_id=1, mask=torch.as_tensor(mask > 0))
+        else:
+            x, y, bw, bh = box
+            predictor.add_new_points_or_box(state, frame_idx=0, obj_id=1,
+                                            box=np.array([x, y, x + bw - 1, y + bh - 1], np.float32))  # fmt: skip
+        for t, _, logits in predictor.propagate_in_video(state):
+            out[t] = (logits[0, 0] > 0).cpu().numpy()
+            done += 1
+            report(progress, "segment", done, n)
+            if stopped(cancel) and done < n:
+                log.info("segmentation cancelled after %d of %d frames", done, n)
+                return out[:done]
+    if mask is not None:
+        out[0] = mask
+    return out
 
 
 def _grown(mask: np.ndarray, grow: float) -> np.ndarray | None:
@@ -112,8 +179,10 @@ def segment_video_sam(
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
 ) -> np.ndarray:
-    """Masks ``(N, H, W)`` uint8 {0, 1} by Segment Anything box prompts (see the module docstring); reports
+    """Masks ``(N, H, W)`` uint8 {0, 1} by Segment Anything (see the module docstring); reports
     ``Progress("segment", step, total)`` after each frame, ``cancel`` returns the frames done."""
+    if installed_package() == "sam2":
+        return _sam2_video(frames, box, mask, cfg, progress, cancel)
     predictor = _predictor(cfg)
     n, h, w = frames.shape[:3]
     out = np.zeros((n, h, w), np.uint8)

@@ -75,11 +75,17 @@ def first_from_box(work: WorkFrames, box: tuple[int, int, int, int], cfg: Segmen
                 ).astype(np.float32)
                 evidence[~known] = 0
                 start = moving
-    rgb, _, index = work[0]
     size = float(np.sqrt(inside.sum()))
     m = max(4, int(0.2 * size))
-    y0, y1, x0, x1 = max(0, y - m), min(h, y + bh + m), max(0, x - m), min(w, x + bw + m)
-    lab = _lab(rgb[y0:y1, x0:x1])
+    roi = (slice(max(0, y - m), min(h, y + bh + m)), slice(max(0, x - m), min(w, x + bw + m)))
+    return _first_cut(work, inside, start, evidence, roi, size, cfg)
+
+
+def _first_cut(work, inside, start, evidence, roi, size, cfg: SegmentConfig) -> np.ndarray:
+    """Colour re-learning + graph cut rounds inside the box from the ``start`` mask with extra ``evidence``."""
+    rgb, _, index = work[0]
+    h, w = inside.shape
+    lab = _lab(rgb[roi])
     cur = start.astype(np.uint8)
     for _ in range(cfg.first_iterations):
         fg, bg = cues.colour_hist(index, cur > 0, cfg.colour_bins), cues.colour_hist(index, cur == 0, cfg.colour_bins)
@@ -88,7 +94,7 @@ def first_from_box(work: WorkFrames, box: tuple[int, int, int, int], cfg: Segmen
             unary += cfg.local_weight * _local(rgb, cur, size, cfg)
         unary[~inside] = -cues.HARD
         cut = np.zeros((h, w), np.uint8)
-        cut[y0:y1, x0:x1] = cues.graph_cut(unary[y0:y1, x0:x1], lab, cfg.smoothness)
+        cut[roi] = cues.graph_cut(unary[roi], lab, cfg.smoothness)
         cut = cues.keep_components(cut, None, cfg.min_component_share)
         if not cut.any():
             break
@@ -121,6 +127,37 @@ class Tracker:
         self.fg_run = self.fg0.copy()
         self.bg_run = cues.colour_hist(index, cues.ring(first, max(2, int(cfg.bg_ring * size))), cfg.colour_bins)
         self.lost = False
+        self.size_ref = size  # the object's remembered size (√area): follows growth at once, shrinking slowly
+        self.last = first.copy()  # the last mask that was not empty (where to look again when the object is lost)
+        self.missing = 0  # frames since the mask was last not empty
+
+    def _redetect(self, t: int) -> np.ndarray:
+        """Look for the lost object in frame ``t`` near where it was last seen: the pixels whose colour says object
+        (the object's and the background's colour models), the pieces of them inside the last mask's box grown by
+        the remembered size with at least ``redetect_keep`` × the evidence of the best piece (an object of several
+        colours comes back in several pieces); empty when none is at least ``redetect_share`` of the
+        remembered area."""
+        cfg = self.cfg
+        _, _, index = self.work[t]
+        fg = cfg.fg_anchor * self.fg0 + (1 - cfg.fg_anchor) * self.fg_run
+        llr = cues.colour_llr(index, fg, self.bg_run, cfg.colour_clip)
+        h, w = llr.shape
+        ys, xs = np.nonzero(self.last)
+        r = int(self.size_ref)
+        window = np.zeros((h, w), bool)
+        window[max(0, ys.min() - r) : ys.max() + r + 1, max(0, xs.min() - r) : xs.max() + r + 1] = True
+        cand = ((llr > cfg.redetect_level) & window).astype(np.uint8)
+        cand = cv2.morphologyEx(cand, cv2.MORPH_OPEN, cues.disk(max(1, int(0.03 * self.size_ref))))
+        n, labels = cv2.connectedComponents(cand, connectivity=8)
+        if n < 2:
+            return np.zeros((h, w), np.uint8)
+        scores = np.bincount(labels.ravel(), weights=llr.ravel(), minlength=n)
+        scores[0] = 0.0
+        piece = (scores[labels] >= cfg.redetect_keep * scores.max()).astype(np.uint8)  # the best piece and its peers
+        if piece.sum() < cfg.redetect_share * self.size_ref**2:
+            return np.zeros((h, w), np.uint8)
+        log.info("segmentation found the object again at frame %d", t)
+        return piece
 
     def step(self, t: int, prev: np.ndarray) -> np.ndarray:
         cfg, work = self.cfg, self.work
@@ -129,12 +166,22 @@ class Tracker:
         gy, gx = np.mgrid[0:h, 0:w].astype(np.float32)
         warped = cv2.remap(prev.astype(np.float32), gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR)
         guess = (warped > 0.5).astype(np.uint8)
-        if guess.sum() < 10:
-            if not self.lost:
-                log.warning("segmentation lost the object at frame %d (it left the frame or shrank away)", t)
-                self.lost = True
-            return guess
-        size = float(np.sqrt(guess.sum()))
+        if guess.sum() < 10:  # lost (hidden, or shrunk away): look again where it was last seen, for a while
+            self.missing += 1
+            if self.missing > cfg.search_frames or self.last.sum() < 10:
+                if not self.lost:
+                    log.warning("segmentation lost the object at frame %d (it left the frame or shrank away)", t)
+                    self.lost = True
+                return np.zeros_like(guess)
+            guess = self._redetect(t)
+            if guess.sum() < 10:
+                return guess
+        elif cfg.search_frames and guess.sum() < cfg.redetect_below * self.size_ref**2:  # all but lost: look too
+            found = self._redetect(t)
+            if found.sum() > guess.sum():
+                guess = guess | found
+        # a mask smaller than the object was (partly hidden) is given room to grow back to the size remembered
+        size = max(float(np.sqrt(guess.sum())), cfg.size_memory * self.size_ref)
         m = max(4, int(cfg.roi_margin * size))
         ys, xs = np.nonzero(guess)
         y0, y1, x0, x1 = max(0, ys.min() - m), min(h, ys.max() + m + 1), max(0, xs.min() - m), min(w, xs.max() + m + 1)
@@ -161,6 +208,9 @@ class Tracker:
         new = np.zeros((h, w), np.uint8)
         new[roi] = cues.graph_cut(unary, _lab(rgb[roi]), cfg.smoothness)
         new = cues.keep_components(new, guess, cfg.min_component_share)
+        if new.any():
+            self.missing, self.last, self.lost = 0, new, False
+            self.size_ref = max(float(np.sqrt(new.sum())), self.size_ref * cfg.size_decay)
         if new.sum() > 0.3 * prev.sum():  # a mask that collapsed does not teach the colour models
             core = cv2.erode(new, cues.disk(max(1, int(0.03 * size)))) > 0
             u = cfg.model_update
