@@ -23,6 +23,7 @@ def _run(out: Path, targets: Path, steps: int) -> tuple[str, dict]:
     return "\n".join(lines[:-1]), json.loads(lines[-1])
 
 
+@pytest.mark.slow
 def test_bench_ablation_tiny(tmp_path, shared_targets):
     out = tmp_path / "ablation"
     table, s = _run(out, shared_targets / "asl", steps=3)

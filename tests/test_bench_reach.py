@@ -13,6 +13,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow
 def test_bench_reach_one_target():
     cmd = [sys.executable, str(ROOT / "benchmarks" / "bench_reach.py"), "--count", "1", "--methods", "studio"]
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)

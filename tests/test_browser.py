@@ -106,6 +106,7 @@ def progress_widths(page) -> list[float]:
         '.jp-OutputArea-output .shadow-studio .progress-bar')).map(b => parseFloat(b.style.width) || 0)""")
 
 
+@pytest.mark.slow
 def test_the_studio_in_jupyterlab(lab, tmp_path):
     sync_playwright = playwright_api()  # the fixture skipped already when it is absent
     url, proc, t0 = lab

@@ -19,6 +19,7 @@ def run(*args: str, cwd=None) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_help_lists_verbs():
     out = run("--help")
     assert out.returncode == 0
@@ -43,6 +44,7 @@ def test_each_verb_is_registered_by_the_module_the_dispatch_names():
     assert verb_modules_for(["--help"]) == verb_modules_for(["no-such-verb"]) == VERB_MODULES
 
 
+@pytest.mark.slow
 def test_every_verb_starts_without_torch():
     """Every verb's parser is built from torch-free configs, so `--help`, a bad flag or a missing file answer at
     once (and `play`, `scan`, `render` never need torch on a Raspberry Pi beside the hand)."""
@@ -68,6 +70,7 @@ def test_every_verb_starts_without_torch():
     assert "imitate-video" in start("--help")  # --help still lists every verb
 
 
+@pytest.mark.slow
 def test_render_rest_and_json_pose(tmp_path, hand):
     out = run("render", "rest", "--out", str(tmp_path / "rest.png"), "--resolution", "128")
     assert out.returncode == 0, out.stderr
@@ -105,6 +108,7 @@ def test_out_of_limit_pose_is_refused(tmp_path, hand):
     assert out.returncode == 2 and "wrist = 2.5000 rad is outside its limits" in out.stderr
 
 
+@pytest.mark.slow
 def test_collect_and_resume(tmp_path):
     args = ("collect", "--n", "120", "--shard-size", "50", "--resolution", "32", "--out", str(tmp_path), "--quiet")
     first = run(*args)
@@ -122,6 +126,7 @@ def test_gen_urdf_check():
     assert out.returncode == 0 and "up to date" in out.stdout
 
 
+@pytest.mark.slow
 def test_shipped_pose_renders_like_library(tmp_path, hand):
     from studio.sim.shadow import Rig, ShadowRenderer
 
@@ -139,6 +144,7 @@ def _one_line_error(out: subprocess.CompletedProcess, words: str) -> None:
     assert words in out.stderr, out.stderr
 
 
+@pytest.mark.slow
 def test_crashing_values_are_one_line_errors(tmp_path):
     """Values that used to crash (--candidates 0 refined the whole batch, --threads 0) or were silently replaced
     (--search-batch 0 became the preset's 32) are refused before any work starts."""
@@ -211,6 +217,7 @@ def test_user_errors_stay_one_line_but_verbose_adds_the_traceback(tmp_path):
     assert loud.stderr.strip().splitlines()[-1] == quiet.stderr.strip()
 
 
+@pytest.mark.slow
 def test_plan_one_keyframe_at_zero_holds_that_pose(tmp_path, hand):
     """The single keyframe at t = 0 (what `imitate --at 0` writes) plans to a one-sample show holding the pose."""
     from studio.motion.show import load_show

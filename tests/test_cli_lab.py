@@ -28,6 +28,7 @@ def get(url: str) -> int:
         return e.code
 
 
+@pytest.mark.slow
 def test_lab_serves_the_studio_notebook_and_ctrl_c_stops_it(tmp_path):
     project = Project.create(tmp_path / "mine.shadow", sources=[asset("targets/asl_o.jpeg")])
     home, port = tmp_path / "home", free_port(19888)

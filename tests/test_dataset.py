@@ -144,6 +144,7 @@ def _samples(batches) -> dict[tuple, bytes]:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore:This DataLoader will create 4 worker processes")
 @pytest.mark.parametrize("workers", [2, 4])  # 3 shards: 2 workers split the shards, 4 split each shard's rows
 def test_dataloader_workers_read_each_sample_exactly_once(small_dataset, hand, workers):
@@ -166,6 +167,7 @@ def test_dataloader_workers_read_each_sample_exactly_once(small_dataset, hand, w
             assert not torch.equal(orders[0], orders[1]), "set_epoch did not reshuffle"
 
 
+@pytest.mark.slow
 def test_on_the_fly_workers_do_not_repeat_each_other(hand):
     """Also after this process has rendered on numba's OpenMP pool, which kills plainly forked workers."""
     ShadowRenderer(hand, Rig(resolution=32)).render(np.zeros((256, 21)))

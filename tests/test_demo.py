@@ -51,6 +51,7 @@ def first_run(tmp_path_factory):
     return out, summary, text
 
 
+@pytest.mark.slow
 def test_demo_writes_the_project_the_show_and_plays_it(first_run, capsys):
     out, summary, text = first_run
     assert {"project", "show", "review", "keyframes", "played", "seconds"} <= set(summary)
@@ -71,6 +72,7 @@ def test_demo_writes_the_project_the_show_and_plays_it(first_run, capsys):
     capsys.readouterr()
 
 
+@pytest.mark.slow
 def test_demo_review_holds_every_stage_and_the_played_show(first_run):
     out, summary, _ = first_run
     assert Path(summary["review"]) == out / "review.rrd"
@@ -105,6 +107,7 @@ def test_demo_review_holds_every_stage_and_the_played_show(first_run):
             assert recent.min() - 0.02 <= q <= recent.max() + 0.02, (name, tm, q, recent)
 
 
+@pytest.mark.slow
 def test_demo_again_reuses_the_project(first_run):
     out, first, _ = first_run
     summary, text = demo(out)

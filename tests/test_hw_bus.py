@@ -36,6 +36,7 @@ def test_emulator_answers_byte_exact_over_raw_pyserial():
         port.close()
 
 
+@pytest.mark.slow
 def test_reads_writes_and_registers(rig):
     emu, bus = rig
     assert bus.read_positions([1, 2, 3]) == {1: 500, 2: 500, 3: 500}

@@ -117,6 +117,7 @@ def _tiny_show(hand, path, seconds):
     return path
 
 
+@pytest.mark.slow
 def test_play_survives_the_emulator_dying(emulate, hand, tmp_path):
     """`emulate` is killed mid-show: play ends with one clear line on stderr, no traceback, and its log."""
     port = emulate()
@@ -224,6 +225,7 @@ def test_jog_survives_missed_reads_and_ends_cleanly_on_a_lost_port(capsys, monke
     assert len(err) == 1 and port in err[0] and "failed" in err[0], err
 
 
+@pytest.mark.slow
 def test_non_serial_verbs_need_no_pty_or_termios(hand, tmp_path):
     """On a system without pty/termios (Windows) the CLI builds, non-serial verbs run, and `emulate` says why it
     cannot run in one line."""

@@ -44,6 +44,7 @@ def measured_rad(emu, cal, settle=0.06):
     return cal.to_rad(np.array([pos[i] for i in cal.ids]))
 
 
+@pytest.mark.slow
 def test_reaches_the_shows_poses(hand, cal, rig):
     emu, bus = rig
     t, q, names = show(hand)
@@ -91,6 +92,7 @@ def test_clip_command_laws():
     assert np.allclose(c.sent, [0.3, 0.5]) and c.at_limit.tolist() == [True, False] and c.at_step.tolist() == [1, 0]
 
 
+@pytest.mark.slow
 def test_steady_clock(hand, cal, rig):
     emu, bus = rig
     t, q, names = show(hand, 1.0)
@@ -148,6 +150,7 @@ def test_no_servo_at_start(hand, cal, rig):
     assert r.reason == StopReason.LOST_COMMUNICATION and "starting pose" in r.message and len(r.sent) == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("how", ["estop", "cancel", "ctrl-c"])
 def test_operator_stops(hand, cal, rig, how):
     emu, bus = rig
@@ -173,6 +176,7 @@ def test_operator_stops(hand, cal, rig, how):
     assert bus.read_positions(cal.ids) == a  # halted: nothing moves after the stop
 
 
+@pytest.mark.slow
 def test_echo_adapter_and_bad_inputs(hand, cal):
     with ServoEmulator(cal.ids, EmulatorConfig(echo=True)) as emu:
         with SerialServoBus(BusConfig(emu.port, echo=True, timeout_s=0.01)) as bus:

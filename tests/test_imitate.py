@@ -46,6 +46,7 @@ def free_poses(hand, n: int, seed: int) -> np.ndarray:
     return np.stack(out)
 
 
+@pytest.mark.slow
 def test_search_and_refinement_recover_a_rendered_pose(imitator, hand):
     scores = []
     for q in free_poses(hand, 3, seed=21):
@@ -57,6 +58,7 @@ def test_search_and_refinement_recover_a_rendered_pose(imitator, hand):
     assert np.mean(scores) >= 0.9 and min(scores) >= 0.85, scores
 
 
+@pytest.mark.slow
 def test_search_lowers_the_self_model_loss(imitator, hand):
     target = imitator.renderer.render_one(free_poses(hand, 1, seed=5)[0])
     loss_fn = imitator.loss_fn(target)
@@ -77,6 +79,7 @@ def test_initial_poses_respect_limits_and_include_rest(hand):
     assert np.abs(near - hand.rest_pose()).max() < 0.3
 
 
+@pytest.mark.slow
 def test_cancel_stops_search_early(hand):
     import threading
 
@@ -177,6 +180,7 @@ def _imitate_cli(*args: str, **kw) -> subprocess.CompletedProcess:
                           timeout=600, **kw)  # fmt: skip
 
 
+@pytest.mark.slow
 def test_imitate_cli_writes_the_files_of_every_source(tmp_path):
     """A still through ``imitate``: a one-source project, and the files ``imitate-video`` writes; the target's
     opening is its expressive region, the keyframes file plans to a show holding the pose."""
@@ -207,6 +211,7 @@ def test_imitate_cli_writes_the_files_of_every_source(tmp_path):
     assert loaded.duration == pytest.approx(2.0) and np.allclose(loaded.positions, expected, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_imitate_cli_errors(tmp_path, in_process):
     bad = tmp_path / "empty.png"
     import cv2
@@ -268,6 +273,7 @@ def test_zero_candidates_is_refused(hand):
     assert len(distinct_best(theta, np.arange(6.0), 2)) == 2
 
 
+@pytest.mark.slow
 def test_imitate_threshold_flags_reach_the_target(tmp_path):
     import cv2
 
@@ -292,6 +298,7 @@ def test_imitate_threshold_flags_reach_the_target(tmp_path):
     ]
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_imitate_and_the_same_command_resumes(tmp_path):
     """The first Ctrl-C cancels the search: one line says so, exit code 130, the project stays (nothing finished)."""
     import os

@@ -44,6 +44,7 @@ def horse(tmp_path_factory) -> tuple[Path, dict]:
     return out, summary(proc)
 
 
+@pytest.mark.slow
 def test_writes_a_project_every_file_and_a_summary(horse):
     out, s = horse
     for name in FILES:
@@ -56,6 +57,7 @@ def test_writes_a_project_every_file_and_a_summary(horse):
     assert s["show"] == str(out / "show.json") and s["late_transitions"] == [] and s["collision_free"]
 
 
+@pytest.mark.slow
 def test_validate_accepts_the_show_and_it_lasts_as_long_as_the_video(horse):
     out, s = horse
     proc = cli("validate", out / "show.json")
@@ -67,6 +69,7 @@ def test_validate_accepts_the_show_and_it_lasts_as_long_as_the_video(horse):
     assert show["media"] == {"path": str(Path(DEFAULT_VIDEO).resolve()), "kind": "video", "offset_s": 0.0}
 
 
+@pytest.mark.slow
 def test_keyframes_json_follows_the_video_and_plans(horse, tmp_path):
     out, s = horse
     doc = json.loads((out / "keyframes.json").read_text())
@@ -87,6 +90,7 @@ def test_keyframes_json_follows_the_video_and_plans(horse, tmp_path):
     assert replanned["samples"][-1][0] == pytest.approx(s["video_seconds"])
 
 
+@pytest.mark.slow
 def test_side_by_side_reads_back_at_the_source_rate(horse):
     out, s = horse
     cap = cv2.VideoCapture(str(out / "side_by_side.mp4"))
@@ -105,6 +109,7 @@ def test_side_by_side_reads_back_at_the_source_rate(horse):
     assert left.std() > 5 and right.std() > 5  # the source frame and the show's shadow are drawn, not blank
 
 
+@pytest.mark.slow
 def test_review_is_the_one_project_format_with_the_source_and_the_show(horse):
     out, s = horse
     rec = {e.lstrip("/"): v for e, v in read_recording(out / "review.rrd").items()}
@@ -119,6 +124,7 @@ def test_review_is_the_one_project_format_with_the_source_and_the_show(horse):
     assert len(show["keyframes"]) >= 2
 
 
+@pytest.mark.slow
 def test_too_fast_for_the_servos_reports_and_allow_late_stretches(tmp_path):
     strict = cli("imitate-video", DEFAULT_VIDEO, "--out", tmp_path / "strict", *SMALL, *UNSEEDED, *SLOW_SERVOS)
     assert strict.returncode == 1, strict.stderr[-2000:]
@@ -139,6 +145,7 @@ def test_too_fast_for_the_servos_reports_and_allow_late_stretches(tmp_path):
     assert cli("validate", tmp_path / "strict" / "show.json").returncode == 0
 
 
+@pytest.mark.slow
 def test_ctrl_c_keeps_the_finished_keyframes_and_the_same_command_resumes(tmp_path):
     out = tmp_path / "cancel"
     budget = [a if a != "10" else "100000" for a in SMALL]  # later keyframes: a search far too long to finish
@@ -165,6 +172,7 @@ def test_ctrl_c_keeps_the_finished_keyframes_and_the_same_command_resumes(tmp_pa
     _one_line_error(other, "made otherwise", "--fresh")
 
 
+@pytest.mark.slow
 def test_raw_footage_is_segmented_from_a_first_mask(shared_targets, tmp_path):
     """DAVIS blackswan colour frames (its first second) with the ground truth's first mask, then its box."""
     rgb, truth = tmp_path / "blackswan", shared_targets / "davis" / "blackswan"
@@ -193,6 +201,7 @@ def _one_line_error(proc: subprocess.CompletedProcess, *words: str) -> None:
         assert w in lines[0], lines[0]
 
 
+@pytest.mark.slow
 def test_bad_input_is_one_line_and_exit_2(tmp_path, in_process):
     _one_line_error(
         cli("imitate-video", tmp_path / "missing.gif", "--out", tmp_path / "o", "--no-clip", "--quiet"), "not found"

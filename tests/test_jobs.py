@@ -64,6 +64,7 @@ def staged(stages, release: threading.Event | None = None, log: list | None = No
     return run
 
 
+@pytest.mark.slow
 def test_cancel_mid_search_returns_within_a_second_and_applies_nothing():
     applied, rec = [], Recorder("search")
     with JobQueue() as queue:
@@ -142,6 +143,7 @@ def test_events_carry_stage_step_total_in_order():
     assert all(rec.events.index(e) > end for e in rec.events if e.job_id == 2 and e.state != JobState.QUEUED)
 
 
+@pytest.mark.slow
 def test_engine_events_feed_tqdm_and_a_poller_alike():
     out, rec = io.StringIO(), Recorder()
     with JobQueue() as queue:
@@ -181,6 +183,7 @@ def test_a_completed_jobs_apply_runs_once_with_its_result():
     assert [e.stage for e in rec.events[-2:]] == ["apply", "apply"] and rec.events[-1].state == JobState.DONE
 
 
+@pytest.mark.slow
 def test_imitate_video_job_runs_every_keyframe():
     from studio.imitate.config import CPU_SEQUENCE
     from studio.targets.images import load_target
@@ -286,6 +289,7 @@ def echo(report, cancel, value):
     return value
 
 
+@pytest.mark.slow
 def test_process_worker_kills_an_unresponsive_job_and_runs_the_next():
     import functools
 
@@ -337,6 +341,7 @@ def snapshot(project) -> tuple:
     return files, dict(project.results), project.history
 
 
+@pytest.mark.slow
 def test_project_jobs_apply_on_completion_and_nothing_on_cancel_or_failure(project, tmp_path, hand):
     from studio.imitate.config import CPU_SEQUENCE
     from studio.project.jobs import keyframe_job, queue_for, video_job
@@ -375,6 +380,7 @@ def test_project_jobs_apply_on_completion_and_nothing_on_cancel_or_failure(proje
         queue.close()
 
 
+@pytest.mark.slow
 def test_project_results_from_changed_inputs_are_stale_and_the_show_is_set(project, hand):
     from studio.motion.plan import Keyframes
     from studio.project.jobs import keyframe_job, queue_for, show_job

@@ -84,6 +84,7 @@ random_sequences = st.integers(2, 9).flatmap(
 )
 
 
+@pytest.mark.slow
 @settings(max_examples=40, deadline=None)
 @given(seq=random_sequences, t1=st.floats(0, 1), t2=st.floats(0, 1))
 def test_higher_tau_never_gives_fewer_clusters(seq, t1, t2):
@@ -93,6 +94,7 @@ def test_higher_tau_never_gives_fewer_clusters(seq, t1, t2):
     assert counts[1] >= counts[0]
 
 
+@pytest.mark.slow
 @settings(max_examples=25, deadline=None)
 @given(seq=random_sequences, tau=st.floats(0, 1))
 def test_representative_is_nearest_its_cluster_mean(seq, tau):
@@ -131,6 +133,7 @@ def load_davis(folder, hz: float = 4.0) -> np.ndarray:
     return load_video(folder, VideoConfig(hz=hz)).masks
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", DAVIS)
 def test_davis_reductions_at_default_tau(shared_targets, name):
     masks = load_davis(shared_targets / "davis" / name)
@@ -139,6 +142,7 @@ def test_davis_reductions_at_default_tau(shared_targets, name):
     assert 0.60 <= c.reduction <= 0.95, f"{name}: {len(masks)} frames → {c.count} keyframes"
 
 
+@pytest.mark.slow
 def test_keyframes_verb_end_to_end(shared_targets, tmp_path):
     src = shared_targets / "davis" / "blackswan"
     out = tmp_path / "kf"

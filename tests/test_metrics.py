@@ -70,6 +70,7 @@ def test_training_set_is_the_train_split(setup):
     assert setup["data"].shadows(slice(0, 3)).shape == (3, RES, RES)
 
 
+@pytest.mark.slow
 def test_table_has_every_row_and_column(table, tmp_path):
     assert [r["method"] for r in table.rows] == list(METHODS)
     for row in table.rows:
@@ -92,6 +93,7 @@ def test_table_has_every_row_and_column(table, tmp_path):
         assert len(list(csv.DictReader(f))) == 3 * len(METHODS)
 
 
+@pytest.mark.slow
 def test_expressive_terms_only_over_targets_with_holes(table):
     ring_recs = [r for r in table.records if r["target"] == "ring"]
     plain = [r for r in table.records if r["target"] != "ring"]
@@ -173,6 +175,7 @@ def test_refinement_does_not_add_collisions(table):
     assert rows["Ours"]["seconds"] >= rows["Ours w/o refinement"]["seconds"]
 
 
+@pytest.mark.slow
 def test_clip_columns_filled_with_a_clip_model(setup):
     with (
         Imitator(model=setup["imitator"].model, clip=tiny_clip(), search=SEARCH, refine=REFINE) as imitator,
@@ -184,6 +187,7 @@ def test_clip_columns_filled_with_a_clip_model(setup):
     assert not any("CLIP off" in n for n in result.notes)
 
 
+@pytest.mark.slow
 def test_scoring_at_another_side_renders_every_pose_there(setup):
     """score_resolution: each method's pose is rendered and scored at that side against the target framed there."""
     from studio.imitate.losses import ImageLoss
@@ -240,6 +244,7 @@ def _evaluate_args(setup, out, *targets) -> list[str]:
             "--refine-restarts", "2"]  # fmt: skip
 
 
+@pytest.mark.slow
 def test_evaluate_cli_writes_table_and_prints_json_last(setup, tmp_path, capsys):
     for letter in "ab":
         (tmp_path / "t" / letter).mkdir(parents=True)

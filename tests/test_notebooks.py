@@ -33,6 +33,7 @@ def test_the_notebooks_are_the_ones_listed():
     assert sorted(p.name for p in NOTEBOOKS.glob("*.ipynb")) == sorted(WALKTHROUGHS + ["studio.ipynb"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", WALKTHROUGHS)
 def test_walkthrough_runs(name, tmp_path):
     nb = execute(name, tmp_path)
@@ -40,6 +41,7 @@ def test_walkthrough_runs(name, tmp_path):
     assert all(c.execution_count for c in nb.cells if c.cell_type == "code")
 
 
+@pytest.mark.slow
 def test_studio_notebook_opens_the_given_project(tmp_path, monkeypatch):
     project = Project.create(tmp_path / "mine.shadow", sources=[asset("targets/asl_o.jpeg")])
     monkeypatch.setenv("SHADOW_STUDIO_PROJECT", str(project.path))  # the kernel inherits it

@@ -41,6 +41,7 @@ def _outcome(project: Project) -> tuple[list, np.ndarray, np.ndarray]:
     return keyframes, poses, np.asarray(project.show.positions)
 
 
+@pytest.mark.slow
 def test_three_faces_give_the_same_keyframes_poses_and_show(tmp_path, sources, in_process):
     clip, _ = sources
     # 1. the command line's one-source verb
@@ -84,6 +85,7 @@ def test_three_faces_give_the_same_keyframes_poses_and_show(tmp_path, sources, i
     assert [p["id"] for p in doc["poses"]] == [kf.id for kf in verb.keyframes]
 
 
+@pytest.mark.slow
 def test_the_public_api_runs_a_video_to_a_show(tmp_path, sources):
     import studio
 

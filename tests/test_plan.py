@@ -117,6 +117,7 @@ def free_keyframes(draw):
     return keyframes(times, poses, hold)
 
 
+@pytest.mark.slow
 @settings(max_examples=10, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(kf=free_keyframes())
 def test_trajectory_within_limits_exact_keyframes_and_collision_free(world, kf):

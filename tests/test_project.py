@@ -120,6 +120,7 @@ def test_a_save_killed_before_its_json_leaves_the_previous_project(tmp_path, sou
     assert not any(m.name.startswith("add-") for m in (p.path / "masks").iterdir())
 
 
+@pytest.mark.slow
 def test_sigkill_during_a_loop_of_saves_leaves_a_readable_project(tmp_path, sources):
     p = make(tmp_path, sources)
     script = textwrap.dedent(f"""
@@ -196,6 +197,7 @@ def apply(p: Project, op: str, x: int) -> None:
         p.set_result(k, rng.uniform(-0.1, 0.1, 21), {"total": x / 10_000}, blob(rng, (16, 16)))
 
 
+@pytest.mark.slow
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(edits=EDITS)
 def test_undo_and_redo_laws(base_project, edits):

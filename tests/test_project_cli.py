@@ -26,6 +26,7 @@ def cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=300, cwd=cwd)
 
 
+@pytest.mark.slow
 def test_project_verbs_end_to_end(tmp_path, shared_targets, hand):
     davis = shared_targets / "davis" / "blackswan"
     if not davis.is_dir():
@@ -62,6 +63,7 @@ def test_project_verbs_end_to_end(tmp_path, shared_targets, hand):
     assert info["results"]["current"] == len(info["keyframes"]) and info["show"]["stale"] is False
 
 
+@pytest.mark.slow
 def test_project_verbs_report_bad_input_in_one_line(tmp_path, sources, in_process, monkeypatch):
     r = cli("project", "new", "x.shadow", "--source", str(tmp_path / "nothing.png"), cwd=tmp_path)
     assert r.returncode == 2 and "source not found" in r.stderr and len(r.stderr.strip().splitlines()) == 1
@@ -77,6 +79,7 @@ def test_project_verbs_report_bad_input_in_one_line(tmp_path, sources, in_proces
     assert r.returncode == 2 and "still-threshold" in r.stderr
 
 
+@pytest.mark.slow
 def test_still_threshold_and_otsu_flags_reach_the_configs(tmp_path, sources):
     r = cli("project", "new", "t.shadow", "--source", str(sources[1]), "--still-threshold", "60", "--otsu",
             "--size", "32", cwd=tmp_path)  # fmt: skip

@@ -88,6 +88,7 @@ def test_show_timing_plays_sources_one_after_another(tmp_path, hand):
 
 
 # ------------------------------------------------------------------------------------------ project run
+@pytest.mark.slow
 def test_run_sets_results_and_a_show_and_a_second_run_does_nothing(tmp_path, capsys):
     path = tmp_path / "o.shadow"
     Project.create(path, sources=[STILL])
@@ -110,6 +111,7 @@ def test_run_sets_results_and_a_show_and_a_second_run_does_nothing(tmp_path, cap
     assert snapshot(path) == before  # not one byte rewritten
 
 
+@pytest.mark.slow
 def test_a_stale_keyframe_is_recomputed_and_the_show_replanned(tmp_path, capsys):
     path = tmp_path / "o.shadow"
     Project.create(path, sources=[STILL])
@@ -139,6 +141,7 @@ def test_a_missing_source_fails_the_run_and_changes_nothing(tmp_path, capsys):
     assert snapshot(path) == before
 
 
+@pytest.mark.slow
 def test_too_fast_without_allow_late_keeps_the_keyframes_and_lists_the_transitions(tmp_path, capsys):
     path = tmp_path / "horse.shadow"
     project = Project.create(path, sources=[DEFAULT_VIDEO])

@@ -136,6 +136,7 @@ def test_config_is_checked():
         RetrievalConfig(size=0)
 
 
+@pytest.mark.slow
 def test_imitator_answers_first_from_the_index_then_improves(hand, index, renderer):
     """The first reported pose is the retrieval's (collision-free, before any search step), the stages arrive in
     order, the search starts from the retrieved poses and the final answer is no worse than the first."""

@@ -95,6 +95,7 @@ def rows(recording: dict, entity: str, timeline: str) -> list[dict]:
     return sorted(out, key=lambda r: r["t"])
 
 
+@pytest.mark.slow
 def test_frames_are_on_the_frame_timeline(saved, scene_data):
     _, rec, which, _, _ = saved
     targets, _, keyframes, _ = scene_data
@@ -224,6 +225,7 @@ def _received(proc: subprocess.Popen, out: Path, entity: str, timeout: float = 1
     return read_recording(out)
 
 
+@pytest.mark.slow
 @needs_rerun
 def test_live_stream_reaches_a_running_viewer(tmp_path, scene_data):
     from studio.jobs import Job, JobQueue
@@ -283,6 +285,7 @@ def test_a_served_stream_reaches_a_viewer_that_connects(tmp_path):
         review.close()
 
 
+@pytest.mark.slow
 def test_a_review_needs_a_sink_a_listening_viewer_and_says_what_the_notebook_needs(tmp_path):
     with pytest.raises(ReviewError, match="path="):
         ProjectRecording()
@@ -305,6 +308,7 @@ def test_a_review_needs_a_sink_a_listening_viewer_and_says_what_the_notebook_nee
         review.close()
 
 
+@pytest.mark.slow
 def test_notebook_viewer_assets_are_inline_unless_the_user_chose():
     code = "import studio.review.recording, os, sys; print(os.environ['RERUN_NOTEBOOK_ASSET'])"
     env = {k: v for k, v in os.environ.items() if k != "RERUN_NOTEBOOK_ASSET"}

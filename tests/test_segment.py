@@ -153,6 +153,7 @@ def test_progress_and_cancel() -> None:
     assert len(part) == 3 and np.array_equal(part, masks[:3])
 
 
+@pytest.mark.slow
 def test_davis_blackswan_clip_scores_above_its_floor(shared_targets: Path) -> None:
     rgb, gt = shared_targets / "davis-rgb" / "blackswan", shared_targets / "davis" / "blackswan"
     if not rgb.is_dir():

@@ -61,6 +61,7 @@ def test_lr_schedule_warms_up_and_decays():
     assert lr_at(500, cfg) < 1e-3 and lr_at(999, cfg) == pytest.approx(2e-5, rel=0.05)
 
 
+@pytest.mark.slow
 def test_tiny_model_trains_resumes_and_reloads(tmp_path, hand):
     out = tmp_path / "tiny.pt"
     cfg = TrainConfig(out=str(out), resolution=32, steps=60, batch_size=32, warmup=5, eval_every=30,
@@ -86,6 +87,7 @@ def test_tiny_model_trains_resumes_and_reloads(tmp_path, hand):
     assert again["steps"] == 2 and read_checkpoint(out, "selfmodel").extra["step"] == 2
 
 
+@pytest.mark.slow
 def test_resume_after_cancel_continues_exactly(tmp_path, hand):
     """A run cancelled at step 7 and resumed ends with the same weights as one that ran straight through."""
     common = dict(resolution=16, steps=12, batch_size=8, warmup=2, eval_every=4, eval_size=16, lr=3e-3, threads=1)

@@ -150,6 +150,7 @@ def test_presets():
         SequenceConfig(candidates=0)
 
 
+@pytest.mark.slow
 @needs_model
 def test_inherited_initialisation_keeps_consecutive_poses_close(seq, moving, hand):
     masks, expressive, _ = moving
@@ -169,6 +170,7 @@ def test_inherited_initialisation_keeps_consecutive_poses_close(seq, moving, han
     assert runs["sequential"].max() < 0.5 * TransitionConfig().max_mean_step, runs
 
 
+@pytest.mark.slow
 @needs_model
 def test_loss_components_and_evaluation(seq, moving):
     masks, expressive, _ = moving
@@ -222,6 +224,7 @@ def test_refinement_keeps_the_temporal_term(seq, hand):
     assert np.linalg.norm(kept.theta - start) < 0.8 * np.linalg.norm(free.theta - start)  # measured 0.39 vs 0.70
 
 
+@pytest.mark.slow
 @needs_model
 def test_progress_and_cancel_return_the_keyframes_done(seq, moving):
     masks, expressive, _ = moving

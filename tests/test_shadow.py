@@ -103,6 +103,7 @@ def reference_render(renderer, theta):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("res, ring_points, n", [(64, 16, 300), (128, 16, 300), (64, 7, 60), (96, 24, 60)])
 def test_kernel_equals_slow_reference_bit_for_bit(hand, res, ring_points, n):
     """The kernel's O(M) ring merges, inlined hull and span fill give exactly the reference's pixels."""

@@ -49,6 +49,7 @@ finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
     offset=finite,
     losses=st.lists(st.floats(0, 10, allow_nan=False), max_size=4),
 )
+@pytest.mark.slow
 def test_round_trip_is_lossless(tmp_path, n, seed, title, offset, losses):
     rng = np.random.default_rng(seed)
     t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.02, 0.05, n - 1))])

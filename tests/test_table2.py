@@ -149,6 +149,7 @@ def table(seq, sequences):
     return VideoEvaluator(seq, TINY).run(sequences)
 
 
+@pytest.mark.slow
 def test_six_rows_one_measure_and_counts_that_add_up(table, tmp_path):
     assert not table.cancelled and [r["row"] for r in table.rows] == [r.name for r in ROWS]
     assert len(table.records) == 12 and len(table.keyframes) == 6 * 4
@@ -177,11 +178,13 @@ def test_six_rows_one_measure_and_counts_that_add_up(table, tmp_path):
     assert [s["keyframes"] for s in settings["sequences"]] == [3, 1]
 
 
+@pytest.mark.slow
 def test_sequential_temporal_row_moves_less(table):
     step = {r["row"]: r["mean_step"] for r in table.rows}
     assert step["Sequential +Exp+Temp"] < step["Independent +Exp"], step
 
 
+@pytest.mark.slow
 def test_cancel_keeps_the_finished_runs(seq, sequences):
     cancel = threading.Event()
     stages = []
@@ -201,6 +204,7 @@ def test_cancel_keeps_the_finished_runs(seq, sequences):
 # --- the verb end to end ------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_evaluate_video_cli_on_a_davis_sequence(shared_targets, tmp_path, capsys):
     if not DEFAULT_MODEL.is_file():
         pytest.skip(f"shipped self-model missing: {DEFAULT_MODEL}")

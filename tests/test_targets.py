@@ -40,6 +40,7 @@ def _check_mask(mask: np.ndarray, name: str) -> None:
     assert 1 <= _components(mask) <= TargetConfig().max_components, name
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("letter", LETTERS)
 def test_every_asl_file_loads(shared_targets: Path, letter: str) -> None:
     files = sorted((shared_targets / "asl" / letter).glob("*.jpeg"))
@@ -66,6 +67,7 @@ def test_asl_o_keeps_its_opening(shared_targets: Path) -> None:
     assert find_holes(mask).sum() > 0.05 * mask.sum()
 
 
+@pytest.mark.slow
 def test_every_mpeg7_file_loads(shared_targets: Path) -> None:
     files = sorted((shared_targets / "mpeg7").glob("*.gif"))
     assert len(files) >= 200

@@ -156,6 +156,7 @@ def test_horse_silhouettes_are_clean():
         assert (grey[mask > 0] > 140).mean() < 0.05, f"frame {k}: backdrop between the legs filled in"
 
 
+@pytest.mark.slow
 def test_every_davis_mask_sequence_loads(shared_targets):
     sequences = sorted(p for p in (shared_targets / "davis").iterdir() if p.is_dir())
     assert len(sequences) >= 6
@@ -172,6 +173,7 @@ def test_every_davis_mask_sequence_loads(shared_targets):
         assert raw[max(y, 0) : y + h, max(x, 0) : x + w].sum() == raw.sum(), f"{seq.name}: shadow outside the frame"
 
 
+@pytest.mark.slow
 def test_shared_video_files_load(shared_targets):
     horse = shared_targets / "video" / "muybridge-horse" / "horse-in-motion.gif"
     assert load_video(horse, SMALL).masks.shape == (5, 32, 32)

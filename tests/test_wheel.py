@@ -55,6 +55,7 @@ def run_installed(site: Path, cwd: Path, *args: str) -> subprocess.CompletedProc
     )
 
 
+@pytest.mark.slow
 def test_wheel_holds_the_assets(installed):
     for rel in ("hand.urdf", "calibration.yaml", "models/selfmodel_cpu128.pt", "models/inverse_cpu128.pt",
                 "targets/asl_o.jpeg", "targets/SOURCE.txt",
@@ -64,6 +65,7 @@ def test_wheel_holds_the_assets(installed):
     assert not (installed / "assets").exists() and not (installed / "tests").exists()
 
 
+@pytest.mark.slow
 def test_installed_copy_renders_and_imitates_from_outside(installed, tmp_path):
     where = subprocess.run(
         [sys.executable, "-c", "import studio, studio.assets as a; print(studio.__file__, a.asset('hand.urdf'))"],

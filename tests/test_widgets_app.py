@@ -25,6 +25,7 @@ def tab_of(studio: w.Widget) -> w.Tab:
     return next(c for c in studio.children if isinstance(c, w.Tab))
 
 
+@pytest.mark.slow
 def test_every_panel_in_order_and_a_placeholder_says_why(state, monkeypatch):
     def broken(_state):
         raise RuntimeError("the canvas is gone")

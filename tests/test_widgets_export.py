@@ -109,6 +109,7 @@ def test_plan_without_results_says_what_to_do(tmp_path):
         state.close()
 
 
+@pytest.mark.slow
 def test_play_on_the_emulator_with_progress_and_stop(state):
     panel = ExportPanel(state, ExportConfig(layout=ShowLayout(still_hold_s=3.0)))
     assert wait_for(panel.plan()) == JobState.DONE

@@ -61,6 +61,7 @@ def wait_until(test, timeout: float = 5.0) -> bool:
     return test()
 
 
+@pytest.mark.slow
 def test_a_slider_moves_its_servo_and_stops_at_the_soft_limit(panel, hand):
     assert "Jog" in panel.title.value and all(s.disabled for s in panel.sliders)
     panel.connect_button.click()
@@ -125,6 +126,7 @@ def test_a_lost_port_disables_the_sliders_with_a_message(panel):
     assert "lost the servo bus" in panel.message.value and panel.auto.value is False
 
 
+@pytest.mark.slow
 def test_torque_home_and_the_selected_keyframes_pose(state, hand):
     cal = load_calibration(None, hand)
     k = state.project.keyframes[0].id

@@ -55,6 +55,7 @@ def started(panel, timeout: float = 30.0):
     return job
 
 
+@pytest.mark.slow
 def test_progress_advances_and_a_cancel_within_a_second_leaves_the_project_unchanged(state):
     panel = optimise_panel(state, OptimiseConfig(sequence=LONG))
     try:
@@ -81,6 +82,7 @@ def test_progress_advances_and_a_cancel_within_a_second_leaves_the_project_uncha
         panel.close()
 
 
+@pytest.mark.slow
 def test_a_finished_job_applies_its_result_and_the_panel_shows_its_shadow(state):
     panel = optimise_panel(state, OptimiseConfig(sequence=TINY))
     heard = []
@@ -105,6 +107,7 @@ def test_a_finished_job_applies_its_result_and_the_panel_shows_its_shadow(state)
         panel.close()
 
 
+@pytest.mark.slow
 def test_all_stale_runs_the_project_and_reports(state):
     panel = optimise_panel(state, OptimiseConfig(sequence=TINY))
     try:
@@ -123,6 +126,7 @@ def test_all_stale_runs_the_project_and_reports(state):
         panel.close()
 
 
+@pytest.mark.slow
 def test_the_writer_redraws_on_its_own_at_most_ten_times_a_second(state):
     panel = optimise_panel(state, OptimiseConfig(sequence=LONG, redraw_hz=10.0))
     redraws = []
@@ -139,6 +143,7 @@ def test_the_writer_redraws_on_its_own_at_most_ten_times_a_second(state):
     assert job.wait(1.0) == JobState.CANCELLED  # closing the panel cancels what it started
 
 
+@pytest.mark.slow
 def test_the_whole_video_runs_the_sources_keyframes_in_order_one_job_each(tmp_path):
     from studio.targets.video import DEFAULT_VIDEO
 
