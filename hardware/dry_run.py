@@ -13,7 +13,6 @@ Real pyserial talks to the emulator exactly as it would to a USB adapter, so eve
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
 
 from hardware.bus import ServoBus
 from hardware.calibration import Calibration, load_calibration
@@ -21,6 +20,7 @@ from hardware.playback_log import PlaybackResult
 from hardware.player import Player, PlayerConfig, SampleHook
 from hardware.session import ServoSession
 from studio.motion.show import Show
+from studio.progress import ProgressFn
 from studio.sim.hand import Hand, load_hand
 
 
@@ -29,7 +29,7 @@ def play_show(
     calibration: Calibration | None = None,
     config: PlayerConfig | None = None,
     hand: Hand | None = None,
-    progress: Callable[[int, int], None] | None = None,
+    progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     on_sample: SampleHook | None = None,
     *,
@@ -39,9 +39,10 @@ def play_show(
     ``bus`` is None, on the emulator started for it with the calibration's servo IDs (a
     :class:`~hardware.session.ServoSession`, closed with torque as ``config`` leaves it).
 
-    ``calibration`` defaults to the shipped one; ``on_sample`` is the player's per-tick hook (review's commanded vs
-    measured series). Never raises for a stop condition (the result says why); raises ``BusError`` where the
-    emulator cannot run (no pseudo-terminals on this system).
+    ``calibration`` defaults to the shipped one; ``progress`` gets ``Progress("play", tick, ticks)``;
+    ``on_sample`` is the player's per-tick hook (review's commanded vs measured series). Never raises for a stop
+    condition (the result says why); raises ``BusError`` where the emulator cannot run (no pseudo-terminals on this
+    system).
     """
     cal = calibration or load_calibration(None, hand or load_hand())
     cfg = config or PlayerConfig()

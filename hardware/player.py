@@ -40,6 +40,7 @@ from hardware.errors import (
 )
 from hardware.playback_log import PlaybackResult, Recording, StopReason
 from hardware.safety import SafetyConfig, check_faults, check_temperature, check_voltage, clip_command, tracking_error
+from studio.progress import Progress, ProgressFn
 
 __all__ = ["PlaybackResult", "Player", "PlayerConfig", "SampleHook", "StopReason"]
 
@@ -132,9 +133,10 @@ class Player:
         positions: np.ndarray,
         joint_names: list[str],
         cancel: threading.Event | None = None,
-        progress: Callable[[int, int], None] | None = None,
+        progress: ProgressFn | None = None,
     ) -> PlaybackResult:
-        """Play ``positions (N, J) rad`` at ``times (N,) s`` (columns named by ``joint_names``).
+        """Play ``positions (N, J) rad`` at ``times (N,) s`` (columns named by ``joint_names``); ``progress`` gets
+        ``Progress("play", tick, ticks)`` after every tick (the ramp to the first pose included).
 
         Never raises for a stop condition, a lost bus, a raising hook or Ctrl-C: the result says why it stopped and
         what torque state it left. A malformed show raises ValueError before anything is sent; an unexpected
@@ -203,7 +205,7 @@ class Player:
             if self.on_sample is not None:
                 self._hook("on_sample", self.on_sample, k * dt, c.sent.copy(), rec.measured.copy())
             if progress is not None:
-                self._hook("progress", progress, k + 1, len(q))
+                self._hook("progress", progress, Progress("play", k + 1, len(q)))
         skipped = len(q) - len(rec.ticks)
         return StopReason.COMPLETED, f"played {len(q)} ticks ({len(q) * dt:.2f} s, {skipped} skipped)"
 

@@ -94,8 +94,10 @@ def test_play_dry_run(hand, tmp_path, capsys):
     save_show(Show.from_samples(hand, t, q, title="tiny"), tmp_path / "tiny.json")
     log = tmp_path / "log.npz"
     assert main(["play", str(tmp_path / "tiny.json"), "--dry-run", "--log", str(log)]) == 0
-    out = capsys.readouterr().out
+    captured = capsys.readouterr()
+    out = captured.out
     assert "completed" in out and "torque held" in out and "jitter" in out
+    assert f"play:   0%|          | 0/{len(t)}" in captured.err, captured.err  # the bar counts the show's ticks
     saved = np.load(log)
     assert saved["sent"].shape == (len(t), 21) and len(saved["measured_rad"]) > 0
     assert main(["play", str(tmp_path / "tiny.json")]) == 2  # no port, no dry run: a one-line error
@@ -125,7 +127,8 @@ def test_play_survives_the_emulator_dying(emulate, hand, tmp_path):
     cal = tmp_path / "cal.yaml"
     save_calibration(default_calibration(hand), cal)  # made for this hand: no warning about another one
     log = tmp_path / "run.npz"
-    args = ["play", str(show), "--port", port, "--calibration", str(cal), "--log", str(log)]
+    # --quiet: no progress bar on stderr, so the error is its only line
+    args = ["play", str(show), "--port", port, "--calibration", str(cal), "--log", str(log), "--quiet"]
     play = subprocess.Popen(
         [sys.executable, "-m", "studio.cli", *args],
         stdout=subprocess.PIPE,

@@ -262,7 +262,7 @@ def test_a_raising_callback_stops_safely(hand, cal, rig, hook):
     t, q, names = show(hand, 3.0)
 
     def boom(*args):
-        if (args[0] >= 0.25) if hook == "on_sample" else (args[0] >= 10):
+        if (args[0] >= 0.25) if hook == "on_sample" else (args[0].step >= 10):  # t s, or a Progress
             raise RuntimeError("boom")
 
     player = Player(bus, cal, PlayerConfig(ramp_speed_rad_s=50, hold_torque_on_stop=False))

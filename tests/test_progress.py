@@ -8,6 +8,7 @@ import io
 import math
 import os
 import signal
+import sys
 import time
 
 import numpy as np
@@ -112,8 +113,8 @@ class Strict:
 
 
 def test_every_long_engine_call_reports_typed_progress(tmp_path, hand):
-    """search, refine, sweep, the index, seeding, a still, a sequence, collect, train, Table 1, Table 2 and plan,
-    each with a strict ProgressFn."""
+    """search, refine, sweep, the index, seeding, a still, a sequence, collect, train, Table 1, Table 2, plan and
+    playback, each with a strict ProgressFn."""
     from studio.evaluate.baselines import TrainingSet
     from studio.evaluate.table1 import Evaluator
     from studio.evaluate.table2 import ROWS, PreparedSequence, VideoEvaluator
@@ -186,5 +187,11 @@ def test_every_long_engine_call_reports_typed_progress(tmp_path, hand):
 
     q = hand.rest_pose().copy()
     q[hand.joint_names.index("index_pip")] = 0.6
-    plan_show(hand, Keyframes.at([0.5], [q]), progress=strict)
+    show = plan_show(hand, Keyframes.at([0.5], [q]), progress=strict).show
     assert strict.take() == ["path"] * 3 + ["timing", "show"]
+    if sys.platform != "win32":  # playback on the emulator (POSIX pseudo-terminals): a Progress per tick
+        from hardware.dry_run import play_show
+
+        played = play_show(show, progress=strict)
+        last = strict.events[-1]
+        assert played.ok and last.stage == "play" and last.step == last.total > 0 and set(strict.take()) == {"play"}

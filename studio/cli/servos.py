@@ -28,6 +28,7 @@ from hardware.serial_bus import BusConfig
 from hardware.session import ServoSession, load_emulator
 from hardware.wizard import CalibrationWizard
 from studio.cli.flags import add_config_flags, config_from_args
+from studio.cli.progress import add_quiet_flag
 from studio.sim.hand import load_hand
 
 
@@ -127,6 +128,7 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_play(args) -> int:
+    from studio.jobs.bars import TqdmBars
     from studio.motion.show import load_show
 
     hand = load_hand()
@@ -141,7 +143,8 @@ def cmd_play(args) -> int:
         print(f"playing {show.title!r}: {show.duration:.2f} s, {len(show.times)} samples; Ctrl-C stops safely")
         player = Player(session.bus, cal, cfg)
         try:
-            result = player.play(show.times, show.positions, show.joint_names)
+            with TqdmBars(disable=args.quiet) as bars:
+                result = player.play(show.times, show.positions, show.joint_names, progress=bars)
         finally:  # the log is written however playback ended (even by a bug, which then surfaces)
             if args.log and player.last_result is not None:
                 save_playback_log(player.last_result, args.log)
@@ -218,6 +221,7 @@ def register(sub) -> None:
     p.add_argument("--dry-run", action="store_true", help="play to a built-in emulator instead of --port")
     p.add_argument("--release-on-stop", action="store_true", help="release torque when stopped early")
     p.add_argument("--log", type=Path, help="save command vs measured positions to this .npz")
+    add_quiet_flag(p)
     p.set_defaults(func=cmd_play)
 
     p = sub.add_parser("jog", help="move joints one at a time from the terminal (type help)")

@@ -48,10 +48,7 @@ def _play(report: Reporter, cancel, *, show, calibration, config, bus, on_sample
     from hardware.dry_run import play_show
     from hardware.player import StopReason
 
-    def progress(k: int, n: int) -> None:
-        report("play", k, n)
-
-    result = play_show(show, calibration, config, progress=progress, cancel=cancel, on_sample=on_sample, bus=bus)
+    result = play_show(show, calibration, config, progress=report, cancel=cancel, on_sample=on_sample, bus=bus)
     if result.reason not in (StopReason.COMPLETED, StopReason.CANCELLED):
         raise PlaybackStopped(f"playback stopped ({result.reason.value}): {result.message}")
     return result
