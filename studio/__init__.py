@@ -15,15 +15,15 @@ the command line stay quick; ``dir(studio)`` lists them all.
 
 from __future__ import annotations
 
-import importlib
-import os
-from typing import Any
+import importlib as _importlib
+import os as _os
+from typing import Any as _Any
 
 # Idle OpenMP threads sleep instead of spinning. numba's parallel kernels (renderer, compiled loss) and torch keep
 # separate OpenMP pools; with the default (spin) policy the renderer's idle threads steal the cores from the
 # self-model's gradient steps that follow (measured here: a 16-pose search step 83 ms → 1,234 ms after one parallel
 # render on 2 cores). Set before torch or numba start their pools; a value the user set is kept.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+_os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 # name → the module that defines it, grouped by stage
 _API: dict[str, str] = {
@@ -108,14 +108,15 @@ _API: dict[str, str] = {
 __all__ = sorted(_API)
 
 
-def __getattr__(name: str) -> Any:
+def __getattr__(name: str) -> _Any:
     module = _API.get(name)
     if module is None:
         raise AttributeError(f"module 'studio' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
+    value = getattr(_importlib.import_module(module), name)
     globals()[name] = value  # later look-ups skip this function
     return value
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_API))
+    """The public API (and the stage modules already loaded), without this module's own helpers."""
+    return sorted({n for n in globals() if not n.startswith("_") and n != "annotations"} | set(_API))
