@@ -25,7 +25,7 @@ import yaml
 from studio.assets import asset
 
 from hardware import constants as C
-from hardware.errors import CalibrationError
+from hardware.errors import CalibrationError, CalibrationMissing
 from studio.atomic import write_text
 from studio.sim.hand import Hand
 
@@ -183,7 +183,7 @@ def load_calibration(path: str | Path | None, hand: Hand) -> Calibration:
     """Read and validate a calibration file (default: the shipped ``assets/calibration.yaml``)."""
     p = Path(path) if path is not None else DEFAULT_CALIBRATION
     if not p.is_file():
-        raise FileNotFoundError(f"calibration file not found: {p} (make one with `shadow-studio calibrate`)")
+        raise CalibrationMissing(f"calibration file not found: {p}")
     where = f"{p}: "
     try:
         doc = yaml.safe_load(p.read_text())

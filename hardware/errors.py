@@ -26,10 +26,7 @@ class ServoTimeout(HardwareError):
 
     def __init__(self, servo_id: int, message: str | None = None):
         self.servo_id = servo_id
-        super().__init__(
-            message
-            or f"servo {servo_id} did not answer: check its cable, power and ID (run `shadow-studio scan --port …`)"
-        )
+        super().__init__(message or f"servo {servo_id} did not answer: check its cable, power and ID")
 
 
 class ServoFault(HardwareError):
@@ -54,6 +51,10 @@ class EStopLatched(HardwareError):
 
 class CalibrationError(HardwareError):
     """A calibration file does not match the hand, is inconsistent, or cannot be written where asked."""
+
+
+class CalibrationMissing(CalibrationError, FileNotFoundError):
+    """No calibration file where one was asked for (a face says how it makes one)."""
 
 
 class OverTemperature(ServoFault):

@@ -157,12 +157,12 @@ class SerialServoBus(ServoBus):
             if dec.checksum_errors > bad_before and not dec.buffer:
                 raise ChecksumError(
                     f"servo {servo_id} answered {command.name} with a bad checksum: electrical noise, a loose "
-                    "cable, or two servos sharing this ID (run `shadow-studio scan`)"
+                    "cable, or two servos sharing this ID"
                 )
         if stray is not None:
             raise UnexpectedReply(
                 f"asked servo {servo_id} for {command.name} but got {C.COMMANDS.get(stray.cmd, stray.cmd)!s:.40} "
-                f"from ID {stray.servo_id}: check for duplicate or misconfigured IDs (run `shadow-studio scan`)"
+                f"from ID {stray.servo_id}: check for duplicate or misconfigured IDs"
             )
         raise ServoTimeout(servo_id)
 

@@ -93,6 +93,7 @@ _API: dict[str, str] = {
     "SegmentTooFastError": "studio.motion.errors",
     "ShowError": "studio.motion.show",
     "ProjectError": "studio.project.state",
+    "NotAProject": "studio.project.state",
     "ResultsNeeded": "studio.project.state",
     "ShowNeeded": "studio.project.state",
     "SourceMissing": "studio.project.status",

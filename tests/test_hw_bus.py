@@ -14,6 +14,7 @@ from hardware.emulator import EmulatorConfig, ServoEmulator
 from hardware.errors import BusError, ChecksumError, EStopLatched, HardwareError, ServoTimeout, UnexpectedReply
 from hardware.protocol import StreamDecoder, encode_request
 from hardware.serial_bus import BusConfig, SerialServoBus
+from studio.cli.runs import advice
 
 
 @pytest.fixture(params=[False, True], ids=["plain", "echo"])
@@ -103,7 +104,7 @@ def test_injected_faults_raise_typed_errors(rig, fault, error):
     with pytest.raises(error) as info:
         bus.read_position(3)
     if error is ServoTimeout:
-        assert info.value.servo_id == 3 and "scan" in str(info.value)
+        assert info.value.servo_id == 3 and "cable, power and ID" in str(info.value) and "scan" in advice(info.value)
     assert bus.read_position(4) == 500  # the rest of the bus is fine
     emu.inject(drop_ids=set(), missing_ids=set(), corrupt_ids=set(), wrong_id_ids=set())
     assert bus.read_position(3) == 500

@@ -20,6 +20,7 @@ from hardware.emulator import ServoEmulator
 from hardware.errors import CalibrationError
 from hardware.serial_bus import BusConfig, SerialServoBus
 from hardware.wizard import CalibrationWizard
+from studio.cli.runs import advice
 
 
 def test_shipped_calibration_is_valid_and_default(hand):
@@ -101,8 +102,10 @@ def test_each_mistake_is_rejected_clearly(hand, tmp_path, mistake):
 def test_not_yaml_and_missing_file(hand, tmp_path):
     with pytest.raises(CalibrationError, match="not valid YAML"):
         load_calibration(_write(tmp_path, "joints: [unclosed"), hand)
-    with pytest.raises(FileNotFoundError, match="shadow-studio calibrate"):
+    with pytest.raises(FileNotFoundError, match="calibration file not found") as info:
         load_calibration(tmp_path / "nope.yaml", hand)
+    assert isinstance(info.value, CalibrationError) and "shadow-studio" not in str(info.value)
+    assert advice(info.value) == " (shadow-studio calibrate makes one)"  # what the command line adds
 
 
 def test_validate_reorders_to_hand_order(hand):

@@ -187,6 +187,7 @@ def test_calibrate_survives_missed_reads_and_keeps_progress_when_the_port_is_los
         assert main(["calibrate", "--port", port, "--out", str(out)]) == 2
     captured = capsys.readouterr()
     assert "? servo 1 did not answer" in captured.out and "thumb_mcp_abd" in captured.out
+    assert "(shadow-studio scan --port PORT lists the servos that answer)" in captured.out  # the verb's advice
     err = captured.err.splitlines()
     partial = tmp_path / "cal.partial.yaml"
     assert len(err) == 1 and port in err[0] and str(partial) in err[0] and "--start" in err[0], err

@@ -76,8 +76,9 @@ def test_checkpoint_round_trip_and_guards(tmp_path, hand, rng):
     torch.save(blob, path)
     with pytest.raises(CheckpointError, match="current hand"):
         load_inverse(path, hand)
-    with pytest.raises(CheckpointError, match="train-inverse"):
+    with pytest.raises(CheckpointError, match="inverse-CNN checkpoint not found") as info:
         load_inverse(tmp_path / "missing.pt", hand)
+    assert info.value.kind == "inverse"  # the command line names the verb from it (studio.cli.runs.advice)
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(CheckpointError, match="unreadable"):
         load_inverse(tmp_path / "junk.pt", hand)

@@ -13,6 +13,7 @@ import torch
 from studio.assets import asset
 
 from studio.cli.main import main
+from studio.cli.runs import advice
 from studio.errors import StudioError
 from studio.learn.checkpoint import CheckpointError, read_checkpoint, save_model
 from studio.learn.config import TrainConfig
@@ -149,8 +150,14 @@ def test_loss_falls_in_seconds(hand):
 
 
 def test_checkpoint_errors(tmp_path, hand):
-    with pytest.raises(CheckpointError, match="not found.*shadow-studio train"):
+    with pytest.raises(CheckpointError, match="not found") as info:
         read_checkpoint(tmp_path / "absent.pt", "selfmodel")
+    # the engine names no command; the command line says which verb makes one
+    assert "shadow-studio" not in str(info.value) and "--" not in str(info.value)
+    assert advice(info.value) == " (shadow-studio train --out PATH makes one)"
+    with pytest.raises(CheckpointError) as info:
+        read_checkpoint(tmp_path / "absent.pt", "inverse")
+    assert "inverse-CNN" in str(info.value) and "train-inverse" in advice(info.value)
     junk = tmp_path / "junk.pt"
     junk.write_bytes(b"not a checkpoint")
     with pytest.raises(CheckpointError, match="unreadable"):

@@ -63,7 +63,8 @@ def print_run(report: Any) -> None:
     print(message, file=sys.stderr if report.error or report.cancelled or report.show is None else sys.stdout)
 
 
-ADVICE = {  # an engine error's class name → what the command line adds to its one line
+ADVICE: dict[str, str | Callable[[BaseException], str]] = {  # an engine error's class name → what the command line
+    # adds to its one line (a string, or a function of the error)
     "SegmentationNeeded": " (pass --box X,Y,W,H or --first-mask PNG)",
     "SourceChanged": " (project run --reload-sources re-reads it)",
     "SourceMissing": " (put it back where it was; the project keeps its results)",
@@ -71,10 +72,19 @@ ADVICE = {  # an engine error's class name → what the command line adds to its
     "ResultsNeeded": " (shadow-studio project run optimises them)",
     "ShowNeeded": " (shadow-studio project run plans it)",
     "SegmentTooFastError": " (pass --allow-late to stretch them)",
+    "NotAProject": " (shadow-studio project new makes one)",
+    "CalibrationMissing": " (shadow-studio calibrate makes one)",
+    "CheckpointError": lambda e: " (shadow-studio {} --out PATH makes one)".format(
+        "train-inverse" if getattr(e, "kind", None) == "inverse" else "train"
+    ),
+    "ServoTimeout": " (shadow-studio scan --port PORT lists the servos that answer)",
+    "ChecksumError": " (shadow-studio scan --port PORT lists the servos that answer)",
+    "UnexpectedReply": " (shadow-studio scan --port PORT lists the servos that answer)",
 }
 
 
 def advice(error: BaseException) -> str:
     """What to type about an engine error, in the command line's words ("" when there is nothing to add). Read by
     class name, so that a failing verb imports nothing more to say it."""
-    return next((ADVICE[c.__name__] for c in type(error).__mro__ if c.__name__ in ADVICE), "")
+    said = next((ADVICE[c.__name__] for c in type(error).__mro__ if c.__name__ in ADVICE), "")
+    return said(error) if callable(said) else said

@@ -29,6 +29,7 @@ from hardware.session import ServoSession, load_emulator
 from hardware.wizard import CalibrationWizard
 from studio.cli.flags import add_config_flags, config_from_args
 from studio.cli.progress import add_quiet_flag
+from studio.cli.runs import advice
 from studio.sim.hand import load_hand
 
 
@@ -109,7 +110,7 @@ def cmd_calibrate(args) -> int:
                 try:
                     print(wiz.execute(line))
                 except (ValueError, ServoTimeout, ProtocolError) as e:  # a missed read: type it again
-                    print(f"? {e}")
+                    print(f"? {e}{advice(e)}")
                 if wiz.finished:
                     break
         except BusError as e:  # the port is gone: keep what was done, say so in the one error line
@@ -184,7 +185,7 @@ def cmd_jog(args) -> int:
                 try:
                     print(jog.execute(line))
                 except (ValueError, ServoTimeout, ProtocolError, EStopLatched) as e:  # BusError ends the verb
-                    print(f"? {e}")
+                    print(f"? {e}{advice(e)}")
         except KeyboardInterrupt:
             halted = jog.estop()
             print("E-STOP (Ctrl-C): servos halted" if halted else "E-STOP (Ctrl-C): the bus failed: cut the power")

@@ -30,14 +30,16 @@ from studio.sim.hand import Hand, load_hand
 
 FORMAT_NAME = "shadow-studio-checkpoint"
 FORMAT_VERSION = 1  # the version this code writes and reads
-KINDS = {  # kind → (what it is, the command that makes one)
-    "selfmodel": ("self-model", "shadow-studio train"),
-    "inverse": ("inverse-CNN", "shadow-studio train-inverse"),
-}
+KINDS = {"selfmodel": "self-model", "inverse": "inverse-CNN"}  # kind → what it is, in words
 
 
 class CheckpointError(StudioError):
-    """A checkpoint is missing, unreadable, of another kind, or made for another hand."""
+    """A checkpoint is missing, unreadable, of another kind, or made for another hand. ``kind`` is the kind that was
+    wanted ("selfmodel", "inverse"), so that a face can say how it makes one (the message names no command)."""
+
+    def __init__(self, message: str, kind: str | None = None):
+        super().__init__(message)
+        self.kind = kind
 
 
 class Network(Protocol):
@@ -65,8 +67,8 @@ class Checkpoint:
     extra: dict = field(default_factory=dict)  # resume state: "step", "elapsed_s", "optimizer" (while training)
 
 
-def _describe(kind: str) -> tuple[str, str]:
-    return KINDS.get(kind, (repr(kind), "shadow-studio"))
+def _describe(kind: str) -> str:
+    return KINDS.get(kind, repr(kind))
 
 
 def save_checkpoint(path: str | Path, ckpt: Checkpoint) -> Path:
@@ -82,25 +84,24 @@ def read_checkpoint(path: str | Path, kind: str, hand_hash: str | None = None) -
     """Read a checkpoint of ``kind`` (trained for ``hand_hash`` when given); any problem raises
     :class:`CheckpointError` saying what to do."""
     path = Path(path)
-    what, verb = _describe(kind)
+    what = _describe(kind)
     if not path.is_file():
-        raise CheckpointError(f"{path}: {what} checkpoint not found (make one with `{verb} --out {path}`)")
+        raise CheckpointError(f"{path}: {what} checkpoint not found: train one there", kind)
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # torch raises many types for corrupt files
-        raise CheckpointError(f"{path}: unreadable checkpoint ({e.__class__.__name__}: {e})") from None
+        raise CheckpointError(f"{path}: unreadable checkpoint ({e.__class__.__name__}: {e})", kind) from None
     if not isinstance(blob, dict) or blob.get("format") != FORMAT_NAME or "state_dict" not in blob:
-        raise CheckpointError(f"{path}: not a shadow-studio checkpoint (make one with `{verb}`)")
+        raise CheckpointError(f"{path}: not a shadow-studio checkpoint", kind)
     if blob.get("version") != FORMAT_VERSION:
         raise CheckpointError(f"{path}: checkpoint version {blob.get('version')!r}; this code reads "
-                              f"{FORMAT_VERSION} (update shadow-studio or retrain with `{verb}`)")  # fmt: skip
+                              f"{FORMAT_VERSION} (update shadow-studio or retrain it)", kind)  # fmt: skip
     if blob.get("kind") != kind:
-        other = _describe(blob.get("kind"))[0]
-        raise CheckpointError(f"{path}: a checkpoint of the {other}, not of the {what} (make one with `{verb}`)")
+        other = _describe(blob.get("kind"))
+        raise CheckpointError(f"{path}: a checkpoint of the {other}, not of the {what}", kind)
     if hand_hash is not None and blob.get("hand_hash") != hand_hash:
         raise CheckpointError(
-            f"{path}: trained for hand {blob.get('hand_hash')}, but the current hand is {hand_hash}; "
-            f"retrain it with `{verb}`"
+            f"{path}: trained for hand {blob.get('hand_hash')}, but the current hand is {hand_hash}; retrain it", kind
         )
     fields = ("config", "hand_hash", "rig", "state_dict", "metrics", "train", "extra")
     return Checkpoint(kind, **{k: blob[k] for k in fields if k in blob})
@@ -134,7 +135,7 @@ def load_model(path: str | Path, cls: type, hand: Hand | None = None, device: st
         model = cls(cls.config_from_dict(ckpt.config), hand)
         model.load_state_dict(ckpt.state_dict)
     except (TypeError, ValueError, RuntimeError) as e:
-        raise CheckpointError(f"{path}: its weights do not fit its architecture ({e}); retrain it") from None
+        raise CheckpointError(f"{path}: its weights do not fit its architecture ({e}); retrain it", cls.kind) from None
     ckpt.state_dict = {}
     dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
     return model.to(dev).eval(), ckpt

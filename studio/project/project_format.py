@@ -47,6 +47,7 @@ from studio.motion.show import Show, load_show, save_show
 from studio.project.state import (
     Frame,
     Keyframe,
+    NotAProject,
     PoseResult,
     ProjectError,
     ProjectState,
@@ -217,7 +218,7 @@ def read_doc(folder: Path) -> dict[str, Any]:
     """``project.json`` of ``folder``, its format and version checked (a newer version is refused)."""
     path = Path(folder) / DOC
     if not path.is_file():
-        raise ProjectError(f"not a project (no {DOC}): {folder}; make one with `shadow-studio project new`")
+        raise NotAProject(f"not a project (no {DOC}): {folder}")
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as e:

@@ -28,6 +28,10 @@ class ProjectError(StudioError):
     """A project folder is missing, damaged, of a newer format, or an edit cannot be made (the message says why)."""
 
 
+class NotAProject(ProjectError):
+    """A folder opened as a project has no project document (a face says how it makes one)."""
+
+
 class ResultsNeeded(ProjectError):
     """A show needs every keyframe's current result: some are missing or stale (optimise them first)."""
 
