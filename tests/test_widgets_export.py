@@ -144,5 +144,17 @@ def test_play_on_the_emulator_with_progress_and_stop(state):
         assert played.result.ok and short._sessions == {}
         with ServoSession(hand_at_port.port, ids=[1]) as again:  # closed when the job ended: the port is free
             assert again.read_back()[1] is not None
+        # the panel closed mid-show: the show stops and the panel's servos are closed (no one else would)
+        panel.target.value, panel.port.value = "port", hand_at_port.port
+        long = panel.play()
+        deadline = time.monotonic() + 30
+        while not (long.state == JobState.RUNNING and long.step > 5):
+            assert time.monotonic() < deadline and not long.finished, long.error
+            time.sleep(0.02)
+        session = panel._sessions[long]
+        panel.close()
+        assert long.state == JobState.CANCELLED and not session.is_open and panel._sessions == {}
+        assert session.report.stopped and session.report.torque == "held"  # the player's default: torque held
+        with ServoSession(hand_at_port.port, ids=[1]) as again:  # the port is free again
+            assert again.read_back()[1] is not None
     short.close()
-    panel.close()

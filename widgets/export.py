@@ -50,6 +50,7 @@ class ExportConfig:
     layout: ShowLayout | None = None  # how the project's sources share the show clock (None: the defaults)
     plan: PlanConfig | None = None  # the planner (None: the defaults; its allow_late comes from the box)
     player: PlayerConfig | None = None  # how a show plays (None: the player's defaults: 40 Hz, torque held on stop)
+    close_wait_s: float = 2.0  # closing the panel mid-show: how long to wait for the player to stop before closing
 
 
 def default_show_path(state: StudioState) -> Path:
@@ -276,9 +277,17 @@ class ExportPanel:
             self.show_info()
 
     def close(self) -> None:
-        """Stop listening (jobs keep running on the project's queue; :meth:`stop` cancels them)."""
+        """Stop listening. A plan job keeps running on the project's queue (:meth:`stop` cancels it); a show playing
+        on servos this panel opened is stopped (within a tick) and its servos closed fail-safe, since no one would be
+        left to close them."""
         self._unsubscribe()
         self._stop_listening()
+        for job, session in list(self._sessions.items()):
+            job.cancel()
+            if not job.wait(self.cfg.close_wait_s).finished:
+                log.warning("%s went on past %.1f s: its servos closed anyway", job.title, self.cfg.close_wait_s)
+            self._sessions.pop(job, None)
+            session.close()  # stopped, torque as the player's config says; never raises
 
 
 def export_panel(state: StudioState, cfg: ExportConfig | None = None) -> ExportPanel:
