@@ -22,7 +22,8 @@ import numpy as np
 
 from hardware.calibration import load_calibration
 from hardware.player import Player, _sleep_until
-from hardware.serial_bus import BusConfig, SerialServoBus
+from hardware.serial_bus import BusConfig
+from hardware.session import ServoSession
 from studio.motion.show import Show, load_show, save_show
 from studio.sim.hand import load_hand
 
@@ -74,7 +75,10 @@ def main() -> None:
             save_show(make_show(hand, args.seconds, cal), path)
             show = load_show(path, hand)
         samples = []
-        with SerialServoBus(BusConfig(port, timeout_s=0.01, retries=0)) as bus:
+        # the emulator runs in its own process (its timing apart from the player's); the port is opened, read back
+        # and closed fail-safe as every face opens servos
+        with ServoSession(port, calibration=cal, config=BusConfig(port, timeout_s=0.01, retries=0)) as session:
+            bus = session.bus
             player = Player(bus, cal, on_sample=lambda t, c, m: samples.append((t, c, m)))
             r = player.play(show.times, show.positions, show.joint_names)
     finally:
