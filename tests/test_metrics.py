@@ -255,7 +255,7 @@ def test_evaluate_cli_writes_table_and_prints_json_last(setup, tmp_path, capsys)
     assert torch.get_num_threads() == threads  # --threads is restored afterwards
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert [r["method"] for r in summary["rows"]] == list(METHODS)
-    assert summary["rows"][0]["targets"] == 2 and summary["clip"] is False
+    assert summary["rows"][0]["targets"] == 2 and summary["clip"] is None
     settings = json.loads((tmp_path / "out" / "settings.json").read_text())
     assert settings["losses"]["use_clip"] is False and settings["refine"]["steps"] == 3
     assert settings["score_resolution"] == RES  # the model's side unless --score-resolution is given

@@ -215,7 +215,7 @@ def test_evaluate_video_cli_on_a_davis_sequence(shared_targets, tmp_path, capsys
     assert torch.get_num_threads() == threads
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert [r["row"] for r in summary["rows"]] == [r.name for r in ROWS] and summary["sequences"] == ["blackswan"]
-    assert summary["clip"] is False and summary["cancelled"] is False and summary["preset"] == "studio"
+    assert summary["clip"] is None and summary["cancelled"] is False and summary["preset"] == "studio"
     n = summary["rows"][0]["transitions"]
     assert n == summary["rows"][0]["keyframes"] - 1 >= 1 and all(r["transitions"] == n for r in summary["rows"])
     for name in ("table2.md", "table2.csv", "per_sequence.csv", "per_keyframe.csv", "settings.json"):

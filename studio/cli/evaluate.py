@@ -68,7 +68,7 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
     paths = write_table(result, Path(args.out))
     if not args.quiet:
         print(Path(paths["markdown"]).read_text())
-    summary = {"files": paths, "clip": imitator.loss_cfg.use_clip, "rows": result.rows}
+    summary = {"files": paths, "clip": getattr(clip, "name", None), "rows": result.rows}  # as every verb says it
     print(json.dumps(summary, allow_nan=False, default=str))
     return 0
 
@@ -124,8 +124,9 @@ def _run_video_evaluation(args: argparse.Namespace) -> int:
     paths = write_table(result, Path(args.out))
     if not args.quiet:
         print(Path(paths["markdown"]).read_text())
-    summary = {"files": paths, "clip": loss_cfg.use_clip, "preset": args.preset, "cancelled": result.cancelled,
-               "sequences": [s.name for s in sequences], "seconds": round(time.perf_counter() - t0, 1),
+    summary = {"files": paths, "clip": getattr(clip, "name", None), "preset": args.preset,
+               "cancelled": result.cancelled, "sequences": [s.name for s in sequences],
+               "seconds": round(time.perf_counter() - t0, 1),
                "rows": json_rows(result.rows)}  # fmt: skip
     print(json.dumps(summary, allow_nan=False, default=str))
     if result.cancelled:
