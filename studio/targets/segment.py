@@ -8,7 +8,8 @@ The classical method (``method="classical"``), at ``work_size`` (longest side, p
    (:func:`~studio.targets.segment_cues.box_motion`) gives a motion cue inside it; starting from the pixels that
    move (Otsu), ``first_iterations`` rounds re-learn the object's and the background's colours and graph-cut the
    box with colour + local colour + motion evidence (outside the box is background). When nothing in the box
-   moves apart (a static shot), the box alone starts it, GrabCut-like.
+   moves apart (a static shot), OpenCV's GrabCut cuts the box (``first_grabcut_iterations`` rounds): on one frame of
+   each of the four clips from its true box, J 0.53 → 0.66 against the colour rounds alone.
 2. **Each later frame.** The previous mask is warped by the backward flow (DIS); a shape prior (its signed
    distance in units of ``shape_sigma`` × object size, size = √area), global colour histograms (anchored to the
    first frame, updated at ``model_update``), a bilateral-grid colour model of the warped guess and the motion cue

@@ -27,6 +27,8 @@ class SegmentConfig:
     first_iterations: int = 4  # colour re-learning + graph-cut rounds for the first frame from a box
     first_motion_scale: float = 2.0  # first-frame motion evidence = scale · log(residual / Otsu level) …
     first_motion_clip: float = 3.0  # … clipped to ± this
+    first_grabcut_iterations: int = 5  # nothing in the box moves apart (a static shot): GrabCut rounds from the box
+    # (0: the colour rounds above alone)
     smoothness: float = 2.0  # graph-cut weight of the contrast-sensitive Potts term (per neighbour pair)
     colour_bins: int = 16  # global colour histograms: bins per RGB channel
     colour_weight: float = 1.0  # weight of the global colour evidence
@@ -71,3 +73,5 @@ class SegmentConfig:
             raise ValueError(f"flow_preset must be one of {sorted(DIS_PRESETS)}, not {self.flow_preset!r}")
         if self.work_size < 32 or self.first_iterations < 1 or self.colour_bins < 2 or self.local_bins < 2:
             raise ValueError("work_size must be ≥ 32, first_iterations ≥ 1, colour_bins and local_bins ≥ 2")
+        if self.first_grabcut_iterations < 0:
+            raise ValueError("first_grabcut_iterations must be ≥ 0 (0: the colour rounds alone)")
