@@ -56,7 +56,7 @@ def first_from_box(work: WorkFrames, box: tuple[int, int, int, int], cfg: Segmen
     inside[y : y + bh, x : x + bw] = True
     gaps = [g for g in cfg.first_gaps if g < len(work.frames)]
     evidence = np.zeros((h, w), np.float32)
-    start = inside.copy()
+    start, moved = inside.copy(), False  # moved: the motion cue found the object apart from the background
     if gaps:
         z = cues.box_motion([(work.flow(0, g), work.flow(g, 0)) for g in gaps], (x, y, bw, bh))
         known = ~np.isnan(z)
@@ -74,11 +74,11 @@ def first_from_box(work: WorkFrames, box: tuple[int, int, int, int], cfg: Segmen
                     cfg.first_motion_clip,
                 ).astype(np.float32)
                 evidence[~known] = 0
-                start = moving
+                start, moved = moving, True
     size = float(np.sqrt(inside.sum()))
     m = max(4, int(0.2 * size))
     roi = (slice(max(0, y - m), min(h, y + bh + m)), slice(max(0, x - m), min(w, x + bw + m)))
-    if not (start ^ inside).any() and cfg.first_grabcut_iterations > 0:  # no motion cue: the box and colours alone
+    if not moved and cfg.first_grabcut_iterations > 0:  # no motion cue: the box and colours alone
         cut = _grabcut(work[0][0], (x, y, bw, bh), cfg.first_grabcut_iterations)
         if cut.any():
             log.info("first frame from the box by GrabCut (nothing in the box moves apart from the background)")
