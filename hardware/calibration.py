@@ -5,17 +5,21 @@ File format (YAML, ``assets/calibration.yaml`` for the shipped hand)::
     format: shadow-studio-calibration
     version: 1
     hand_hash: 1a2b3c...        # optional: the URDF this was made for (a mismatch is only a warning)
+    rig: {roll_deg: 30.0}       # optional: how the hand is mounted on this rig (DESIGN §1); absent: not recorded
     joints:
       wrist: {id: 1, direction: 1, zero: 500, lower: -1.52, upper: 1.52}
       ...
 
 ``units = zero + direction · θ · UNITS_PER_RAD`` (θ in rad, 1000 units = 240°); ``lower``/``upper`` are soft
-limits in rad, inside the URDF limits and inside the servo's 0..1000 travel.
+limits in rad, inside the URDF limits and inside the servo's 0..1000 travel. A calibration that records the rig's
+mount roll plays only shows made for that roll (:func:`check_mount`); one that does not (the shipped file, files made
+before the roll existed) plays any, and the player says how the show wants the hand mounted.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,9 +29,10 @@ import yaml
 from studio.assets import asset
 
 from hardware import constants as C
-from hardware.errors import CalibrationError, CalibrationMissing
+from hardware.errors import CalibrationError, CalibrationMissing, MountMismatch
 from studio.atomic import write_text
 from studio.sim.hand import Hand
+from studio.sim.roll import file_deg, mount_text, wrap_deg
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +59,7 @@ class Calibration:
 
     joints: tuple[JointCalibration, ...]  # one per joint, hand order
     hand_hash: str | None = None  # URDF hash it was made for
+    roll: float | None = None  # the rig's mount roll, rad, as recorded (None: the file does not say)
 
     @property
     def joint_names(self) -> list[str]:
@@ -143,7 +149,24 @@ def validate(cal: Calibration, hand: Hand, path: str | Path | None = None) -> Ca
     if cal.hand_hash and cal.hand_hash != hand.hash:
         log.warning("calibration was made for hand %s, this hand is %s", cal.hand_hash, hand.hash)
     order = {n: k for k, n in enumerate(hand.joint_names)}
-    return Calibration(tuple(sorted(cal.joints, key=lambda j: order[j.name])), cal.hand_hash)
+    return Calibration(tuple(sorted(cal.joints, key=lambda j: order[j.name])), cal.hand_hash, cal.roll)
+
+
+MOUNT_TOL_DEG = 0.5  # a show's roll and the calibration's may differ by this much, degrees
+
+
+def check_mount(show_roll: float, cal: Calibration, path: str | Path | None = None) -> None:
+    """Raise :class:`MountMismatch` when ``cal`` records a mount roll other than ``show_roll`` rad (beyond
+    ``MOUNT_TOL_DEG``); a calibration that records none accepts every show."""
+    if cal.roll is None:
+        return
+    want, have = wrap_deg(math.degrees(show_roll)), wrap_deg(math.degrees(cal.roll))
+    if abs(wrap_deg(want - have)) > MOUNT_TOL_DEG:
+        where = f" ({path})" if path else ""
+        raise MountMismatch(
+            f"this show wants the hand mounted at roll {want:+.1f}° but the calibration{where} records the rig at "
+            f"{have:+.1f}°: {mount_text(show_roll)}, then record that roll in the calibration"
+        )
 
 
 def default_calibration(hand: Hand, margin: float = 0.05) -> Calibration:
@@ -196,7 +219,14 @@ def load_calibration(path: str | Path | None, hand: Hand) -> Calibration:
     joints = doc.get("joints")
     if not isinstance(joints, dict) or not joints:
         raise CalibrationError(f"{where}'joints' must map each joint name to its servo")
-    cal = Calibration(tuple(_joint_from_yaml(n, d, where) for n, d in joints.items()), doc.get("hand_hash"))
+    rig = doc.get("rig")
+    roll = None
+    if rig is not None:
+        deg = rig.get("roll_deg") if isinstance(rig, dict) else None
+        if isinstance(deg, bool) or not isinstance(deg, (int, float)) or not math.isfinite(deg):
+            raise CalibrationError(f"{where}'rig' must be a mapping with roll_deg: the mount roll in degrees")
+        roll = math.radians(float(deg))
+    cal = Calibration(tuple(_joint_from_yaml(n, d, where) for n, d in joints.items()), doc.get("hand_hash"), roll)
     return validate(cal, hand, p)
 
 
@@ -206,6 +236,7 @@ def save_calibration(cal: Calibration, path: str | Path) -> None:
         "format": FORMAT_NAME,
         "version": 1,
         "hand_hash": cal.hand_hash,
+        **({} if cal.roll is None else {"rig": {"roll_deg": file_deg(cal.roll)}}),
         "joints": {
             j.name: {
                 "id": j.servo_id,

@@ -15,7 +15,7 @@ from __future__ import annotations
 import threading
 
 from hardware.bus import ServoBus
-from hardware.calibration import Calibration, load_calibration
+from hardware.calibration import Calibration, check_mount, load_calibration
 from hardware.playback_log import PlaybackResult
 from hardware.player import Player, PlayerConfig, SampleHook
 from hardware.session import ServoSession
@@ -42,9 +42,11 @@ def play_show(
     ``calibration`` defaults to the shipped one; ``progress`` gets ``Progress("play", tick, ticks)``;
     ``on_sample`` is the player's per-tick hook (review's commanded vs measured series). Never raises for a stop
     condition (the result says why); raises ``BusError`` where the emulator cannot run (no pseudo-terminals on this
-    system).
+    system), and :class:`~hardware.errors.MountMismatch` before anything moves when ``calibration`` records the rig
+    at another mount roll than the show's.
     """
     cal = calibration or load_calibration(None, hand or load_hand())
+    check_mount(show.roll, cal)  # a rig calibrated at another roll: refused before the servos are touched
     cfg = config or PlayerConfig()
     if bus is None:
         with ServoSession(calibration=cal, release_on_close=not cfg.hold_torque_on_stop) as session:

@@ -59,3 +59,7 @@ class CalibrationMissing(CalibrationError, FileNotFoundError):
 
 class OverTemperature(ServoFault):
     """A servo is hotter than the safe limit."""
+
+
+class MountMismatch(CalibrationError):
+    """A show made for one mount roll, and a calibration that records the rig at another."""

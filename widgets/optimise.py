@@ -31,6 +31,7 @@ from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
 from studio.jobs import Job, JobEvent, JobState
 from studio.project.run import RunConfig, RunReport, source_keyframes
 from widgets.images import Messages, grey_rgb, png, title, upscale
+from widgets.mount import MountControl, mount_line
 from widgets.state import StudioState
 
 log = logging.getLogger(__name__)
@@ -111,8 +112,10 @@ class OptimisePanel:
         self.job_list = w.HTML("")
         pictures = w.HBox([w.VBox([w.HTML("target"), self.target_image]),
                            w.VBox([w.HTML("best shadow"), self.shadow_image])])  # fmt: skip
+        self.mount = MountControl(state, self.messages.say)
         self.widget = w.VBox([
-            title("Optimise"), w.HBox([*self.buttons.values(), self.cancel_button]), self.status, self.bar_box,
+            title("Optimise"), self.mount.widget, w.HBox([*self.buttons.values(), self.cancel_button]), self.status,
+            self.bar_box,
             self.loss, pictures, w.HTML("<b>jobs</b>"), self.job_list, self.messages.widget,
         ])  # fmt: skip
         self._unsubscribe = state.queue.subscribe(self._on_event)
@@ -146,6 +149,8 @@ class OptimisePanel:
             self.shadow_image.value = mask_picture(self.shown_shadow, px)
 
     def _on_change(self, what: str) -> None:
+        if what == "project":
+            self.mount.refresh()
         if what in ("selection", "project") and not self.busy:
             self.show_selection()
 
@@ -262,6 +267,8 @@ class OptimisePanel:
                 self.messages.say(self.report.message, error=self.report.error is not None)
             self.job_list.value = self._table()
             self._set_running(self.busy)
+            if applied or self._report_shown:
+                self.mount.line.value = mount_line(self.state.project)  # a run may have chosen the roll
             if not self.busy and self.last is not None and self.last.final:
                 self.status.value = f"job #{self.last.job_id} {self.last.state.value}"
         if applied:
@@ -319,7 +326,7 @@ class OptimisePanel:
 
     def _set_running(self, running: bool) -> None:
         self.cancel_button.disabled = not running
-        for b in self.buttons.values():
+        for b in (*self.buttons.values(), self.mount.set_button):
             b.disabled = running
 
     def _table(self) -> str:

@@ -61,7 +61,8 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
     ]
     clip = clip_from_args(args, device=next(model.parameters()).device)  # CLIP sits with the self-model
     imitator = Imitator(model, clip=clip, search=search, refine=refine, config=config, sweep=sweep)
-    eval_cfg = EvalConfig(seed=0 if args.seed is None else args.seed, score_resolution=args.score_resolution)
+    eval_cfg = EvalConfig(seed=0 if args.seed is None else args.seed, score_resolution=args.score_resolution,
+                          roll=args.roll)  # fmt: skip
     with imitator, Evaluator(imitator, Path(args.inverse), Path(args.nn_data), eval_cfg) as evaluator:
         with TqdmBars(disable=args.quiet) as bars:
             result = evaluator.run(targets, progress=bars)

@@ -31,7 +31,7 @@ from pathlib import Path
 from studio.cli.clip_flags import clip_from_args
 from studio.cli.run_flags import add_budget_flags, add_engine_flags, add_show_flags, run_config_from_args
 from studio.cli.runs import print_run, run_with_bars
-from studio.cli.source_flags import add_source_flags, source_settings_from_args
+from studio.cli.source_flags import add_source_flags, roll_arg, source_settings_from_args
 
 
 def print_info(project) -> dict:
@@ -46,6 +46,7 @@ def print_info(project) -> dict:
         note = f"MISSING (was at {src['absolute']})" if src["missing"] else ""
         note = "CHANGED since it was read" if src["changed"] else note
         print(f"source {i}: {src['path']} ({src['kind']}, {src['footage']}), {src['frames']} frame(s) {note}".rstrip())
+    print(f"mount: {s['mount']['how']}")
     for kf in s["keyframes"]:
         f = state.frames[kf["representative"]]
         extra = "".join([f", at {kf['time_s']:g} s" if kf["time_s"] is not None else "", ", hold" * kf["hold"],
@@ -73,7 +74,7 @@ def _new(args: argparse.Namespace) -> int:
     with TqdmBars() as bars:  # reading and segmenting the sources
         project = Project.create(
             Path(args.name), sources=args.source, title=args.title, video=settings.video, still=settings.still,
-            clustering=settings.clustering, box=settings.box, first_mask=first, progress=bars,
+            clustering=settings.clustering, box=settings.box, first_mask=first, progress=bars, roll=settings.roll,
         )  # fmt: skip
     print_info(project)
     return 0
@@ -112,6 +113,8 @@ def _run(args: argparse.Namespace) -> int:
     if args.reload_sources and project.changed_sources:
         print(f"re-reading changed source(s) {project.changed_sources}", file=sys.stderr)
         project.reload_sources()
+    if args.roll is not None:
+        project.set_roll(args.roll)  # another roll: the keyframes are optimised again for it
     cfg = replace(run_config_from_args(args), device=args.device)
     clip = clip_from_args(args)
     with torch_threads(args.threads):
@@ -134,6 +137,9 @@ def _register_run(verbs: argparse._SubParsersAction) -> None:
     add_engine_flags(p)
     p.add_argument("--reload-sources", action="store_true",
                    help="re-read sources that changed on disk first (their keyframes are then recomputed)")  # fmt: skip
+    p.add_argument("--roll", type=roll_arg, default=None, metavar="auto|DEG",
+                   help="set the hand's mount roll first (auto: chosen again for the whole show; degrees: the "
+                        "artist's); default: keep the project's")  # fmt: skip
     p.set_defaults(func=_run)
 
 

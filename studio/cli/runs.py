@@ -56,7 +56,10 @@ def print_late(late: list[dict], stretched: bool) -> None:
 def print_run(report: Any) -> None:
     """The human lines of a run (a :class:`~studio.project.run.RunReport`): the late transitions, then what happened
     (on stderr when it did not end with a show) and, when transitions were too fast, what to pass."""
+    from studio.sim.roll import mount_text
+
     print_late(report.late, stretched=report.show is not None)
+    print(f"mount: {mount_text(report.roll)}")
     message = report.message
     if report.too_fast:
         message += " (pass --allow-late to stretch them)"
@@ -74,6 +77,7 @@ ADVICE: dict[str, str | Callable[[BaseException], str]] = {  # an engine error's
     "SegmentTooFastError": " (pass --allow-late to stretch them)",
     "NotAProject": " (shadow-studio project new makes one)",
     "CalibrationMissing": " (shadow-studio calibrate makes one)",
+    "MountMismatch": " (shadow-studio calibrate --roll DEG --start CAL --out CAL records it)",
     "CheckpointError": lambda e: " (shadow-studio {} --out PATH makes one)".format(
         "train-inverse" if getattr(e, "kind", None) == "inverse" else "train"
     ),

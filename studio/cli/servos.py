@@ -11,14 +11,23 @@ in ``<out>.partial.yaml`` when it ends early; ``play --log`` writes its log howe
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from hardware.bus import scan
-from hardware.calibration import Calibration, check_writable, default_calibration, load_calibration, save_calibration
+from hardware.calibration import (
+    Calibration,
+    check_mount,
+    check_writable,
+    default_calibration,
+    load_calibration,
+    save_calibration,
+)
 from hardware.emulator_config import EmulatorConfig, Faults
 from hardware.errors import BusError, EStopLatched, ProtocolError, ServoTimeout
 from hardware.jog import HELP, Jog
@@ -31,6 +40,7 @@ from studio.cli.flags import add_config_flags, config_from_args
 from studio.cli.progress import add_quiet_flag
 from studio.cli.runs import advice
 from studio.sim.hand import load_hand
+from studio.sim.roll import mount_text
 
 
 def _ids(text: str) -> list[int]:
@@ -123,7 +133,10 @@ def cmd_calibrate(args) -> int:
             return 1
         for note in wiz.notes:
             print(f"note: {note}")
-        save_calibration(wiz.result(), args.out)
+        result = wiz.result()
+        if args.roll is not None:  # how the hand is mounted on this rig: only shows for that roll play on it
+            result = replace(result, roll=math.radians(args.roll))
+        save_calibration(result, args.out)
     print(f"saved {args.out}")
     return 0
 
@@ -135,6 +148,7 @@ def cmd_play(args) -> int:
     hand = load_hand()
     cal = load_calibration(args.calibration, hand)
     show = load_show(args.show, hand)
+    check_mount(show.roll, cal, args.calibration)
     cfg = PlayerConfig(hold_torque_on_stop=not args.release_on_stop)
     if not args.dry_run and not args.port:
         raise ValueError("give --port PATH (or --dry-run to play to the emulator)")
@@ -142,6 +156,7 @@ def cmd_play(args) -> int:
         if session.emulator is not None:
             print(f"dry run: playing to the emulator on {session.emulator.port}")
         print(f"playing {show.title!r}: {show.duration:.2f} s, {len(show.times)} samples; Ctrl-C stops safely")
+        print(f"mount: {mount_text(show.roll)}")
         player = Player(session.bus, cal, cfg)
         try:
             with TqdmBars(disable=args.quiet) as bars:
@@ -213,6 +228,10 @@ def register(sub) -> None:
     _bus_args(p)
     p.add_argument("--out", type=Path, required=True, help="calibration YAML to write")
     p.add_argument("--start", type=Path, help="calibration to start from (IDs, values for 'skip'); default IDs 1-21")
+    p.add_argument("--roll", type=float, default=None, metavar="DEG",
+                   help="record the rig's mount roll (degrees, counter-clockwise as the audience sees it): only "
+                        "shows made for that roll will play with this calibration (default: the --start file's, "
+                        "else not recorded)")  # fmt: skip
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("play", help="play a show file on the servos at 40 Hz with safety stops")

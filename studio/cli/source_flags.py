@@ -5,7 +5,8 @@ and ``evaluate``, defined once, and the :class:`~studio.project.pipeline.SourceS
 - stills: ``--still-threshold`` (a fixed level, always used: Otsu does not take over on a bright backdrop);
 - both: ``--otsu`` (Otsu's level wherever no fixed level is given: ``--still-threshold 60 --otsu`` fixes the
   stills and thresholds the videos by Otsu) and ``--tau`` (keyframes by shape);
-- raw colour footage: ``--box X,Y,W,H`` or ``--first-mask PNG``, the object in the first frame.
+- raw colour footage: ``--box X,Y,W,H`` or ``--first-mask PNG``, the object in the first frame;
+- the mount: ``--roll auto|DEG`` (auto: the studio picks one roll for the whole show).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ def add_source_flags(
     if still:
         add_config_flags(parser, TargetConfig, ("threshold",), prefix="still-")
     parser.add_argument("--otsu", action="store_true", help="Otsu's threshold instead of a fixed level")
+    add_roll_flag(parser)
     if video:
         add_config_flags(parser, KeyframeConfig, ("tau",))
         seg = parser.add_mutually_exclusive_group()
@@ -49,6 +51,27 @@ def add_source_flags(
         seg.add_argument("--first-mask", type=Path, default=None, metavar="PNG",
                          help="raw colour footage: the object's mask in the first frame (white or nonzero = object, "
                               "the source's size), segmented through the video")  # fmt: skip
+
+
+def roll_arg(text: str) -> str | float:
+    """``auto`` or an angle in degrees; an argparse error otherwise."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        deg = float(text)
+    except ValueError:
+        deg = float("nan")
+    if deg != deg or abs(deg) == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected auto or an angle in degrees, got {text!r}")
+    return deg
+
+
+def add_roll_flag(parser: argparse.ArgumentParser) -> None:
+    """``--roll auto|DEG``: the hand's mount roll about the light axis (DESIGN §1)."""
+    parser.add_argument("--roll", type=roll_arg, default="auto", metavar="auto|DEG",
+                        help="the hand's mount roll about the light axis: auto (the studio picks one for the whole "
+                             "show; default) or degrees, counter-clockwise as the audience sees it (0: upright, the "
+                             "paper's rig)")  # fmt: skip
 
 
 def still_config_from_args(args: argparse.Namespace) -> TargetConfig:
@@ -78,4 +101,5 @@ def source_settings_from_args(args: argparse.Namespace, **video_overrides):
         video=video_config_from_args(args, **video_overrides), still=still_config_from_args(args),
         clustering=KeyframeConfig(tau=args.tau) if "tau" in args else KeyframeConfig(), weights=LossConfig(),
         box=getattr(args, "box", None), first_mask=getattr(args, "first_mask", None),
+        roll=getattr(args, "roll", "auto"),
     )  # fmt: skip

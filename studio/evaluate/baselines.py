@@ -40,6 +40,7 @@ class BaselineOutput:
     collides: bool  # the pose's skeleton penetrates itself
     seconds: float  # wall time of the answer
     index: int = -1  # row of the training set (Random, Nearest Neighbour); -1 otherwise
+    roll: float = 0.0  # the mount roll the pose was chosen for, rad (its shadow is what that mount casts)
 
 
 class TrainingSet:

@@ -23,7 +23,17 @@ class EvalConfig:
     seed: int = 0  # seed of the Random baseline's draws
     nn: NNConfig = field(default_factory=NNConfig)  # Nearest Neighbour search settings
     score_resolution: int = 0  # render and score every method's pose at this side, pixels (0: the model's; paper 256)
+    roll: str | float = "auto"  # rows of ours on a rolled mount beside the paper rig's: "auto", degrees, 0 = none
 
     def __post_init__(self) -> None:
         if self.score_resolution and self.score_resolution < 8:
             raise ValueError(f"score_resolution must be 0 (the model's) or ≥ 8 pixels, got {self.score_resolution}")
+        if not (self.roll == "auto" or isinstance(self.roll, (int, float))):
+            raise ValueError(f"roll must be 'auto' or degrees, got {self.roll!r}")
+
+    @property
+    def roll_rows(self) -> str | None:
+        """The name of the rolled rows ("roll auto", "roll 30°"), None when there are none (roll 0)."""
+        if self.roll == "auto":
+            return "roll auto"
+        return f"roll {float(self.roll):g}°" if float(self.roll) else None

@@ -28,10 +28,13 @@ from studio.imitate.losses import ImageLoss
 from studio.imitate.still import Imitator
 from studio.learn.inverse import InverseCNN
 from studio.progress import ProgressFn, report, staged, stopped
+from studio.sim.roll import into_hand_frame, roll_deg
 from studio.sim.shadow import ShadowRenderer
 from studio.targets.expressive import still_expressive
 
-METHODS = ("Random", "Inverse CNN", "Nearest Neighbour", "Ours, first answer", "Ours w/o refinement", "Ours")
+PAPER_RIG = ("Random", "Inverse CNN", "Nearest Neighbour", "Ours, first answer", "Ours w/o refinement", "Ours")
+ROLLED = ("Ours, {roll}, first answer", "Ours, {roll}")  # ours again on a rolled mount (EvalConfig.roll)
+METHODS = PAPER_RIG + tuple(m.format(roll="roll auto") for m in ROLLED)  # the rows at the default settings
 LOSS_COLUMNS = {  # Table 1 header → loss component (studio.imitate.config.COMPONENTS)
     "Total": "total", "Base": "base", "CLIP": "clip", "MAE": "mae", "IoU loss": "iou_loss",
     "Exp. IoU": "exp_iou", "Exp. CLIP": "exp_clip",
@@ -57,9 +60,10 @@ def score(loss_fn, shadow: np.ndarray) -> dict[str, float]:
 
 
 def summarise(records: list[dict]) -> list[dict]:
-    """Per-method means over targets (NaN-aware: each loss over the targets where it was computed)."""
+    """Per-method means over targets (NaN-aware: each loss over the targets where it was computed), methods in the
+    order they first appear."""
     rows = []
-    for method in METHODS:
+    for method in dict.fromkeys(r["method"] for r in records):
         recs = [r for r in records if r["method"] == method]
         if not recs:
             continue
@@ -150,18 +154,54 @@ class Evaluator:
             shadow = self.imitator.renderer.render_one(theta)
             outputs["Ours, first answer"] = BaselineOutput(theta, shadow, collides, ours.timings["first_answer"])
         outputs |= {"Ours w/o refinement": unrefined, "Ours": final}
+        if self.cfg.roll_rows is not None and not stopped(cancel):
+            outputs |= self._rolled(target, expressive, progress, cancel)
         if self.score_renderer is not None:
             if score_target is None or score_target.shape != (self.score_resolution,) * 2:
                 raise ValueError(f"scoring at {self.score_resolution}² needs the target framed at that side")
             loss_fn = ImageLoss(score_target, self.score_loss_cfg, self.imitator.clip, still_expressive(score_target))
             for out in outputs.values():
-                out.shadow = self.score_renderer.render_one(out.theta)
+                out.shadow = self._renderer(out.roll, self.score_resolution).render_one(out.theta)
         records = []
         for method, out in outputs.items():
-            rec = {"target": name, "method": method, **score(loss_fn, out.shadow)}
+            rec = {"target": name, "method": method, **score(loss_fn, out.shadow), "roll_deg": roll_deg(out.roll)}
             rec |= {"collides": out.collides, "seconds": out.seconds, "theta": [float(x) for x in out.theta]}
             records.append(rec)
         return records
+
+    def _renderer(self, roll: float, side: int) -> ShadowRenderer:
+        """The renderer of the mount rolled by ``roll`` rad at ``side`` pixels (the imitator's at roll 0)."""
+        rig = self.imitator.renderer.rig.with_resolution(side)
+        if not roll and side == self.imitator.resolution:
+            return self.imitator.renderer
+        return ShadowRenderer(self.imitator.hand, rig.with_roll(roll))
+
+    def _rolled(self, target, expressive, progress, cancel) -> dict[str, BaselineOutput]:
+        """Ours on the rolled mount (``cfg.roll``: chosen by ``--roll auto`` for this target, or given): the target
+        turned into the hand's frame, imitated, and every shadow rendered as that mount casts it. Seconds include
+        choosing the roll."""
+        t0 = time.perf_counter()
+        im = self.imitator
+        if self.cfg.roll == "auto":
+            exp = expressive[None] if expressive is not None and expressive.any() else None
+            choice = im.choose_roll(target[None], exp, progress=progress, cancel=cancel)
+            roll = 0.0 if choice is None else choice.roll
+        else:
+            roll = math.radians(float(self.cfg.roll))
+        t_roll = time.perf_counter() - t0
+        turned, turned_exp = into_hand_frame(target, expressive, roll)
+        got = im.imitate(turned, turned_exp, refine=True, progress=progress, cancel=cancel)
+        rolled = self._renderer(roll, im.resolution)
+        names = [m.format(roll=self.cfg.roll_rows) for m in ROLLED]
+        out = {names[1]: BaselineOutput(got.theta, rolled.render_one(got.theta), not got.collision_free,
+                                        t_roll + got.seconds, roll=roll)}  # fmt: skip
+        if got.first is not None:
+            theta = got.first.theta[0]
+            collides = bool(im.refiner.world.in_collision(theta)[0])
+            first = BaselineOutput(theta, rolled.render_one(theta), collides, t_roll + got.timings["first_answer"],
+                                   roll=roll)  # fmt: skip
+            out = {names[0]: first} | out
+        return out
 
     def run(
         self,
@@ -194,7 +234,7 @@ class Evaluator:
             "retrieval": asdict(im.retrieval_cfg) if im.cfg.retrieve else None,
             "sweep": asdict(im.sweep_cfg) if im.cfg.retrieve and im.sweep_cfg.starts else None,
             "training_images": self.training_size,
-            "nn": asdict(self.cfg.nn), "nn_setup_seconds": round(self.nn_setup_seconds, 2),
+            "nn": asdict(self.cfg.nn), "nn_setup_seconds": round(self.nn_setup_seconds, 2), "roll": self.cfg.roll,
         }  # fmt: skip
 
     def _method_note(self) -> str:
@@ -243,6 +283,14 @@ class Evaluator:
             f"Random and Nearest Neighbour draw from {self.training_size} training images (aligning them once per "
             f"run took {self.nn_setup_seconds:.1f} s, not in the per-target seconds); ours: {self._method_note()}",
         ]
+        if self.cfg.roll_rows is not None:
+            how = ("one roll per target chosen on the retrieval index (coarse 15° grid, refined to ~0.25° on the "
+                   "renderer), its time in the seconds" if self.cfg.roll == "auto" else "the given roll")  # fmt: skip
+            notes.append(
+                f"Ours, {self.cfg.roll_rows}: the hand's mount rolled about the light axis ({how}); the target is "
+                "turned into the hand's frame and imitated as above, and the shadow the rolled mount casts is scored "
+                "against the target as it is. The rows above are the paper's upright rig (roll 0)."
+            )
         if not lc.use_clip:
             notes.append(
                 "CLIP off (no local CLIP weights, or turned off): CLIP and Exp. CLIP not computed (n/a); "
@@ -263,7 +311,7 @@ def write_table(result: EvalResult, out: Path) -> dict[str, str]:
     """Write ``table1.md``, ``table1.csv`` (one row per method), ``per_target.csv`` and ``settings.json`` (model,
     losses with ``use_clip``, search, refinement, Nearest Neighbour); returns their paths."""
     keys = ["method", *LOSS_COLUMNS.values(), "collide_pct", "seconds", "targets", "expressive_targets"]
-    rec_keys = ["target", "method", *LOSS_COLUMNS.values(), "collides", "seconds"]
+    rec_keys = ["target", "method", *LOSS_COLUMNS.values(), "collides", "seconds", "roll_deg"]
     texts = {
         "markdown": ("table1.md", to_markdown(result.rows, result.notes)),
         "csv": ("table1.csv", csv_text(keys, result.rows)),

@@ -25,6 +25,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from numba import njit, prange
 
 from studio.atomic import write_with
 from studio.home import cache_dir
@@ -136,6 +137,15 @@ class RetrievalIndex:
         pixels = self.cfg.crop**2
         return (lc.w_mae * (union - inter) / pixels + lc.w_iou * (1.0 - inter / union)).astype(np.float32)
 
+    def best(self, targets: np.ndarray, loss_cfg: LossConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The best entry for each of several targets ``(A, R, R)``: its pixel base loss ``(A,)`` float64 and its row
+        ``(A,)`` int64 — ``rank(t).min()`` and ``argmin`` per target (the reference), compiled, without the
+        ``(N,)`` temporaries: what the roll search asks of every candidate angle."""
+        lc = loss_cfg or LossConfig()
+        t = pack_crops(np.asarray(targets) > 0.5, self.cfg.crop, self.cfg.pad)
+        t_area = np.bitwise_count(t).sum(axis=1).astype(np.int64)
+        return _best_rows(self.bits, self.area.astype(np.int64), t, t_area, lc.w_mae, lc.w_iou, float(self.cfg.crop**2))
+
     def query(
         self,
         target: np.ndarray,
@@ -176,6 +186,46 @@ class RetrievalIndex:
                 return cls(z["theta"], z["bits"], RetrievalConfig(**meta["cfg"]), meta["key"])
         except (OSError, ValueError, KeyError, TypeError, EOFError):
             return None
+
+
+@njit(inline="always")
+def _popcount(x):
+    """Set bits of a uint64 (SWAR)."""
+    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return (x * np.uint64(0x0101010101010101)) >> np.uint64(56)
+
+
+@njit(parallel=True, cache=True)
+def _best_rows(bits, area, targets, t_area, w_mae, w_iou, pixels):
+    """Per target ``(A, W)`` packed: the lowest pixel loss over ``bits (N, W)`` and its row (first on ties). The
+    rows are cut into ``CHUNKS`` slices so that even one target runs on every core."""
+    n_t, (n, n_w) = targets.shape[0], bits.shape
+    step = (n + _CHUNKS - 1) // _CHUNKS
+    part = np.full((n_t, _CHUNKS), np.inf)
+    part_row = np.zeros((n_t, _CHUNKS), np.int64)
+    for job in prange(n_t * _CHUNKS):
+        a, c = job // _CHUNKS, job % _CHUNKS
+        b, bi = np.inf, 0
+        for i in range(c * step, min(n, (c + 1) * step)):
+            inter = 0
+            for w in range(n_w):
+                inter += _popcount(bits[i, w] & targets[a, w])
+            union = max(area[i] + t_area[a] - inter, 1)
+            v = w_mae * (union - inter) / pixels + w_iou * (1.0 - inter / union)
+            if v < b:
+                b, bi = v, i
+        part[a, c], part_row[a, c] = b, bi
+    best = np.empty(n_t)
+    row = np.empty(n_t, np.int64)
+    for a in range(n_t):
+        c = np.argmin(part[a])  # the first chunk holding the minimum: the first row on ties
+        best[a], row[a] = part[a, c], part_row[a, c]
+    return best, row
+
+
+_CHUNKS = 16
 
 
 def index_key(hand: Hand, renderer: ShadowRenderer, cfg: RetrievalConfig) -> str:

@@ -31,10 +31,11 @@ from studio.imitate.live_best import LiveBest
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner, RefineResult
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, Retrieved, cached_index
+from studio.imitate.roll_search import RollChoice, RollSearchConfig, choose_roll
 from studio.imitate.search import SearchResult, gradient_search
 from studio.imitate.seeding import Seeds, seed_poses
 from studio.learn.selfmodel import SelfModel, load_selfmodel
-from studio.progress import ProgressFn, stopped
+from studio.progress import ProgressFn, report, stopped
 from studio.sim.shadow import Rig, ShadowRenderer
 from studio.targets.expressive import still_expressive
 from studio.targets.images import TargetConfig, load_target
@@ -208,6 +209,25 @@ class Imitator:
             first=first,
             swept=swept,
         )
+
+    def choose_roll(
+        self,
+        targets: np.ndarray,
+        expressive: np.ndarray | None = None,
+        cfg: RollSearchConfig | None = None,
+        progress: ProgressFn | None = None,
+        cancel: threading.Event | None = None,
+    ) -> RollChoice | None:
+        """``--roll auto``: the one mount roll for ``targets (K, R, R)`` (a still: K = 1) and their expressive masks
+        (:func:`~studio.imitate.roll_search.choose_roll` on this imitator's index, loss and refiner); stage "index"
+        while the index is built, then "roll". None when ``cancel`` stopped the index build."""
+        index = self.retrieval_index(progress, cancel)
+        if index is None:
+            return None
+        report(progress, "roll", 0, 1)
+        choice = choose_roll(index, self.refiner, targets, expressive, self.loss_fn, cfg)
+        report(progress, "roll", 1, 1, choice.loss)
+        return choice
 
     def seed(
         self,

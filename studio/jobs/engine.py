@@ -102,6 +102,7 @@ def imitate_video_job(
     preview: int = 64,
     previous: np.ndarray | None = None,
     device: str | None = None,
+    roll: float = 0.0,
     apply: Apply = None,
     title: str = "video",
 ) -> Job:
@@ -111,30 +112,70 @@ def imitate_video_job(
     Stages are "keyframe k/K: search" and "keyframe k/K: refine", after "keyframe k/K: retrieve" and ".. : sweep"
     for a keyframe seeded from scratch (``cfg.retrieve``). ``clip`` as for :func:`imitate_keyframe_job`;
     ``previous (21,) rad``: the pose before the first of these keyframes (continuing a sequence), None: none;
-    ``device``: where the self-model runs (None: CUDA when present)."""
+    ``device``: where the self-model runs (None: CUDA when present); ``roll``: the mount roll, rad (the targets turn
+    into the hand's frame, :func:`studio.sim.roll.into_hand_frame`; the shadows and previews come back as the rolled
+    mount casts them)."""
     run = functools.partial(
         _imitate_video, masks=np.asarray(masks), expressive=None if expressive is None else np.asarray(expressive),
         cfg=cfg, loss_cfg=loss_cfg, clip=clip, model_path=model_path, preview=preview,
-        previous=None if previous is None else np.asarray(previous, dtype=np.float64), device=device,
+        previous=None if previous is None else np.asarray(previous, dtype=np.float64), device=device, roll=roll,
     )  # fmt: skip
     return Job("imitate-video", run, apply, title)
 
 
 def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg, clip, model_path, preview,
-                   previous=None, device=None):  # fmt: skip
+                   previous=None, device=None, roll=0.0):  # fmt: skip
     from dataclasses import replace
 
     from studio.imitate.config import CPU_SEQUENCE
     from studio.imitate.sequence import SequenceImitator
     from studio.imitate.still import Imitator
+    from studio.sim.roll import into_hand_frame
+    from studio.sim.shadow import ShadowRenderer
 
     cfg = cfg or CPU_SEQUENCE
     if expressive is None and cfg.expressive:
         cfg = replace(cfg, expressive=False)  # no masks given: the base loss alone
+    if roll:
+        turned = [into_hand_frame(m, None if expressive is None else expressive[k], roll) for k, m in enumerate(masks)]
+        masks = np.stack([t for t, _ in turned])
+        expressive = None if expressive is None else np.stack([e for _, e in turned])
     with Imitator(None, model_path, loss_cfg, clip, device=device) as im, SequenceImitator(cfg=cfg, imitator=im) as seq:
-        pv = PosePreview(im.hand, preview) if preview else None
-        return seq.imitate(masks, expressive, report.engine_progress(pv), cancel, best_pose=pv.pose if pv else None,
-                           previous=previous)  # fmt: skip
+        pv = PosePreview(im.hand, preview, roll=roll) if preview else None
+        result = seq.imitate(masks, expressive, report.engine_progress(pv), cancel,
+                             best_pose=pv.pose if pv else None, previous=previous)  # fmt: skip
+        if roll:  # what the rolled mount casts (the losses were measured in the hand's frame: the same up to aliasing)
+            rolled = ShadowRenderer(im.hand, im.renderer.rig.with_roll(roll))
+            for kr in result.keyframes:
+                kr.shadow = rolled.render_one(kr.theta)
+        return result
+
+
+def choose_roll_job(
+    masks: np.ndarray,
+    expressive: np.ndarray | None = None,
+    *,
+    loss_cfg: LossConfig | None = None,
+    model_path: Path | None = None,
+    apply: Apply = None,
+    title: str = "mount roll",
+) -> Job:
+    """``--roll auto``: the one mount roll for the keyframe targets ``masks (K, S, S)`` (with their expressive masks)
+    → :class:`~studio.imitate.roll_search.RollChoice` (:func:`~studio.imitate.roll_search.choose_roll`, on the
+    retrieval index of the model's resolution; stage "index" while it is built, once per machine, then "roll")."""
+    run = functools.partial(_choose_roll, masks=np.asarray(masks), loss_cfg=loss_cfg, model_path=model_path,
+                            expressive=None if expressive is None else np.asarray(expressive))  # fmt: skip
+    return Job("choose-roll", run, apply, title)
+
+
+def _choose_roll(report: Reporter, cancel, *, masks, expressive, loss_cfg, model_path):
+    from studio.imitate.still import Imitator
+
+    with Imitator(None, model_path, loss_cfg, None) as im:
+        progress = report.engine_progress()
+        choice = im.choose_roll(masks, expressive, progress=progress, cancel=cancel)
+        report.check()
+        return choice
 
 
 @dataclass

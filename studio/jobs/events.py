@@ -140,12 +140,12 @@ class PosePreview:
     window is the rig's (the self-model's frame), so a preview lines up with the target framed at any resolution.
     """
 
-    def __init__(self, hand=None, size: int = 64, max_hz: float = 10.0):
+    def __init__(self, hand=None, size: int = 64, max_hz: float = 10.0, roll: float = 0.0):
         from studio.sim.shadow import Rig, ShadowRenderer
 
         if not 8 <= size <= 64:
             raise ValueError(f"preview size must be 8–64 pixels, got {size}")
-        self.renderer = ShadowRenderer(hand, Rig(resolution=size))
+        self.renderer = ShadowRenderer(hand, Rig(resolution=size, roll=roll))  # as the mount rolled by roll rad casts
         self.period = 1.0 / max_hz
         self._theta: np.ndarray | None = None
         self._fresh = False

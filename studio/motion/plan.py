@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import threading
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
@@ -104,7 +105,9 @@ def parse_keyframes(doc: Any, hand: Hand) -> Keyframes:
     if (np.diff(times_a) <= 0).any():
         i = int(np.flatnonzero(np.diff(times_a) <= 0)[0]) + 1
         raise PlanError(f"keyframe {i} (t = {times[i]}) is not after keyframe {i - 1} (t = {times[i - 1]})")
-    extra = {k: doc[k] for k in ("title", "loss_weights", "media", "calibration") if k in doc}
+    extra = {k: doc[k] for k in ("title", "loss_weights", "media", "calibration", "roll_deg") if k in doc}
+    if "roll_deg" in extra and not (isinstance(extra["roll_deg"], (int, float)) and math.isfinite(extra["roll_deg"])):
+        raise PlanError(f"roll_deg must be the mount roll in degrees, not {extra['roll_deg']!r}")
     if any(x is not None for x in losses):
         extra["keyframe_losses"] = losses
     return Keyframes(times_a, np.array(poses), np.array(hold), frames, targets, extra)
@@ -238,4 +241,5 @@ def sample_show(
     return Show.from_samples(
         hand, times, positions, title=title or extra.get("title", "untitled"), keyframes=markers, limits=limits,
         calibration=extra.get("calibration"), provenance=provenance,
+        roll=math.radians(float(extra.get("roll_deg", 0.0))),  # the mount the poses were chosen for
     )  # fmt: skip

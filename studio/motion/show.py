@@ -8,6 +8,7 @@ Layout (version 1)::
      "keyframes": [{"t", "source_frame", "target", "hold"}, ...],
      "limits": {"lower", "upper", "velocity", "acceleration", "jerk"},   # (21,) each
      "media": null | {"path", "kind": "audio"|"video", "offset_s"},      # media time = show time + offset_s
+     "mount": {"roll_deg": 0.0},                       # the hand's mount roll (DESIGN §1); absent: 0 (older files)
      "provenance": {"loss_weights": {...}, "keyframe_losses": [...], ...}}
 
 Writes are atomic (``studio.atomic``); floats are written with Python's shortest round-trip repr, so a
@@ -19,6 +20,7 @@ from __future__ import annotations
 import csv
 import json
 import logging
+import math
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from functools import lru_cache
@@ -33,6 +35,7 @@ from studio.errors import StudioError
 from studio.motion.limits import JointLimits
 from studio.motion.show_checks import FORMAT_NAME, show_problems
 from studio.sim.hand import Hand, load_hand
+from studio.sim.roll import file_deg
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +91,7 @@ class Show:
     calibration: str | None = None  # reference of the servo calibration, if any
     media: MediaRef | None = None  # optional soundtrack/video with offset
     provenance: dict[str, Any] = field(default_factory=dict)  # loss weights, per-keyframe losses, planner report
+    roll: float = 0.0  # the mount roll the poses were chosen for, rad (DESIGN §1; 0: the paper's upright rig)
     created: str = ""  # ISO 8601 UTC; filled in by ``from_samples`` / ``save_show`` when empty
     format_version: int = FORMAT_VERSION  # version of the file format
 
@@ -153,6 +157,7 @@ class Show:
             if self.media is None
             else {"path": self.media.path, "kind": self.media.kind, "offset_s": float(self.media.offset_s)},
             "provenance": self.provenance,
+            "mount": {"roll_deg": file_deg(self.roll)},
         }
 
     @classmethod
@@ -172,6 +177,7 @@ class Show:
             calibration=d.get("calibration"),
             media=None if media is None else MediaRef(**media),
             provenance=d.get("provenance", {}),
+            roll=math.radians(float((d.get("mount") or {}).get("roll_deg", 0.0))),
             created=d["created"],
             format_version=int(d["version"]),
         )

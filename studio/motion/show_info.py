@@ -5,11 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from studio.motion.show import Show
+from studio.sim.roll import mount_text
 
 
 def show_info_lines(show: Show) -> list[str]:
-    """Title, format, hand, calibration, duration and samples, keyframe times, media, the peak joint speed as a
-    share of its velocity limit, and the late segments the planner stretched, one line each."""
+    """Title, format, hand, calibration, how to mount the hand (its roll), duration and samples, keyframe times,
+    media, the peak joint speed as a share of its velocity limit, and the late segments the planner stretched, one
+    line each."""
     media = f"{show.media.kind} {show.media.path} (offset {show.media.offset_s:+.3f} s)" if show.media else "-"
     speed = np.abs(np.diff(show.positions, axis=0)) / np.diff(show.times)[:, None] if len(show.times) > 1 else None
     lines = [
@@ -17,6 +19,7 @@ def show_info_lines(show: Show) -> list[str]:
         f"format:       version {show.format_version}, created {show.created}",
         f"hand:         {show.hand_hash} ({len(show.joint_names)} joints)",
         f"calibration:  {show.calibration or '-'}",
+        f"mount:        {mount_text(show.roll)}",
         f"duration:     {show.duration:.3f} s, {len(show.times)} samples at {show.rate_hz:g} Hz",
         f"keyframes:    {len(show.keyframes)} at "
         + ", ".join(f"{k.t:.3f}{' (hold)' if k.hold else ''}" for k in show.keyframes),

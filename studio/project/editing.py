@@ -23,7 +23,8 @@ from studio.motion.show import Show
 from studio.progress import ProgressFn
 from studio.project import edits
 from studio.project.sources import load_sources, locate, make_source
-from studio.project.state import PoseResult, ProjectError, ProjectState, frozen
+from studio.project.state import Mount, PoseResult, ProjectError, ProjectState, frozen
+from studio.sim.roll import roll_deg
 from studio.targets.images import read_grey
 
 log = logging.getLogger(__name__)
@@ -167,6 +168,19 @@ class Editing:
         with self._lock:
             cfg = replace(weights or self._state.weights, **fields)
             self._commit("loss weights", replace(self._state, weights=cfg))
+
+    def set_roll(self, roll: str | float) -> None:
+        """The mount roll: ``"auto"`` (chosen at the start of the next run, for the whole show) or degrees. A new
+        roll makes every keyframe stale (each pose is chosen for its roll); "auto" again chooses again."""
+        with self._lock:
+            mount = Mount.from_setting(roll)
+            self._commit(f"mount roll {roll}", replace(self._state, mount=mount))
+
+    def set_chosen_roll(self, roll: float, loss: float | None = None, upright_loss: float | None = None) -> None:
+        """What ``auto`` chose: ``roll`` rad (with the losses it compared), kept until the artist sets the roll."""
+        with self._lock:
+            mount = Mount(auto=True, roll=float(roll), chosen=True, loss=loss, upright_loss=upright_loss)
+            self._commit(f"mount roll chosen: {roll_deg(roll):g}°", replace(self._state, mount=mount))
 
     # ---------------------------------------------------------------- edits: keyframes
     def _keyframes(self, label: str, keyframes, next_id: int | None = None) -> None:

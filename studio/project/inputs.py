@@ -2,7 +2,8 @@
 
 A keyframe's inputs are its source's content hash (and segmentation), the settings that turned the source into
 masks (a still's TargetConfig and frame size; a video's VideoConfig), its member frames and representative (by
-frame key), the representative's target mask and expressive mask (automatic + paint), and the loss weights. Its
+frame key), the representative's target mask and expressive mask (automatic + paint), the loss weights and the
+mount roll (the pose is chosen for it). Its
 time and hold are not: they shape the show, not the pose. A show's inputs are every keyframe's inputs, the result
 (pose) each one holds, its time and hold, and the frames' times.
 
@@ -30,7 +31,8 @@ def keyframe_inputs(state: ProjectState, k: int, combined: np.ndarray | None = N
     else:
         loading = {"video": dataclasses.asdict(state.video)}
     expressive = (combined if combined is not None else combined_masks(state))[kf.representative]
-    return text_hash({
+    roll = {"roll": state.mount.roll} if state.mount.roll else {}  # upright: as before the mount roll existed
+    return text_hash(roll | {
         "source": {"sha256": src.sha256, "box": src.box,
                    "first_mask": None if src.first_mask is None else mask_hash(src.first_mask)},
         "loading": loading,

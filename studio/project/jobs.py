@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from studio.jobs.engine import imitate_keyframe_job, imitate_video_job, plan_job
+from studio.jobs.engine import choose_roll_job, imitate_keyframe_job, imitate_video_job, plan_job
 from studio.jobs.queue import DEFAULT_WORKER, Job, JobQueue
 from studio.project.status import ProjectHandle
 
@@ -109,10 +109,30 @@ def video_job(
     job = imitate_video_job(
         masks, np.stack([np.array(e) for _, e in pairs]), cfg=cfg,
         loss_cfg=project_loss(project, masks.shape[-1], clip), clip=clip, model_path=model_path, preview=preview,
-        previous=previous, device=device, apply=apply,
+        previous=previous, device=device, roll=project.mount.roll, apply=apply,
         title=f"keyframe {ids[0]}" if len(ids) == 1 else f"{len(ids)} keyframes",
     )  # fmt: skip
     job.meta["keyframes"] = list(ids)
+    return job
+
+
+def roll_job(project: ProjectHandle, *, model_path: Path | None = None) -> Job:
+    """``--roll auto``: choose the one mount roll for every keyframe target of the project (their expressive masks
+    and the project's weights, CLIP off) → ``project.set_chosen_roll`` on completion, which makes the keyframes
+    optimised for another roll stale."""
+    pairs = [project.keyframe_masks(kf.id) for kf in project.keyframes]
+    masks = np.stack([np.array(t) for t, _ in pairs])
+    expressive = np.stack([np.array(e) for _, e in pairs])
+
+    def apply(r) -> None:
+        if r is not None:
+            project.set_chosen_roll(r.roll, loss=r.loss, upright_loss=r.upright_loss)
+
+    job = choose_roll_job(
+        masks, expressive if expressive.any() else None, loss_cfg=project_loss(project, masks.shape[-1]),
+        model_path=model_path, apply=apply,
+    )  # fmt: skip
+    job.meta["keyframes"] = [kf.id for kf in project.keyframes]
     return job
 
 

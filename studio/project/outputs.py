@@ -31,6 +31,7 @@ from studio.motion.show import save_show
 from studio.progress import ProgressFn
 from studio.project.sources import framed_frames
 from studio.project.status import ProjectHandle
+from studio.sim.roll import file_deg, mount_text
 
 FILES = ("keyframes.json", "show.json", "contact.png", "side_by_side.mp4", "review.rrd")  # what write_outputs writes
 DEFAULT_FPS = 25.0  # the side-by-side video's rate when no source is a video
@@ -79,6 +80,8 @@ def keyframes_document(project: ProjectHandle, run: Any = None, provenance: dict
     return {
         "keyframes": planner,
         "title": s.title,
+        "roll_deg": file_deg(s.mount.roll),  # the hand's mount roll (DESIGN §1), what `plan` keeps
+        "mount": mount_text(s.mount.roll),
         "loss_weights": s.weights.to_dict(),
         "media": None if media is None else dataclasses.asdict(media),
         "sources": sources,
@@ -173,7 +176,7 @@ def _side_by_side(project: ProjectHandle, show, sources: list, path: Path, progr
     fps = next((src.fps for src in s.sources if src.kind != "still" and src.fps > 0), DEFAULT_FPS)
     timing = project.show_timing()
     t = video_times(show.duration, fps)
-    renderer = ShadowRenderer(load_hand(), Rig(resolution=s.targets.shape[-1]))
+    renderer = ShadowRenderer(load_hand(), Rig(resolution=s.targets.shape[-1], roll=show.roll))  # as mounted
     shadows = renderer.render(show.sample(t), check=False)
     order = np.argsort(timing.frame_times, kind="stable")
     frames = [sources[i] for i in order]

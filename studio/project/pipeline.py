@@ -37,7 +37,7 @@ from studio.project.project import Project
 from studio.project.project_format import DOC, SUFFIX
 from studio.project.run import RunConfig, RunReport
 from studio.project.sources import hash_source
-from studio.project.state import ProjectError, same
+from studio.project.state import Mount, ProjectError, same
 from studio.targets.images import TargetConfig
 from studio.targets.keyframes import KeyframeConfig
 from studio.targets.source import read_first_mask
@@ -60,6 +60,7 @@ class SourceSettings:
     weights: LossConfig = field(default_factory=LossConfig)  # the loss weights of every keyframe
     box: tuple[int, int, int, int] | None = None  # raw colour footage: the object's first-frame box (x, y, w, h)
     first_mask: str | Path | None = None  # … or its first-frame mask image
+    roll: str | float = "auto"  # the hand's mount roll: "auto" (one chosen for the whole show) or degrees
 
 
 @dataclass
@@ -129,14 +130,22 @@ def source_project(
         differ = _settings_differ(project, src, settings)
         if differ:
             raise OtherProject(f"{path} was made otherwise ({'; '.join(differ)}): start afresh to replace it")
+        if not same(project.mount, _asked_mount(project.mount, settings.roll)):
+            project.set_roll(settings.roll)  # another roll asked for: its keyframes are optimised again
         log.info("reopened %s: current keyframes are kept", path)
         return project, False
     mask = None if settings.first_mask is None else read_first_mask(settings.first_mask)
     project = Project.create(
         path, [src], title=src.stem, video=settings.video, still=settings.still, clustering=settings.clustering,
-        weights=settings.weights, box=settings.box, first_mask=mask, progress=progress,
+        weights=settings.weights, box=settings.box, first_mask=mask, progress=progress, roll=settings.roll,
     )  # fmt: skip
     return project, True
+
+
+def _asked_mount(mount: Mount, roll: str | float) -> Mount:
+    """The mount ``roll`` asks for, as the project would hold it: "auto" keeps a roll auto already chose."""
+    asked = Mount.from_setting(roll)
+    return mount if asked.auto and mount.auto else asked
 
 
 def imitate_video(

@@ -46,6 +46,7 @@ from studio.project.sources import hash_source, load_sources, locate, make_sourc
 from studio.project.state import (
     Frame,
     Keyframe,
+    Mount,
     PoseResult,
     ProjectError,
     ProjectState,
@@ -109,10 +110,12 @@ class Project(Editing, Running):
         box: tuple[int, int, int, int] | None = None,
         first_mask: np.ndarray | str | Path | None = None,
         progress: ProgressFn | None = None,
+        roll: str | float = "auto",
     ) -> Project:
         """A new project at ``path`` (a folder named ``*.shadow``, not yet a project) from ``sources`` (stills,
         videos, frame folders): frames, expressive masks and keyframes at the given settings (defaults: the
-        configs'). ``box``/``first_mask`` segment colour footage (every video source's first frame)."""
+        configs'). ``box``/``first_mask`` segment colour footage (every video source's first frame); ``roll``: the
+        mount roll, ``"auto"`` (chosen when the keyframes are first optimised) or degrees."""
         path = Path(path)
         if path.suffix != SUFFIX:
             raise ProjectError(f"a project folder's name ends in {SUFFIX}: {path} (try {path.name}{SUFFIX})")
@@ -131,7 +134,7 @@ class Project(Editing, Running):
         state = ProjectState(
             title=title or path.stem, created=_now(), sources=loaded, video=video, still=still,
             clustering=clustering, weights=weights, frames=frames, targets=frozen(targets), auto=frozen(auto),
-            additions={}, erasures={}, keyframes=(), next_id=0, results={},
+            additions={}, erasures={}, keyframes=(), next_id=0, results={}, mount=Mount.from_setting(roll),
         )  # fmt: skip
         keyframes, next_id = edits.cluster(frames, edits.combined_masks(state), clustering)
         state = replace(state, keyframes=keyframes, next_id=next_id)
@@ -183,6 +186,11 @@ class Project(Editing, Running):
     @property
     def weights(self) -> LossConfig:
         return self._state.weights
+
+    @property
+    def mount(self) -> Mount:
+        """The hand's mount roll for the show (``mount.roll`` rad; ``auto``: the studio chooses it)."""
+        return self._state.mount
 
     @property
     def results(self) -> dict[int, PoseResult]:

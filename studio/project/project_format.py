@@ -24,7 +24,7 @@ what loading found: fps, duration, footage kind, square frame; segmentation box 
 ``frames`` (source, source frame, source time, target and auto mask files); ``paint`` (additions and erasures by
 frame key ``"S:F"``); ``keyframes`` (id, representative frame, member frames, time override, hold, edited);
 ``results`` (keyframe id, pose as joint name → rad, loss components, shadow file, the inputs' fingerprint); ``show``
-(file and the inputs' fingerprint).
+(file and the inputs' fingerprint); ``mount`` (auto, roll_deg, chosen; the losses auto compared; absent: upright).
 """
 
 from __future__ import annotations
@@ -47,6 +47,7 @@ from studio.motion.show import Show, load_show, save_show
 from studio.project.state import (
     Frame,
     Keyframe,
+    Mount,
     NotAProject,
     PoseResult,
     ProjectError,
@@ -56,6 +57,7 @@ from studio.project.state import (
     mask_hash,
     text_hash,
 )
+from studio.sim.roll import file_deg
 from studio.targets.images import TargetConfig
 from studio.targets.keyframes import KeyframeConfig
 from studio.targets.video import VideoConfig
@@ -150,6 +152,13 @@ def state_doc(s: ProjectState) -> dict[str, Any]:
         "next_keyframe_id": s.next_id,
         "results": results,
         "show": None if s.show is None else {"file": f"show-{_show_hash(s.show)[:16]}.json", "inputs": s.show_inputs},
+        "mount": {
+            "auto": s.mount.auto,
+            "roll_deg": file_deg(s.mount.roll),
+            "chosen": s.mount.chosen,
+            "upright_loss": _num(s.mount.upright_loss),
+            "loss": _num(s.mount.loss),
+        },
     }
 
 
@@ -324,4 +333,20 @@ def _from_doc(folder: Path, doc: dict[str, Any]) -> ProjectState:
         results=results,
         show=show,
         show_inputs=show_inputs,
+        mount=_mount(doc.get("mount")),
     )
+
+
+def _mount(d: Any) -> Mount:
+    """The ``mount`` entry (absent in projects made before it: upright, as their keyframes were optimised)."""
+    if not isinstance(d, Mapping):
+        return Mount()
+    try:
+        roll = math.radians(float(d.get("roll_deg", 0.0)))
+        loss, upright = d.get("loss"), d.get("upright_loss")
+        return Mount(
+            auto=bool(d.get("auto", False)), roll=roll, chosen=bool(d.get("chosen", True)),
+            upright_loss=None if upright is None else float(upright), loss=None if loss is None else float(loss),
+        )  # fmt: skip
+    except (TypeError, ValueError):
+        raise ProjectError(f"project.json: the mount entry is not understood: {d!r}") from None

@@ -34,11 +34,12 @@ from studio.jobs.engine import _plan
 from studio.jobs.events import JobError, JobState, Reporter
 from studio.jobs.queue import Job, JobQueue
 from studio.motion.plan import PlanConfig
-from studio.project.jobs import queue_for, video_job
+from studio.project.jobs import queue_for, roll_job, video_job
 from studio.project.show_timing import ShowLayout
 from studio.project.state import ProjectError
 from studio.project.status import ProjectHandle, check_sources
 from studio.project.summary import project_transitions
+from studio.sim.roll import mount_text, roll_deg
 
 if TYPE_CHECKING:
     from studio.motion.plan import Keyframes
@@ -80,6 +81,8 @@ class RunReport:
     error: JobError | None = None  # why a job failed (nothing of it was applied)
     message: str = ""  # one line: what happened
     too_fast: bool = False  # no show because transitions are too fast for the servos (``late`` lists them)
+    roll: float = 0.0  # the mount roll the keyframes are optimised for, rad
+    roll_chosen: bool = False  # this run chose it (``--roll auto``)
     seconds: float = 0.0  # wall time of the run
 
     @property
@@ -95,6 +98,7 @@ class RunReport:
             "transition_success": rate, "transitions_ok": self.transitions.get("success", 0),
             "transitions": self.transitions.get("transitions", 0), "cancelled": self.cancelled,
             "error": None if self.error is None else str(self.error), "message": self.message,
+            "roll_deg": roll_deg(self.roll), "mount": mount_text(self.roll),
             "seconds": round(self.seconds, 2),
         }  # fmt: skip
 
@@ -151,9 +155,11 @@ def plan_project_job(project: ProjectHandle, keyframes: Keyframes, cfg: PlanConf
     first = project.state.sources[0]  # a video that opens the show plays beside it from show time 0
     media = None if first.kind == "still" else MediaRef(first.absolute, "video", 0.0)
 
+    roll = project.mount.roll
+
     def apply(r: Any) -> None:
         if not isinstance(r, TooFast):
-            project.set_show(replace(r.show, media=media) if media is not None else r.show, inputs=inputs)
+            project.set_show(replace(r.show, media=media, roll=roll), inputs=inputs)
 
     run = functools.partial(_plan_or_late, keyframes=keyframes, cfg=cfg, show_title=project.state.title)
     return Job("plan", run, apply, "show")
@@ -189,6 +195,18 @@ def run_project(
         if unknown:
             raise ProjectError(f"{project.path}: no keyframe {unknown}; the keyframes are {ids}")
         pending = [k for k in ids if k in set(keyframes)]
+    if project.mount.auto and not project.mount.chosen and (pending or project.results):
+        job = queue.submit(roll_job(project, model_path=model_path))
+        if on_job is not None:
+            on_job(job, f"the mount roll for {len(ids)} keyframe(s)")
+        state = _wait(job, cancel)
+        if state != JobState.DONE or not project.mount.chosen:
+            report.cancelled, report.error = state == JobState.CANCELLED, job.error
+            report.message = "choosing the mount roll " + ("cancelled" if report.cancelled else f"failed: {job.error}")
+            return _finish(report, project, cfg, t0)
+        report.roll_chosen = True
+        if keyframes is None:
+            pending = list(project.status().pending)  # a new roll makes the keyframes of another one stale
     report.skipped = [k for k in ids if k not in pending]
     seq = cfg.sequence
     for n, k in enumerate(pending):
@@ -290,6 +308,9 @@ def _joint_names() -> list[str]:
 
 
 def _finish(report: RunReport, project: ProjectHandle, cfg: RunConfig, t0: float) -> RunReport:
+    report.roll = project.mount.roll
+    if report.roll_chosen:
+        report.message = f"chose the mount roll {roll_deg(report.roll):+.1f}° (auto); {report.message}"
     if project.show is not None and report.show is not None:
         report.show_seconds = round(project.show.duration, 4)
     report.transitions = project_transitions(project.state, cfg.transitions)

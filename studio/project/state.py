@@ -19,6 +19,7 @@ import numpy as np
 from studio.errors import StudioError
 from studio.imitate.config import LossConfig
 from studio.motion.show import Show
+from studio.sim.roll import wrap_deg
 from studio.targets.images import TargetConfig
 from studio.targets.keyframes import KeyframeConfig
 from studio.targets.video import VideoConfig
@@ -105,6 +106,30 @@ class PoseResult:
         return np.array([self.pose[n] for n in joint_names], dtype=np.float64)
 
 
+@dataclass(frozen=True)
+class Mount:
+    """How the hand is mounted for the project's show (DESIGN §1): one roll about the light axis for all of it."""
+
+    auto: bool = False  # the studio chooses the roll (``--roll auto``) before the keyframes are next optimised
+    roll: float = 0.0  # rad, the roll the keyframes are optimised for (the artist's, or the one auto chose)
+    chosen: bool = True  # auto: the roll has been chosen (False: it is chosen at the start of the next run)
+    upright_loss: float | None = None  # auto: the retrieval's mean loss at roll 0, beside the chosen roll's
+    loss: float | None = None  # auto: … at the chosen roll (both for the summary: what the roll bought)
+
+    @staticmethod
+    def from_setting(roll: str | float | None) -> Mount:
+        """``"auto"`` (or None) → to be chosen; a number → that roll in degrees, as the artist set it."""
+        if roll is None or (isinstance(roll, str) and roll.strip().lower() == "auto"):
+            return Mount(auto=True, chosen=False)
+        try:
+            deg = float(roll)
+        except ValueError:
+            raise ProjectError(f"a roll is 'auto' or an angle in degrees, not {roll!r}") from None
+        if not math.isfinite(deg):
+            raise ProjectError(f"a roll is 'auto' or a finite angle in degrees, not {roll!r}")
+        return Mount(auto=False, roll=math.radians(wrap_deg(deg)))
+
+
 @dataclass(frozen=True, eq=False)
 class ProjectState:
     """Everything a project holds, as plain data; never changed in place (an edit makes a new state)."""
@@ -126,6 +151,7 @@ class ProjectState:
     results: Mapping[int, PoseResult]  # keyframe id → its result
     show: Show | None = None  # the planned show
     show_inputs: str | None = None  # fingerprint (studio.project.inputs.show_inputs) the show was planned from
+    mount: Mount = Mount()  # the hand's mount roll (projects from before it: upright, as they were optimised)
 
     def keyframe(self, k: int) -> Keyframe:
         """The keyframe with id ``k``; a ProjectError naming the ids there are otherwise."""

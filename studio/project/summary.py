@@ -10,6 +10,7 @@ from studio.imitate.transitions import TransitionConfig, transition_success
 from studio.project.state import PoseResult, ProjectState
 from studio.project.status import ProjectStatus
 from studio.sim.hand import load_hand
+from studio.sim.roll import mount_text, roll_deg
 
 
 def _total(result: PoseResult | None) -> float | None:
@@ -52,6 +53,12 @@ def summarise(s: ProjectState, status: ProjectStatus) -> dict:
         "size": s.video.size,
         "hz": s.video.hz,
         "tau": s.clustering.tau,
+        "mount": {
+            "auto": s.mount.auto,
+            "chosen": s.mount.chosen,
+            "roll_deg": roll_deg(s.mount.roll),
+            "how": mount_text(s.mount.roll) if s.mount.chosen else "roll auto: chosen at the next run",
+        },
         "keyframes": keyframes,
         "results": counts,
         "painted_frames": sorted(set(s.additions) | set(s.erasures)),

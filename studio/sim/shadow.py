@@ -26,6 +26,7 @@ class Rig:
     backdrop_z: float = -1.0  # the backdrop is the plane z = backdrop_z
     window: float = 0.6  # side of the square backdrop window imaged, centred on the light axis
     resolution: int = 256  # pixels per side of shadow images
+    roll: float = 0.0  # mount roll about the light axis, rad, counter-clockwise as the audience sees the backdrop
 
     def __post_init__(self) -> None:
         if not self.light[2] > self.backdrop_z:
@@ -39,14 +40,23 @@ class Rig:
         return self.window / self.resolution
 
     def with_resolution(self, resolution: int) -> Rig:
-        return Rig(self.light, self.backdrop_z, self.window, resolution)
+        return Rig(self.light, self.backdrop_z, self.window, resolution, self.roll)
+
+    def with_roll(self, roll: float) -> Rig:
+        """This rig with the mount rolled by ``roll`` rad about the light axis."""
+        return Rig(self.light, self.backdrop_z, self.window, self.resolution, float(roll))
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The rig's fields; ``roll`` only when the mount is rolled (so roll 0 reads, and hashes, as the paper rig
+        always did: caches keyed by the rig stay valid)."""
+        d = asdict(self)
+        if not d["roll"]:
+            del d["roll"]
+        return d
 
     @property
     def hash(self) -> str:
-        """Short hash of the rig geometry (resolution included)."""
+        """Short hash of the rig geometry (resolution included; roll only when non-zero)."""
         return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
 
     def project(self, p_world: np.ndarray) -> np.ndarray:
@@ -123,18 +133,48 @@ def joint_table(hand: Hand) -> JointTable:
     )
 
 
+def roll_matrix(roll: float) -> np.ndarray:
+    """``R_z(roll)`` as a ``(4, 4)`` transform: the mount rolled about the light (z) axis by ``roll`` rad."""
+    c, s = np.cos(roll), np.sin(roll)
+    T = np.eye(4)
+    T[:2, :2] = [[c, -s], [s, c]]
+    return T
+
+
+def rolled_joints(table: JointTable, roll: float) -> JointTable:
+    """``table`` with the root link turned by ``roll`` rad about z: joints hung on the root get ``R_z @ T_origin``."""
+    if not roll:
+        return table
+    T = table.T_origin.copy()
+    on_root = table.parent == 0
+    T[on_root] = roll_matrix(roll) @ T[on_root]
+    return JointTable(table.parent, T, table.axis)
+
+
+def rolled_pieces(table: PieceTable, roll: float) -> PieceTable:
+    """``table`` with the root link's own pieces turned by ``roll`` rad about z (the others ride on the joints)."""
+    if not roll:
+        return table
+    pts = table.points.copy()
+    on_root = table.link == 0
+    pts[on_root] = pts[on_root] @ roll_matrix(roll)[:3, :3].T
+    return PieceTable(table.link, pts, table.count, table.radius)
+
+
 class ShadowRenderer:
     """Fast exact batched renderer of the hand's shadow for one rig.
 
-    ``render(theta (B, 21) or (21,)) -> (B, H, W) uint8`` (1 = shadow). Invalid poses raise ``ValueError``.
+    ``render(theta (B, 21) or (21,)) -> (B, H, W) uint8`` (1 = shadow). Invalid poses raise ``ValueError``. A rig
+    with a mount roll renders the rolled hand exactly: the roll ``R_z`` is folded into the root's joints and
+    pieces (``T_world_root = R_z(roll)``), so ``fk`` gives the rolled frames too.
     """
 
     def __init__(self, hand: Hand | None = None, rig: Rig | None = None, ring_points: int = 16):
         self.hand = hand or load_hand()
         self.rig = rig or Rig()
         self.ring_points = ring_points  # points per projected sphere outline (area-preserving polygon)
-        self.joints = joint_table(self.hand)
-        self.pieces = piece_table(self.hand, "visual")
+        self.joints = rolled_joints(joint_table(self.hand), self.rig.roll)
+        self.pieces = rolled_pieces(piece_table(self.hand, "visual"), self.rig.roll)
         self._light = np.asarray(self.rig.light, dtype=np.float64)
 
     def render(self, theta: np.ndarray, check: bool = True) -> np.ndarray:

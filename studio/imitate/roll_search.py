@@ -1,0 +1,144 @@
+"""``--roll auto``: the one mount roll under which the hand casts a still, or every keyframe of a show, best.
+
+The roll turns only the target (:mod:`studio.sim.roll`), so candidate rolls are ranked on the retrieval index alone,
+within the first answer's budget (≈ 3 ms an angle and target, compiled, :meth:`RetrievalIndex.best`):
+
+1. **coarse**: every ``coarse_deg`` around the circle, each target turned into the hand's frame and scored by the
+   index's best pixel loss; a show's score is the mean over its keyframes (one mount for the whole show);
+2. **index refinement**: the ``top`` best coarse angles, each by halving steps (± half the grid, then ± a quarter …)
+   down to ``index_deg``;
+3. **exact** (where it pays, since the index's 32-pixel crops are coarse): each refined angle's best index poses
+   (the query's shortlist, scored on the renderer with the full loss, expressive term included) → the angle whose
+   poses cast the targets best; then, with those poses held, halving steps on the rendered loss down to ``fine_deg``.
+
+Pure compute over an index and a refiner (renderer + collision world); the caller turns the targets by the roll
+chosen and imitates them as usual.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from studio.imitate.losses import ImageLoss
+from studio.imitate.refine import Refiner
+from studio.imitate.retrieval import RetrievalIndex
+from studio.sim.roll import into_hand_frame, wrap_deg
+
+
+@dataclass(frozen=True)
+class RollSearchConfig:
+    """How ``--roll auto`` searches the mount roll."""
+
+    coarse_deg: float = 15.0  # first pass: a candidate roll every this many degrees around the circle (0, 90]
+    top: int = 3  # best coarse angles refined on the index and compared exactly [1, ∞)
+    index_deg: float = 1.875  # index refinement stops at this step, degrees (0, coarse_deg]
+    fine_deg: float = 0.25  # exact refinement (rendered loss, poses held) stops at this step, degrees (0, ∞)
+    exact_k: int = 1  # best distinct index poses per target scored exactly at each refined angle [1, ∞)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.coarse_deg <= 90 or not 0 < self.index_deg <= self.coarse_deg or self.fine_deg <= 0:
+            raise ValueError("roll search needs 0 < index_deg ≤ coarse_deg ≤ 90 and fine_deg > 0 (degrees)")
+        if self.top < 1 or self.exact_k < 1:
+            raise ValueError("roll search needs top ≥ 1 and exact_k ≥ 1")
+
+
+@dataclass
+class RollChoice:
+    """The roll chosen (plain data)."""
+
+    roll: float  # rad, counter-clockwise as the audience sees the backdrop
+    loss: float  # mean rendered loss of the held poses over the targets at that roll
+    upright_loss: float  # the same measure at roll 0 (the paper's rig), for the summary
+    seconds: float  # wall time of the search
+    coarse: dict[float, float] = field(default_factory=dict)  # degrees → mean index pixel loss (the first pass)
+
+    @property
+    def deg(self) -> float:
+        return round(wrap_deg(math.degrees(self.roll)), 2)
+
+
+LossFactory = Callable[[np.ndarray, "np.ndarray | None"], ImageLoss]  # (target, expressive) → its loss
+
+
+def _turned(targets: np.ndarray, deg: float) -> np.ndarray:
+    return np.stack([into_hand_frame(t, None, math.radians(deg))[0] for t in targets])
+
+
+def _index_scores(index: RetrievalIndex, targets: np.ndarray, degs: list[float], memo: dict[float, float]) -> list:
+    """Mean best index pixel loss of the targets turned by each of ``degs`` (one compiled call for the new ones)."""
+    keys = [round(wrap_deg(d), 6) for d in degs]
+    new = list(dict.fromkeys(k for k in keys if k not in memo))
+    if new:
+        turned = np.concatenate([_turned(targets, k) for k in new])
+        best = index.best(turned)[0].reshape(len(new), len(targets)).mean(axis=1)
+        memo.update(zip(new, best.tolist(), strict=True))
+    return [memo[k] for k in keys]
+
+
+def _halve(score: Callable[[list[float]], list[float]], deg: float, step: float, stop: float) -> float:
+    """Local search on one angle: try ± step (scored together), keep the best, halve the step until below ``stop``."""
+    best, value = deg, score([deg])[0]
+    while step >= stop - 1e-9:
+        cands = [best - step, best + step]
+        for cand, v in zip(cands, score(cands), strict=True):
+            if v < value:
+                best, value = cand, v
+        step /= 2
+    return best
+
+
+def choose_roll(
+    index: RetrievalIndex,
+    refiner: Refiner,
+    targets: np.ndarray,
+    expressive: np.ndarray | None,
+    make_loss: LossFactory,
+    cfg: RollSearchConfig | None = None,
+) -> RollChoice:
+    """The roll (rad) under which the hand casts ``targets (K, S, S)`` (a still: K = 1; a show: its keyframes) best
+    on average, with their expressive masks ``(K, S, S)`` or None; ``make_loss(target, expressive)`` builds the loss
+    a turned target is scored with (module doc: coarse, index refinement, exact)."""
+    cfg = cfg or RollSearchConfig()
+    t0 = time.perf_counter()
+    targets = np.asarray(targets)
+    if targets.ndim != 3 or not len(targets):
+        raise ValueError(f"targets must be (K, S, S) with K ≥ 1, not shape {targets.shape}")
+    exps = [None] * len(targets) if expressive is None else list(np.asarray(expressive))
+    memo: dict[float, float] = {}
+    grid = [float(wrap_deg(d)) for d in np.arange(0.0, 360.0, cfg.coarse_deg)]
+    coarse = dict(zip(grid, _index_scores(index, targets, grid, memo), strict=True))
+    starts = sorted(coarse, key=coarse.get)[: cfg.top]
+    refined = [_halve(lambda ds: _index_scores(index, targets, ds, memo), d, cfg.coarse_deg / 2, cfg.index_deg)
+               for d in starts]  # fmt: skip
+
+    def losses(deg: float) -> tuple[list[ImageLoss], list[np.ndarray]]:
+        pairs = [into_hand_frame(t, e, math.radians(deg)) for t, e in zip(targets, exps, strict=True)]
+        return [make_loss(t, e) for t, e in pairs], [t for t, _ in pairs]
+
+    def exact_at(deg: float) -> tuple[float, list[np.ndarray]]:
+        fns, turned = losses(deg)
+        poses, total = [], 0.0
+        for fn, t in zip(fns, turned, strict=True):
+            got = index.query(t, lambda th, fn=fn: refiner.score(fn, th)[0], cfg.exact_k)
+            poses.append(got.theta)
+            total += float(got.loss[0])
+        return total / len(fns), poses
+
+    tried = [(d, *exact_at(d)) for d in dict.fromkeys(round(wrap_deg(d), 6) for d in refined)]
+    best_deg, _, poses = min(tried, key=lambda r: r[1])
+
+    def held(deg: float) -> float:  # the held poses' rendered loss with the targets turned by deg
+        fns, _ = losses(deg)
+        return float(np.mean([refiner.score(fn, p)[0].min() for fn, p in zip(fns, poses, strict=True)]))
+
+    best_deg = wrap_deg(_halve(lambda ds: [held(d) for d in ds], best_deg, cfg.index_deg / 2, cfg.fine_deg))
+    upright = exact_at(0.0)[0]
+    loss = held(best_deg)
+    if upright <= loss:  # the upright rig is as good: keep the paper's rig
+        best_deg, loss = 0.0, upright
+    return RollChoice(math.radians(best_deg), loss, upright, time.perf_counter() - t0, coarse)

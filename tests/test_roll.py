@@ -1,0 +1,169 @@
+"""The mount roll (DESIGN §1): the roll law, targets turned into the hand's frame, roll auto, show files."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from studio.imitate.config import LossConfig
+from studio.imitate.losses import ImageLoss
+from studio.imitate.refine import Refiner
+from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex
+from studio.imitate.roll_search import choose_roll
+from studio.motion.show import Show, load_show, save_show
+from studio.motion.show_info import show_info_lines
+from studio.sim.crop import crop_boxes, square_boxes
+from studio.sim.hand import load_hand
+from studio.sim.roll import into_hand_frame, mount_text, roll_deg, turn, wrap_deg
+from studio.sim.sampling import sample_poses
+from studio.sim.shadow import Rig, ShadowRenderer, iou
+
+R = 128
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return load_hand()
+
+
+@pytest.fixture(scope="module")
+def poses(hand):
+    return sample_poses(hand, 24, np.random.default_rng(7))[0]
+
+
+@pytest.mark.parametrize("deg", [30.0, -75.0, 135.0, 180.0])
+def test_a_rolled_render_is_the_upright_render_turned_about_the_image_centre(hand, poses, deg):
+    roll = math.radians(deg)
+    upright = ShadowRenderer(hand, Rig(resolution=R)).render(poses)
+    rolled = ShadowRenderer(hand, Rig(resolution=R, roll=roll)).render(poses)
+    agree = iou(turn(upright, roll), rolled)
+    assert agree.min() > 0.93 and agree.mean() > 0.95  # equal up to edge aliasing at 128²
+    if abs(deg) != 180:  # …and it turns the right way round (a half turn is both ways)
+        assert iou(turn(upright, -roll), rolled).mean() < agree.mean() - 0.3
+    assert (rolled.sum(axis=(1, 2)) > 0).all()
+
+
+def test_the_roll_law_tightens_with_resolution(hand, poses):
+    roll = math.radians(40.0)
+    means = []
+    for res in (64, 256):
+        up = ShadowRenderer(hand, Rig(resolution=res)).render(poses[:8])
+        ro = ShadowRenderer(hand, Rig(resolution=res, roll=roll)).render(poses[:8])
+        means.append(iou(turn(up, roll), ro).mean())
+    assert means[1] > means[0] and means[1] > 0.97  # the gap is aliasing: it shrinks as pixels do
+
+
+def test_the_window_holds_every_rolled_shadow(hand):
+    """No pose's shadow reaches further than the window's inscribed circle, so every roll keeps it whole."""
+    theta = sample_poses(hand, 3000, np.random.default_rng(3))[0]
+    rig = Rig(resolution=96)
+    shadows = ShadowRenderer(hand, rig).render(theta, check=False)
+    centres = rig.pixel_centres()  # (H, W, 2) metres
+    radius = np.linalg.norm(centres, axis=-1)
+    reach = max(float(radius[s.astype(bool)].max()) for s in shadows if s.any())
+    assert reach + rig.pixel_size < rig.window / 2  # 0.254 m measured; the window's half side is 0.3 m
+    rolled = ShadowRenderer(hand, rig.with_roll(math.radians(45))).render(theta[:200], check=False)
+    assert not rolled[:, [0, -1], :].any() and not rolled[:, :, [0, -1]].any()
+
+
+def test_roll_zero_is_the_paper_rig_and_keeps_its_hash():
+    assert Rig(roll=0.0) == Rig() and Rig(roll=0.0).hash == Rig().hash and "roll" not in Rig().to_dict()
+    assert Rig(roll=0.1).hash != Rig().hash and Rig(roll=0.1).with_resolution(64).roll == 0.1
+
+
+def test_degrees_for_people():
+    assert wrap_deg(190) == -170 and wrap_deg(-180) == 180 and wrap_deg(360) == 0
+    assert roll_deg(math.radians(-30.04)) == -30.0
+    assert "upright" in mount_text(0.0) and "clockwise" in mount_text(math.radians(-20))
+    assert "counter-clockwise" in mount_text(math.radians(20))
+
+
+def _crop(mask: np.ndarray) -> np.ndarray:
+    """The loss's aligned crop of a binary mask, binarised."""
+    import torch
+
+    images = torch.from_numpy(mask[None].astype(np.float32))
+    boxes = square_boxes(images, 0.5, 5.0 * mask.shape[0] / 256)
+    return crop_boxes(images, boxes, 64)[0].numpy() > 0.5
+
+
+@pytest.mark.parametrize("deg", [25.0, 90.0, -140.0])
+def test_a_target_turned_into_the_hand_frame_is_the_upright_shape(hand, poses, deg):
+    """A shadow the rolled mount casts, turned by −roll, is (crop-aligned) the upright hand's shadow."""
+    roll = math.radians(deg)
+    upright = ShadowRenderer(hand, Rig(resolution=R)).render(poses[:6])
+    rolled = ShadowRenderer(hand, Rig(resolution=R, roll=roll)).render(poses[:6])
+    for u, r in zip(upright, rolled, strict=True):
+        back, exp = into_hand_frame(r, r, roll)
+        assert np.array_equal(back, exp) and back.dtype == np.uint8
+        assert iou(_crop(back), _crop(u)) > 0.85
+
+
+def test_a_turned_target_that_would_leave_the_frame_is_shrunk_to_fit():
+    bar = np.zeros((64, 64), np.uint8)
+    bar[30:34, 1:63] = 1  # fills the frame's width: a quarter turn fits, a diagonal one must shrink
+    for deg in (45.0, 90.0):
+        out, _ = into_hand_frame(bar, None, math.radians(deg))
+        assert out.any() and not out[:, [0, -1]].any() and not out[[0, -1], :].any()
+    assert into_hand_frame(bar, None, 0.0)[0] is bar or np.array_equal(into_hand_frame(bar, None, 0.0)[0], bar)
+    empty = np.zeros((32, 32), np.uint8)
+    assert not into_hand_frame(empty, None, 1.0)[0].any()
+
+
+@pytest.fixture(scope="module")
+def small_index(hand):
+    renderer = ShadowRenderer(hand, Rig(resolution=R))
+    index = RetrievalIndex.build(renderer, RetrievalConfig(size=3000, chunk=3000, shortlist=64))
+    refiner = Refiner(renderer)
+    yield index, refiner
+    refiner.close()
+
+
+def test_the_compiled_best_rows_match_the_reference_ranking(small_index, hand, poses):
+    index, _ = small_index
+    targets = ShadowRenderer(hand, Rig(resolution=R, roll=0.7)).render(poses[:5])
+    best, rows = index.best(targets)
+    for t, b, row in zip(targets, best, rows, strict=True):
+        ranked = index.rank(t)
+        assert b == pytest.approx(float(ranked.min()), abs=1e-6) and ranked[row] == pytest.approx(ranked.min())
+
+
+@pytest.mark.parametrize("deg", [40.0, -100.0, 170.0])
+def test_roll_auto_recovers_the_roll_of_a_rendered_reachable_target(small_index, hand, deg):
+    index, refiner = small_index
+    lc = LossConfig(use_clip=False, crop_size=R)
+    theta = index.theta[int(abs(deg)) * 7].astype(np.float64)  # a reachable pose (in the index)
+    target = ShadowRenderer(hand, Rig(resolution=R, roll=math.radians(deg))).render_one(theta)
+    choice = choose_roll(index, refiner, target[None], None, lambda t, e: ImageLoss(t, lc, None, e))
+    assert abs(wrap_deg(choice.deg - deg)) <= 2.0
+    assert choice.loss < choice.upright_loss and choice.seconds > 0
+    assert len(choice.coarse) == 24
+
+
+def test_roll_auto_keeps_the_upright_rig_for_an_upright_target(small_index, hand):
+    index, refiner = small_index
+    lc = LossConfig(use_clip=False, crop_size=R)
+    target = ShadowRenderer(hand, Rig(resolution=R)).render_one(index.theta[11].astype(np.float64))
+    choice = choose_roll(index, refiner, target[None], None, lambda t, e: ImageLoss(t, lc, None, e))
+    assert abs(choice.deg) <= 2.0
+
+
+def test_show_files_with_and_without_a_roll_validate(tmp_path, hand):
+    rolled = Show.from_samples(hand, np.array([0.0, 1.0]), np.zeros((2, hand.dof)), roll=math.radians(-35.5))
+    path = save_show(rolled, tmp_path / "rolled.json")
+    back = load_show(path)
+    assert back.roll == pytest.approx(math.radians(-35.5)) and back.equals(rolled)
+    assert json.loads(path.read_text())["mount"] == {"roll_deg": -35.5}
+    assert any(line.startswith("mount:") and "35.5° clockwise" in line for line in show_info_lines(back))
+    old = json.loads(save_show(Show.from_samples(hand, np.array([0.0, 1.0]), np.zeros((2, hand.dof))),
+                               tmp_path / "upright.json").read_text())  # fmt: skip
+    del old["mount"]  # a file from before the mount roll
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    assert load_show(tmp_path / "old.json").roll == 0.0
+    bad = dict(old, mount={"roll_deg": "ninety"})
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(Exception, match="roll_deg"):
+        load_show(tmp_path / "bad.json")
