@@ -135,3 +135,35 @@ def test_roll_auto_is_chosen_once_for_the_whole_show(tmp_path, sources, hand):
     assert p.show.roll == p.mount.roll and p.mount.loss <= p.mount.upright_loss
     again = p.run(RunConfig(sequence=seq, allow_late=True))
     assert not again.roll_chosen and again.optimised == [] and again.show == "current"
+
+
+def test_the_review_and_the_scene_show_the_hand_mounted_rolled(tmp_path, hand):
+    """Rerun: the root link turned by the show's roll, the backdrop's texture the rolled mount's shadow (pixels);
+    meshcat: the links where the rolled FK puts them, the backdrop the rolled shadow."""
+    from studio.review.readback import read_recording
+    from studio.review.recording import ProjectRecording
+    from studio.review.rig3d import RigReview, tint
+    from studio.review.scene import ShadowScene
+    from studio.sim.sampling import sample_poses
+
+    theta = sample_poses(hand, 1, np.random.default_rng(5))[0][0]
+    roll = math.radians(90)
+    show = Show.from_samples(hand, np.array([0.0, 1.0]), np.stack([theta, theta]), roll=roll)
+    with ProjectRecording(path=tmp_path / "r.rrd") as review:
+        review.log_show(show)
+    rec = read_recording(tmp_path / "r.rrd")
+    col = "Transform3D:rotation_axis_angle"
+    root = [row for b in rec[f"/world/pose/{hand.root}"]["batches"] for row in b.column(col).to_pylist()][-1]
+    assert root[0]["angle"] == pytest.approx(roll)  # the last static mount is the one drawn
+    side = RigReview().texture
+    rolled = ShadowRenderer(hand, Rig(resolution=side, roll=roll)).render_one(theta)
+    upright = ShadowRenderer(hand, Rig(resolution=side)).render_one(theta)
+    batch = next(b for b in rec["/world/backdrop"]["batches"] if "Mesh3D:albedo_texture_buffer" in b.schema.names)
+    buffer = batch.column("Mesh3D:albedo_texture_buffer").to_pylist()[0][0]
+    texture = np.array(buffer, np.uint8).reshape(side, side, 3)
+    np.testing.assert_array_equal(texture, tint(rolled))
+    assert not np.array_equal(texture, tint(upright))
+    with ShadowScene() as scene:
+        scene.set_roll(roll)
+        shadow = scene.set_pose(theta)
+    assert iou(shadow, ShadowRenderer(hand, Rig(resolution=shadow.shape[0], roll=roll)).render_one(theta)) == 1.0

@@ -136,6 +136,7 @@ class ReviewPanel:
         state = "no result yet" if result is None else ("stale result" if p.is_stale(k) else f"loss {_total(result)}")
         self.caption.value = f"frame {i} (source {f.source}, {f.time_s:.2f} s), keyframe {k}: {state}"
         if self.scene is not None and not self.scene.closed:
+            self.scene.set_roll(self.state.project.mount.roll)  # the hand as the show mounts it
             names = self.scene.hand.joint_names
             theta = self.scene.hand.rest_pose() if result is None else result.theta(names)
             if self.messages.run(self.scene.set_pose, theta) is not None:

@@ -33,7 +33,7 @@ from studio.motion.show import Show
 from studio.review.blueprint import FRAME, project_blueprint
 from studio.review.frames import JobProgressLog, KeyframeReview, log_frames
 from studio.review.playback import PlaybackSampleLog, log_playback
-from studio.review.rig3d import RigReview, log_rig, log_show, urdf_tree
+from studio.review.rig3d import RigReview, log_mount, log_rig, log_show, urdf_tree
 from studio.sim.hand import Hand, load_hand
 from studio.sim.shadow import Rig
 
@@ -156,6 +156,10 @@ class ProjectRecording:
         the keyframes' poses; ``sources``: every frame's RGB source image framed like its target (None for none).
         Returns the frames' assignment."""
         names = self.hand.joint_names
+        roll = project.state.mount.roll
+        if roll != self.rig.roll:  # the hand mounted as the project's show wants it
+            self.rig = self.rig.with_roll(roll)
+            log_mount(self.rec, self.hand, roll)
         results = project.results
         theta = {k: r.theta(names) for k, r in results.items()}
         predicted = {}

@@ -73,8 +73,7 @@ def log_rig(rec: rr.RecordingStream, hand: Hand, rig: Rig, cfg: RigReview | None
     cfg = cfg or RigReview()
     rec.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)
     rec.log_file_from_contents("hand.urdf", hand.urdf_text.encode(), entity_path_prefix=HAND, static=True)
-    root = rr.Transform3D(translation=[0.0, 0.0, 0.0], parent_frame=f"tf#/{WORLD}", child_frame=hand.root)
-    rec.log(f"{POSE}/{part(hand.root)}", root, static=True)
+    log_mount(rec, hand, rig.roll)
     light = np.asarray(rig.light, dtype=float)
     rec.log(LIGHT, rr.Points3D([light], radii=cfg.light_radius, colors=LIGHT_COLOR, labels="light"), static=True)
     corners = window_corners(rig)
@@ -83,6 +82,14 @@ def log_rig(rec: rr.RecordingStream, hand: Hand, rig: Rig, cfg: RigReview | None
         rec.log(f"{LIGHT}/rays", rays, static=True)
     outline = rr.LineStrips3D([np.vstack([corners, corners[:1]])], radii=0.004, colors=EDGE_COLOR)
     rec.log(f"{BACKDROP}/edge", outline, static=True)
+
+
+def log_mount(rec: rr.RecordingStream, hand: Hand, roll: float) -> None:
+    """The hand's root link at the world origin, rolled by ``roll`` rad about the light (z) axis (static: the last
+    logged mount is the one drawn)."""
+    root = rr.Transform3D(translation=[0.0, 0.0, 0.0], rotation=rr.RotationAxisAngle(axis=[0.0, 0.0, 1.0],
+                          radians=float(roll)), parent_frame=f"tf#/{WORLD}", child_frame=hand.root)  # fmt: skip
+    rec.log(f"{POSE}/{part(hand.root)}", root, static=True)
 
 
 def log_poses(
@@ -131,12 +138,15 @@ def log_show(
     tree: UrdfTree | None = None,
     renderer: ShadowRenderer | None = None,
 ) -> np.ndarray:
-    """The planned ``show`` on ``show_time``: the hand at every sample, the keyframe markers, and the backdrop
-    textured with the rendered shadow of the show's pose every ``1/cfg.show_hz`` s. Returns the shadows
-    ``(K, R, R)`` uint8 put on the backdrop, R = ``cfg.texture``, at :func:`show_instants`."""
+    """The planned ``show`` on ``show_time``: the hand at every sample (mounted at the show's roll), the keyframe
+    markers, and the backdrop textured with the rendered shadow of the show's pose every ``1/cfg.show_hz`` s, as
+    that mount casts it. Returns the shadows ``(K, R, R)`` uint8 put on the backdrop, R = ``cfg.texture``, at
+    :func:`show_instants`."""
     cfg = cfg or RigReview()
     tree = tree or urdf_tree(hand)
+    rig = rig.with_roll(show.roll)
     renderer = renderer or ShadowRenderer(hand, rig.with_resolution(cfg.texture))
+    log_mount(rec, hand, show.roll)
     log_poses(rec, hand, tree, SHOW_TIME, show.times, show.positions)
     set_time(rec, show_time=float(show.times[0]))
     rec.log(SHOW_LOG, rr.TextLog(f"show {show.title!r}: {len(show.times)} samples, {show.duration:.2f} s"))

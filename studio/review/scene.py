@@ -28,7 +28,7 @@ import numpy as np
 from studio.review.sheets import tint
 from studio.sim.hand import Geometry, Hand, load_hand
 from studio.sim.kinematics import fk_numpy
-from studio.sim.shadow import Rig, ShadowRenderer
+from studio.sim.shadow import Rig, ShadowRenderer, roll_matrix
 
 log = logging.getLogger(__name__)
 
@@ -143,7 +143,7 @@ class ShadowScene:
         """Show joint angles ``theta (21,) rad``: every link moved to its FK pose, the backdrop textured with the
         pose's shadow. Returns that shadow ``(R, R)`` uint8 (1 = shadow). Invalid angles raise ``ValueError``."""
         th = self.hand.check_theta(theta)[0]
-        T_world_link = fk_numpy(self.hand, th[None])[0]
+        T_world_link = roll_matrix(self.rig.roll) @ fk_numpy(self.hand, th[None])[0]  # the hand as it is mounted
         root = self.vis[ROOT]
         for link, T in zip(self.hand.link_names, T_world_link):
             root[f"hand/{link}"].set_transform(T)
@@ -151,6 +151,13 @@ class ShadowScene:
         self.set_backdrop(shadow)
         self.theta = th
         return shadow
+
+    def set_roll(self, roll: float) -> None:
+        """Mount the hand rolled by ``roll`` rad about the light axis (the next :meth:`set_pose` shows it so, and
+        its shadow as that mount casts it)."""
+        if roll != self.rig.roll:
+            self.rig = self.rig.with_roll(roll)
+            self.renderer = ShadowRenderer(self.hand, self.rig.with_resolution(self.cfg.texture))
 
     def set_backdrop(self, shadow: np.ndarray) -> None:
         """Texture the backdrop with ``shadow (R, R)`` (1 = shadow), e.g. a target to compare with."""
