@@ -19,7 +19,9 @@ from studio.errors import TargetError
 from studio.evaluate.table1 import LOSS_COLUMNS
 from studio.evaluate.table2 import (
     EXTRA_COLUMNS,
+    PAPER_ROWS,
     ROWS,
+    STUDIO_ROW,
     VideoEvaluator,
     gather_sequences,
     sequence_from_masks,
@@ -46,16 +48,18 @@ TINY_FLAGS = ["--search-batch", "8", "--search-iterations", "15", "--next-batch"
               "--sweep-draws", "96", "--sweep-passes", "1"]  # fmt: skip
 
 
-def test_rows_are_the_papers_six():
-    assert [r.name for r in ROWS] == [
+def test_rows_are_the_papers_six_and_the_studios():
+    assert [r.name for r in PAPER_ROWS] == [
         "Independent Base", "Independent +Exp", "Independent +Exp+Temp",
         "Sequential Base", "Sequential +Exp", "Sequential +Exp+Temp",
     ]  # fmt: skip
-    assert [(r.mode, r.expressive, r.temporal) for r in ROWS[3:]] == [
+    assert [(r.mode, r.expressive, r.temporal) for r in PAPER_ROWS[3:]] == [
         ("sequential", False, False), ("sequential", True, False), ("sequential", True, True)
     ]  # fmt: skip
     cfg = ROWS[2].config(CPU_SEQUENCE)
     assert (cfg.mode, cfg.expressive, cfg.temporal, cfg.first) == ("independent", True, True, CPU_SEQUENCE.first)
+    assert not any(r.clock or r.roll for r in PAPER_ROWS) and not cfg.keep_clock  # the paper's method as it was
+    assert ROWS == (*PAPER_ROWS, STUDIO_ROW) and STUDIO_ROW.config(CPU_SEQUENCE).keep_clock and STUDIO_ROW.roll
 
 
 def test_summary_nan_handling_and_sums():
@@ -152,7 +156,7 @@ def table(seq, sequences):
 @pytest.mark.slow
 def test_six_rows_one_measure_and_counts_that_add_up(table, tmp_path):
     assert not table.cancelled and [r["row"] for r in table.rows] == [r.name for r in ROWS]
-    assert len(table.records) == 12 and len(table.keyframes) == 6 * 4
+    assert len(table.records) == 14 and len(table.keyframes) == 7 * 4
     for r in table.rows:
         recs = [x for x in table.records if x["row"] == r["row"]]
         assert r["transitions"] == 2 + 0 == sum(x["transitions"] for x in recs)  # K − 1 per sequence, summed
@@ -169,10 +173,13 @@ def test_six_rows_one_measure_and_counts_that_add_up(table, tmp_path):
     md = (tmp_path / "table2.md").read_text()
     for header in [*LOSS_COLUMNS, *EXTRA_COLUMNS]:
         assert f" {header} |" in md.splitlines()[0]
-    assert md.count("\n| ") == 6 and "n/a" in md and "L_base + L_expr" in md and "CLIP off" in md
+    assert md.count("\n| ") == 7 and "n/a" in md and "L_base + L_expr" in md and "CLIP off" in md
     rows = list(csv.DictReader(open(paths["csv"])))
     assert [r["row"] for r in rows] == [r.name for r in ROWS] and rows[0]["clip"] == "" and rows[0]["exp_iou"]
-    assert len(list(csv.DictReader(open(paths["per_sequence"])))) == 12
+    assert len(list(csv.DictReader(open(paths["per_sequence"])))) == 14
+    studio = next(r for r in table.rows if r["row"] == STUDIO_ROW.name)
+    assert studio["late"] == 0  # kept to the clock: every transition within the servos' reach
+    assert all(r["late"] is not None for r in table.rows) and "Success, L_total" in md
     settings = json.loads((tmp_path / "settings.json").read_text())
     assert settings["losses"]["use_clip"] is False and settings["sequence"]["first"]["batch"] == 8
     assert [s["keyframes"] for s in settings["sequences"]] == [3, 1]
@@ -196,7 +203,7 @@ def test_cancel_keeps_the_finished_runs(seq, sequences):
 
     result = VideoEvaluator(seq, TINY).run(sequences, progress, cancel=cancel)
     assert result.cancelled and [r["row"] for r in result.records] == ["Independent Base"]
-    assert [r["row"] for r in result.rows] == ["Independent Base"] and "Cancelled: 1 of 12" in result.notes[-1]
+    assert [r["row"] for r in result.rows] == ["Independent Base"] and "Cancelled: 1 of 14" in result.notes[-1]
     assert stages[0] == ("evaluate-video", "") and ("keyframe 1/3: search", "moving · Independent Base") in stages
     assert ("evaluate-video", "moving · Independent Base") in stages  # the run done, then the next one starts
 

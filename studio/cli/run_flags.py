@@ -42,7 +42,7 @@ BUDGETS = (  # (flag prefix, the SequenceConfig field, its config class, the fie
     ("refine-", "refine", RefineConfig, ("method", "steps", "restarts", "popsize", "sigma0"), False),
     ("sweep-", "sweep", SweepConfig, ("starts", "draws", "passes"), False),
 )
-VIDEO_FIELDS = ("mode", "expressive", "temporal")  # SequenceConfig fields only a video has a use for
+VIDEO_FIELDS = ("mode", "expressive", "temporal", "keep_clock", "clock_margin")  # fields only a video uses
 LIMITS = ("velocity_scale", "acceleration", "jerk")
 LIMIT_RANGES = {"velocity_scale": "(0, 1]", "acceleration": "(0, ∞)", "jerk": "(0, ∞)"}
 

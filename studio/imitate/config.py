@@ -138,15 +138,20 @@ class SequenceConfig:
     refine_enabled: bool = True  # False: keep the searched poses (no rendered-shadow refinement)
     retrieve: bool = False  # a keyframe searched from scratch starts from retrieval + block sweep (the still method)
     sweep: SweepConfig = SweepConfig()  # the block sweep of those seeds (retrieve; starts=0: retrieval alone)
+    keep_clock: bool = True  # keep each keyframe within the servos' reach of its posed neighbours at the show's clock
+    clock_margin: float = 0.9  # share of a transition's time the reach is computed for (room for the planner) (0, 1]
 
     def __post_init__(self) -> None:
+        if not 0 < self.clock_margin <= 1:
+            raise ValueError(f"clock_margin is a share of a transition's time in (0, 1], not {self.clock_margin}")
         if self.mode not in MODES:
             raise ValueError(f"mode must be 'independent' or 'sequential', not {self.mode!r}")
         if self.candidates < 1:
             raise ValueError(f"candidates must be ≥ 1 (distinct search results to refine), got {self.candidates}")
 
 
-PAPER_SEQUENCE = SequenceConfig()  # the paper's sizes (GPU): first 500 × 3000, next 128 × 1200, 8 × 1000 refinement
+PAPER_SEQUENCE = SequenceConfig(keep_clock=False)  # the paper's sizes (GPU): first 500 × 3000, next 128 × 1200,
+# 8 × 1000 refinement, and no clock (the paper stretches nothing and checks nothing: its poses are chosen first)
 # The studio preset (1 torch thread, shipped 128² model), benchmarks/bench_sequence.py on the six DAVIS sequences:
 # sequential +Exp+Temp L_base + L_expr 0.550, independent 0.483, transition success 9/9 vs 0/9. Every keyframe is
 # refined like a still (CMA-ES, CPU_REFINE): against 8 hill-climbing chains × 500 steps (0.563 / 0.489 then) it is

@@ -16,7 +16,8 @@ a covariance it learns (joints that must move together, joints that do not matte
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -67,6 +68,33 @@ class Refiner:
         self.world = world or CollisionWorld(self.hand)
         self.closed = False
         self._fast: tuple[ImageLoss | None, RenderedLoss | None] = (None, None)  # (loss, its compiled twin)
+        self.box: tuple[np.ndarray, np.ndarray] | None = None  # (lower, upper) (21,) rad narrower than the joints'
+
+    @property
+    def lower(self) -> np.ndarray:
+        """``(21,)`` rad: the lowest angles a pose may take here (the joint limits, or :meth:`bounded`'s box)."""
+        return self.hand.lower if self.box is None else self.box[0]
+
+    @property
+    def upper(self) -> np.ndarray:
+        """``(21,)`` rad: the highest angles a pose may take here."""
+        return self.hand.upper if self.box is None else self.box[1]
+
+    @contextmanager
+    def bounded(self, box: tuple[np.ndarray, np.ndarray] | None) -> Iterator[Refiner]:
+        """Within the block, every proposal, sweep draw and seed stays in ``box`` ``(lower (21,), upper (21,))``
+        rad (e.g. a keyframe's reach from its neighbours on the show's clock, :func:`studio.motion.reach.reach_box`);
+        None: the joint limits."""
+        before = self.box
+        if box is not None:
+            lo = np.maximum(np.asarray(box[0], float), self.hand.lower)
+            hi = np.minimum(np.asarray(box[1], float), self.hand.upper)
+            box = (lo, np.maximum(hi, lo))
+        self.box = box
+        try:
+            yield self
+        finally:
+            self.box = before
 
     def close(self) -> None:
         """Disconnect the collision world if this refiner made it (idempotent)."""
@@ -129,7 +157,7 @@ class Refiner:
         """
         self._check_open()
         cfg = cfg or RefineConfig()
-        start = self.hand.check_theta(theta_start)[0]
+        start = np.clip(self.hand.check_theta(theta_start)[0], self.lower, self.upper)
         rng = np.random.default_rng(cfg.seed)
         start_loss = float(self.score(loss_fn, start[None], theta_prev)[0][0])
         start_collides = bool(self.world.in_collision(start, check=False)[0])
@@ -154,7 +182,7 @@ class Refiner:
 
     def _hill(self, loss_fn, start, cfg, rng, progress, cancel, theta_prev, best_pose):
         """The paper's hill climbing: ``restarts`` parallel chains, isotropic proposals (module docstring)."""
-        lo, hi = self.hand.lower, self.hand.upper
+        lo, hi = self.lower, self.upper
         cur = np.clip(start + rng.normal(0, cfg.restart_noise, (cfg.restarts, self.hand.dof)), lo, hi)
         cur[0] = start
         cur_loss, _ = self.score(loss_fn, cur, theta_prev)
@@ -199,7 +227,7 @@ class Refiner:
         """CMA-ES runs one after another (run 0 from the start pose, the others from N(0, restart_noise) around
         it), each ``steps`` generations of ``popsize`` candidates. A colliding candidate ranks after every
         collision-free one, by ``1 + loss + S_col`` (so a run that starts in collision climbs out of it)."""
-        lo, hi = self.hand.lower, self.hand.upper
+        lo, hi = self.lower, self.upper
         free0 = not bool(self.world.in_collision(start, check=False)[0])
         best_theta = start.copy()
         best_loss = float(self.score(loss_fn, start[None], theta_prev)[0][0]) if free0 else float("inf")

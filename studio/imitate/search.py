@@ -71,20 +71,26 @@ def gradient_search(
     cancel: threading.Event | None = None,
     best_pose: Callable[[np.ndarray], None] | None = None,
     starts: np.ndarray | None = None,
+    box: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> SearchResult:
     """Minimise ``loss_fn(model(θ))`` (+ the temporal term against ``theta_prev``) over a batch of θ.
 
     Reports stage "search" (step of ``cfg.iterations``, the batch's best loss) every ``log_every`` steps and at the
     last, just after ``best_pose(θ (21,) rad)`` with the pose of that best loss (for live previews); ``cancel`` stops
     within a step and the best pose so far is returned (``cancelled=True``).
-    ``starts (K, 21)`` rad seed the first rows of the batch (:func:`initial_poses`).
+    ``starts (K, 21)`` rad seed the first rows of the batch (:func:`initial_poses`). ``box`` ``(lower, upper)``
+    ``(21,)`` rad narrows the joint limits (a keyframe's reach on the show's clock): the reparameterisation then
+    keeps every pose inside it.
     """
     cfg = cfg or SearchConfig()
     hand = model.hand
     device = next(model.parameters()).device
-    lo = torch.tensor(hand.lower, dtype=torch.float32, device=device)
-    hi = torch.tensor(hand.upper, dtype=torch.float32, device=device)
-    theta0 = torch.tensor(initial_poses(hand, cfg, init, starts), dtype=torch.float32, device=device)
+    low, high = (hand.lower, hand.upper) if box is None else box
+    high = np.maximum(high, low + 1e-6)  # a pinned joint keeps a sliver of room (the sigmoid needs hi > lo)
+    lo = torch.tensor(low, dtype=torch.float32, device=device)
+    hi = torch.tensor(high, dtype=torch.float32, device=device)
+    theta0 = np.clip(initial_poses(hand, cfg, init, starts), low, high)
+    theta0 = torch.tensor(theta0, dtype=torch.float32, device=device)
     phi = _to_phi(theta0, lo, hi).requires_grad_(True)
     prev = None if theta_prev is None else torch.tensor(theta_prev, dtype=torch.float32, device=device)
     opt = torch.optim.Adam([phi], lr=cfg.lr)

@@ -46,8 +46,23 @@ def retrieve(
     theta_prev: np.ndarray | None = None,
 ) -> Retrieved:  # fmt: skip
     """The ``k`` best distinct collision-free poses of ``index`` for ``target (R, R)``, ranked by the rendered
-    loss of ``loss_fn`` (+ the temporal term against ``theta_prev (21,)`` rad when given), best first."""
-    return index.query(target, lambda th: refiner.score(loss_fn, th, theta_prev)[0], k)
+    loss of ``loss_fn`` (+ the temporal term against ``theta_prev (21,)`` rad when given), best first. Within a
+    :meth:`~studio.imitate.refine.Refiner.bounded` box, the shortlist is taken into the box first (clipped; those
+    that then collide are left out, unless all do)."""
+    if refiner.box is None:
+        return index.query(target, lambda th: refiner.score(loss_fn, th, theta_prev)[0], k)
+    t0 = time.perf_counter()
+    lo, hi = refiner.lower, refiner.upper
+
+    def boxed(th: np.ndarray) -> np.ndarray:
+        inside = np.clip(th, lo, hi)
+        loss = refiner.score(loss_fn, inside, theta_prev)[0]
+        hit = refiner.world.in_collision(inside, check=False)
+        return np.where(hit & ~hit.all(), np.inf, loss)
+
+    got = index.query(target, boxed, k)
+    theta = np.clip(got.theta, lo, hi)
+    return Retrieved(theta, got.loss, time.perf_counter() - t0)
 
 
 def sweep(
@@ -104,7 +119,7 @@ def sweep(
         if stopped(cancel):
             break
         theta[k], loss[k], _ = block_sweep(
-            theta[k], float(loss[k]), blocks, hand.lower, hand.upper, score, collides, cfg, rng, cancel,
+            theta[k], float(loss[k]), blocks, refiner.lower, refiner.upper, score, collides, cfg, rng, cancel,
             on_better, on_block(k),
         )  # fmt: skip
         if not stopped(cancel):

@@ -48,6 +48,9 @@ from studio.progress import ProgressFn, staged, stopped
 log = logging.getLogger(__name__)
 
 
+BoxFn = Callable[[int, list], "tuple[np.ndarray, np.ndarray] | None"]  # (k, poses done) → keyframe k's box
+
+
 @dataclass
 class KeyframeResult:
     """One keyframe's pose and how well its shadow imitates its target (plain data)."""
@@ -144,6 +147,7 @@ class SequenceImitator:
         cfg: SequenceConfig | None = None,
         best_pose: Callable[[np.ndarray], None] | None = None,
         previous: np.ndarray | None = None,
+        box_for: BoxFn | None = None,
     ) -> SequenceResult:
         """Keyframe targets ``masks (K, S, S)`` uint8 (1 = shadow) in first-appearance order (all N frames work too:
         each is then its own keyframe), their expressive masks ``(K, S, S)`` or None → :class:`SequenceResult`.
@@ -158,6 +162,9 @@ class SequenceImitator:
         report's best is the rendered loss of the pose last given there (live previews, as ``Imitator.imitate``).
         ``previous (21,) rad``: the pose of the keyframe before ``masks[0]`` (continuing a sequence: the first one
         is then searched from it when sequential and held to it by the temporal term); None: from scratch.
+        ``box_for(k, done)`` → ``(lower (21,), upper (21,))`` rad or None: the box keyframe ``k``'s pose must keep
+        given the poses ``done`` so far (e.g. its reach on the show's clock from its posed neighbours,
+        :func:`~studio.motion.reach.reach_box`): retrieval, sweep, search and refinement all stay inside it.
         """
         if self.refiner.closed:
             raise ClosedError("this SequenceImitator was closed; make a new one (or imitate inside its `with` block)")
@@ -185,7 +192,9 @@ class SequenceImitator:
                 break
             prev = done[-1].theta if done else previous
             exp_k = None if expressive is None else expressive[k]
-            r = self._keyframe(cfg, k, n, masks[k], exp_k, prev, progress, cancel, best_pose)
+            box = None if box_for is None else box_for(k, [d.theta for d in done])
+            with self.refiner.bounded(box):
+                r = self._keyframe(cfg, k, n, masks[k], exp_k, prev, progress, cancel, best_pose)
             if r is None:  # cancelled half-way
                 break
             done.append(r)
@@ -220,7 +229,7 @@ class SequenceImitator:
         t_search = time.perf_counter()
         search = gradient_search(
             self.model, loss_fn, search_cfg, prev if inherit else None, prev_t, live.report, cancel, live.pose,
-            starts=None if seeds is None else seeds.best.theta,
+            starts=None if seeds is None else seeds.best.theta, box=self.refiner.box,
         )  # fmt: skip
         t1 = time.perf_counter()
         if search.cancelled:

@@ -103,6 +103,7 @@ def imitate_video_job(
     previous: np.ndarray | None = None,
     device: str | None = None,
     roll: float = 0.0,
+    box: tuple[np.ndarray, np.ndarray] | None = None,
     apply: Apply = None,
     title: str = "video",
 ) -> Job:
@@ -114,17 +115,19 @@ def imitate_video_job(
     ``previous (21,) rad``: the pose before the first of these keyframes (continuing a sequence), None: none;
     ``device``: where the self-model runs (None: CUDA when present); ``roll``: the mount roll, rad (the targets turn
     into the hand's frame, :func:`studio.sim.roll.into_hand_frame`; the shadows and previews come back as the rolled
-    mount casts them)."""
+    mount casts them); ``box``: ``(lower, upper) (21,)`` rad every keyframe's pose keeps (its reach on the show's
+    clock)."""
     run = functools.partial(
         _imitate_video, masks=np.asarray(masks), expressive=None if expressive is None else np.asarray(expressive),
         cfg=cfg, loss_cfg=loss_cfg, clip=clip, model_path=model_path, preview=preview,
         previous=None if previous is None else np.asarray(previous, dtype=np.float64), device=device, roll=roll,
+        box=box,
     )  # fmt: skip
     return Job("imitate-video", run, apply, title)
 
 
 def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg, clip, model_path, preview,
-                   previous=None, device=None, roll=0.0):  # fmt: skip
+                   previous=None, device=None, roll=0.0, box=None):  # fmt: skip
     from dataclasses import replace
 
     from studio.imitate.config import CPU_SEQUENCE
@@ -142,8 +145,8 @@ def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg
         expressive = None if expressive is None else np.stack([e for _, e in turned])
     with Imitator(None, model_path, loss_cfg, clip, device=device) as im, SequenceImitator(cfg=cfg, imitator=im) as seq:
         pv = PosePreview(im.hand, preview, roll=roll) if preview else None
-        result = seq.imitate(masks, expressive, report.engine_progress(pv), cancel,
-                             best_pose=pv.pose if pv else None, previous=previous)  # fmt: skip
+        result = seq.imitate(masks, expressive, report.engine_progress(pv), cancel, best_pose=pv.pose if pv else None,
+                             previous=previous, box_for=None if box is None else lambda k, done: box)  # fmt: skip
         if roll:  # what the rolled mount casts (the losses were measured in the hand's frame: the same up to aliasing)
             rolled = ShadowRenderer(im.hand, im.renderer.rig.with_roll(roll))
             for kr in result.keyframes:

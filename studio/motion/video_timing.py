@@ -141,3 +141,17 @@ def video_keyframes(
     if losses is not None:
         kf.extra["keyframe_losses"] = [None if losses[c] is None else float(losses[c]) for c in kcluster_a]
     return VideoTiming(kf, kframe_a, kcluster_a, runs, float(end_s), t.copy())
+
+
+def transition_times(timing: VideoTiming) -> dict[tuple[int, int], float]:
+    """Every pair of clusters (keyframes) the show moves between, either way (A → B → A counts both moves) → the
+    shortest time the clock gives such a move, s: what the sequence optimisation keeps each transition within
+    (:func:`studio.motion.reach.reach_box`)."""
+    t, c = timing.keyframes.times, timing.cluster
+    out: dict[tuple[int, int], float] = {}
+    for m in range(len(t) - 1):
+        a, b = int(c[m]), int(c[m + 1])
+        if a != b:
+            key = (min(a, b), max(a, b))
+            out[key] = min(out.get(key, float("inf")), float(t[m + 1] - t[m]))
+    return out

@@ -85,10 +85,13 @@ def video_job(
     preview: int = 64,
     previous: np.ndarray | None = None,
     device: str | None = None,
+    box: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Job:
     """Imitate the project's keyframes as one sequence, in first-appearance order (``keyframes``: ids, default
     all) → ``project.set_result`` for each on completion (:func:`.engine.imitate_video_job`). ``previous (21,)
-    rad``: the pose of the keyframe before the first of them, when continuing a sequence."""
+    rad``: the pose of the keyframe before the first of them, when continuing a sequence; ``box``: the joint box
+    ``(lower, upper) (21,)`` rad every one of them keeps (its reach on the show's clock,
+    :func:`~studio.project.show_timing.keyframe_box`)."""
     project_ids = [kf.id for kf in project.keyframes]
     chosen = set(project_ids if keyframes is None else keyframes)
     unknown = chosen - set(project_ids)
@@ -109,7 +112,7 @@ def video_job(
     job = imitate_video_job(
         masks, np.stack([np.array(e) for _, e in pairs]), cfg=cfg,
         loss_cfg=project_loss(project, masks.shape[-1], clip), clip=clip, model_path=model_path, preview=preview,
-        previous=previous, device=device, roll=project.mount.roll, apply=apply,
+        previous=previous, device=device, roll=project.mount.roll, box=box, apply=apply,
         title=f"keyframe {ids[0]}" if len(ids) == 1 else f"{len(ids)} keyframes",
     )  # fmt: skip
     job.meta["keyframes"] = list(ids)

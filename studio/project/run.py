@@ -35,7 +35,7 @@ from studio.jobs.events import JobError, JobState, Reporter
 from studio.jobs.queue import Job, JobQueue
 from studio.motion.plan import PlanConfig
 from studio.project.jobs import queue_for, roll_job, video_job
-from studio.project.show_timing import ShowLayout
+from studio.project.show_timing import ShowLayout, keyframe_box
 from studio.project.state import ProjectError
 from studio.project.status import ProjectHandle, check_sources
 from studio.project.summary import project_transitions
@@ -214,8 +214,11 @@ def run_project(
         previous = None
         if seq.mode == "sequential" and before is not None:
             previous = project.results[before].theta(_joint_names())
+        box = None
+        if seq.keep_clock:  # within the servos' reach of its posed neighbours at the show's clock
+            box = keyframe_box(project.state, project.status(), k, seq.clock_margin, cfg.layout, cfg.plan.limits)
         job = video_job(project, [k], cfg=keyframe_config(seq, pos), clip=clip, previous=previous,
-                        model_path=model_path, device=cfg.device)  # fmt: skip
+                        model_path=model_path, device=cfg.device, box=box)  # fmt: skip
         job.meta["of"] = (n + 1, len(pending))
         queue.submit(job)
         if on_job is not None:

@@ -33,10 +33,14 @@ from pathlib import Path
 
 import numpy as np
 
+from studio.motion.limits import JointLimits, LimitsConfig
 from studio.motion.plan import Keyframes
+from studio.motion.reach import reach_box
 from studio.motion.video_timing import VideoTiming, runs_of, video_end, video_keyframes
+from studio.motion.video_timing import transition_times as clock_of
 from studio.project.state import ProjectError, ProjectState, ResultsNeeded
 from studio.project.status import ProjectStatus
+from studio.sim.hand import load_hand
 
 
 @dataclass(frozen=True)
@@ -67,15 +71,17 @@ def _poses(s: ProjectState, status: ProjectStatus, joint_names: list[str]) -> di
 
 
 def project_timing(
-    s: ProjectState, status: ProjectStatus, joint_names: list[str], layout: ShowLayout | None = None
-) -> VideoTiming:
+    s: ProjectState, status: ProjectStatus | None, joint_names: list[str], layout: ShowLayout | None = None,
+    poses: dict[int, np.ndarray] | None = None,
+) -> VideoTiming:  # fmt: skip
     """The planner keyframes of a project (its state ``s`` and ``status``) on the show clock (module doc), poses in
-    ``joint_names``' order.
+    ``joint_names``' order (``poses``: keyframe id → pose to use instead of the results, e.g. placeholders when only
+    the clock is wanted, :func:`transition_times`).
 
     ``frame`` of the result is a project frame index, ``cluster`` a keyframe id; ``runs`` are project frame
     indices; ``end_s`` is the show's end (the last source's end)."""
     layout = layout or ShowLayout()
-    poses = _poses(s, status, joint_names)
+    poses = poses if poses is not None else _poses(s, status, joint_names)
     owner = {m: kf for kf in s.keyframes for m in kf.members}
     hz = s.video.hz
     times: list[float] = []
@@ -106,7 +112,7 @@ def project_timing(
             t_src + start, local, np.stack([poses[k] for k in order]), end + start,
             source_frames=np.array([s.frames[int(n)].source_frame for n in idx]),
             targets=[f"{Path(src.path).name}#{s.frames[s.keyframe(k).representative].source_frame}" for k in order],
-            losses=[_finite(s.results[k].loss.get("total")) for k in order],
+            losses=[_finite(s.results[k].loss.get("total")) if k in s.results else None for k in order],
         )  # fmt: skip
         k_times = vt.keyframes.times.copy()
         k_hold = vt.keyframes.hold.copy()
@@ -139,3 +145,35 @@ def project_timing(
     planner = Keyframes(t, np.stack([poses[k] for k in cluster]), np.array(hold), source_frame, target,
                         {"title": s.title, "loss_weights": s.weights.to_dict(), "keyframe_losses": losses})  # fmt: skip
     return VideoTiming(planner, np.array(frame), np.array(cluster), runs, float(t[-1]), frame_times)
+
+
+def transition_times(s: ProjectState, layout: ShowLayout | None = None) -> dict[tuple[int, int], float]:
+    """Every pair of keyframe ids the show moves between (either way; A → B → A counts both moves) → the shortest
+    time the show clock gives such a move, s (whatever the poses: the clock alone). Empty when the artist's keyframe
+    times do not fit together (the planner says so)."""
+    dof = len(load_hand().joint_names)
+    try:
+        vt = project_timing(s, None, [], layout, poses={kf.id: np.zeros(dof) for kf in s.keyframes})
+    except ProjectError:
+        return {}
+    return clock_of(vt)
+
+
+def keyframe_box(
+    s: ProjectState, status: ProjectStatus, k: int, margin: float = 0.9, layout: ShowLayout | None = None,
+    limits: LimitsConfig | None = None,
+) -> tuple[np.ndarray, np.ndarray] | None:  # fmt: skip
+    """The joint box ``(lower (21,), upper (21,))`` rad keyframe ``k``'s pose must keep so that every move between
+    it and a keyframe already posed (a current result) fits the time the show's clock gives that move
+    (:func:`transition_times`, :func:`~studio.motion.reach.reach_box` with ``margin``); None when no neighbour on
+    the clock is posed yet."""
+    hand = load_hand()
+    posed = {kf.id for kf in s.keyframes if kf.id in s.results and kf.id not in status.stale and kf.id != k}
+    neighbours = [
+        (s.results[n].theta(hand.joint_names), dt)
+        for (a, b), dt in transition_times(s, layout).items()
+        if k in (a, b) and (n := b if a == k else a) in posed
+    ]
+    if not neighbours:
+        return None
+    return reach_box(neighbours, JointLimits.from_hand(hand, limits), margin)
