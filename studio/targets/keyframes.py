@@ -1,13 +1,23 @@
-"""Keyframes of a sequence: cluster its frames by their expressive masks, one pose per cluster (DESIGN §4).
+"""Keyframes of a sequence: cluster its frames by their expressive masks' *shape*, one pose per cluster (DESIGN §4).
 
-Expressive masks ``(N, S, S)`` → area resize to ``size × size`` → flatten → PCA (``components``, at most N and
-the pixel count) → embeddings ``E (N, C)``. Distances are L2 in that space divided by the largest distance between
-two frames, so 0 = identical and 1 = the two most different frames of the sequence. Clustering starts with one
-cluster per frame and repeatedly merges the two closest clusters (a cluster's embedding is the mean of its members'
-embeddings) while their similarity ``1 − d`` is at least ``tau``. The first pair that is not similar enough ends
-the merging, so the merge order does not depend on ``tau`` and a higher ``tau`` never gives fewer clusters. A
-cluster's representative (its keyframe) is the member nearest the cluster's mean; keyframes are numbered in order
-of first appearance, and every frame plays its cluster's keyframe pose.
+The robot hand can change the shadow's shape but never move it across the backdrop, and the losses compare every
+image on its own aligned crop; so frames are compared the same way, each in its own crop, and a subject that walks
+or flies across the frame is not grouped by where it is. Clustering is invariant to shifting the frames and, up to
+resampling, to scaling them.
+
+Each expressive mask ``(S, S)`` → :func:`aligned_crop`: a box padded by the losses' ``LossConfig.pad`` pixels of a
+256-pixel image (scaled to ``S``), squared about its centre, area-resampled to ``size × size``; an empty mask gives
+an empty crop. The box is the frame's shadow's when the shadows are given, as the losses crop the expressive region
+with the target's box (an arm raised or lowered against a still body is then another shape), else the expressive
+mask's own; the two agree where the whole subject moves, as in DAVIS. → Gaussian blur of σ = ``blur × size`` (a
+small misalignment of thin parts, legs and tails, counts a little, not as another shape) → flatten → PCA
+(``components``, at most N and the pixel count) → embeddings ``E (N, C)``. Distances are L2 in that space divided by
+the largest distance between two frames, so 0 = identical and 1 = the two most different frames of the sequence.
+Clustering starts with one cluster per frame and repeatedly merges the two closest clusters (a cluster's embedding
+is the mean of its members' embeddings) while their similarity ``1 − d`` is at least ``tau``. The first pair that is
+not similar enough ends the merging, so the merge order does not depend on ``tau`` and a higher ``tau`` never gives
+fewer clusters. A cluster's representative (its keyframe) is the member nearest the cluster's mean; keyframes are
+numbered in order of first appearance, and every frame plays its cluster's keyframe pose.
 """
 
 from __future__ import annotations
@@ -18,7 +28,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from studio.imitate.config import LossConfig
+
 log = logging.getLogger(__name__)
+
+PAD = LossConfig().pad  # the losses' crop pad, pixels of a 256-pixel image (scaled with the mask side)
 
 
 @dataclass(frozen=True)
@@ -26,14 +40,18 @@ class KeyframeConfig:
     """How frames are grouped into keyframes (paper: PCA 50 of 64 × 64 expressive masks; τ chosen here)."""
 
     # tau: measured on the six shared DAVIS mask sequences (shared/targets/davis, 24 fps) loaded by load_video at
-    # its defaults (4 Hz, one square frame of 128 px); frames → keyframes (reduction) [paper's frames → keyframes]:
-    #   bear 14 → 2 (86 %) [60 → 5], blackswan 9 → 3 (67 %) [16 → 5], camel 15 → 2 (87 %) [39 → 6],
-    #   cows 18 → 2 (89 %) [12 → 3], dog 10 → 2 (80 %) [21 → 6], flamingo 14 → 4 (71 %) [27 → 10];
-    #   all 80 → 15 (81 %; paper 175 → 35, 80 %). Every tau in [0.385, 0.40] keeps all six in the paper's 63–92 %
-    #   (0.39 is its middle); at 0.34 bear and cows collapse to one keyframe, at 0.405 flamingo keeps 6 of 14
-    #   (57 %), at 0.48 blackswan 6 of 9 (33 %). At 5 Hz tau 0.39 gives 73–95 %, at 3 Hz 30–85 %.
-    tau: float = 0.39  # similarity 1 − d at which the two closest clusters still merge; higher = more keyframes [0, 1]
-    size: int = 64  # side of the square the expressive masks are area-resized to before PCA, px [1, ∞)
+    # its defaults (4 Hz, one square frame of 128 px), expressive masks by expressive_masks, each in its own aligned
+    # crop (its own box or its frame's shadow box: the same counts); frames → keyframes (reduction) [paper's]:
+    #   bear 14 → 2 (86 %) [60 → 5], blackswan 9 → 2 (78 %) [16 → 5], camel 15 → 2 (87 %) [39 → 6],
+    #   cows 18 → 2 (89 %) [12 → 3], dog 10 → 3 (70 %) [21 → 6], flamingo 14 → 3 (79 %) [27 → 10];
+    #   all 80 → 14 (82 %; paper 175 → 35, 80 %). Every tau in [0.389, 0.419] keeps all six in the paper's 63–92 %
+    #   (0.404 is its middle); below 0.389 camel collapses to one keyframe (93 %), at 0.42 dog keeps 4 of 10 (60 %).
+    #   At 3 Hz tau 0.404 gives 62–85 % (dog 8 → 3), at 5 Hz 82–95 % (camel 19 → 1). Without the blur no tau keeps
+    #   all six at 4 Hz (camel needs ≥ 0.333, dog ≤ 0.312), nor with σ ≤ 3 px of 64; blur 0.11 (σ 7 px) is the least
+    #   blur whose interval is 0.03 wide (σ 6 px: 0.017, σ 10 px: 0.067 but coarser shapes).
+    tau: float = 0.404  # similarity 1 − d at which the two closest clusters still merge; higher = more keyframes [0, 1]
+    size: int = 64  # side of the square each expressive mask's aligned crop is area-resized to before PCA, px [1, ∞)
+    blur: float = 0.11  # σ of the Gaussian blur of each crop before PCA, fraction of its side (0: none) [0, ∞)
     components: int = 50  # PCA components kept (at most the frame count and size²) [1, ∞)
 
     def __post_init__(self) -> None:
@@ -41,6 +59,8 @@ class KeyframeConfig:
             raise ValueError(f"tau must be a similarity in [0, 1], not {self.tau}")
         if self.size < 1 or self.components < 1:
             raise ValueError("size and components must be at least 1")
+        if not self.blur >= 0:
+            raise ValueError(f"blur must be a fraction of the crop side ≥ 0, not {self.blur}")
 
 
 @dataclass
@@ -66,18 +86,53 @@ class Clusters:
         return 1.0 - self.count / len(self.assignment)
 
 
-def embed(expressive: np.ndarray, cfg: KeyframeConfig = KeyframeConfig()) -> np.ndarray:
+def aligned_crop(mask: np.ndarray, size: int, pad: float = PAD, box_of: np.ndarray | None = None) -> np.ndarray:
+    """Mask ``(H, W)`` → its aligned crop ``(size, size)`` float64 in [0, 1], as the losses crop (DESIGN §4).
+
+    The box of the nonzero pixels of ``box_of`` (same shape; None or empty: of ``mask`` itself), in pixel edges,
+    grown by ``pad`` pixels of a 256-pixel image scaled with the longer side, then to a square about its centre
+    (aspect ratio kept), is area-averaged exactly to ``size × size`` (outside the image is backdrop, 0). A mask with
+    no pixel gives an empty crop (all zeros).
+    """
+    m = np.asarray(mask) != 0
+    if not m.any():
+        return np.zeros((size, size))
+    b = m if box_of is None or not np.any(box_of) else np.asarray(box_of) != 0
+    if b.shape != m.shape:
+        raise ValueError(f"the box's mask has shape {b.shape}, not the mask's {m.shape}")
+    rows, cols = np.flatnonzero(b.any(axis=1)), np.flatnonzero(b.any(axis=0))
+    p = pad * max(m.shape) / 256
+    half = max(rows[-1] + 1 - rows[0], cols[-1] + 1 - cols[0]) / 2 + p
+    cy, cx = (rows[0] + rows[-1] + 1) / 2, (cols[0] + cols[-1] + 1) / 2
+
+    def weights(centre: float, n: int) -> np.ndarray:  # (size, n): share of each output cell covered by pixel j
+        edges = centre - half + 2 * half * np.arange(size + 1) / size
+        j = np.arange(n)
+        overlap = np.minimum(edges[1:, None], j + 1) - np.maximum(edges[:-1, None], j)
+        return np.clip(overlap, 0, None) / (2 * half / size)
+
+    return weights(cy, m.shape[0]) @ m.astype(np.float64) @ weights(cx, m.shape[1]).T
+
+
+def embed(
+    expressive: np.ndarray, cfg: KeyframeConfig = KeyframeConfig(), shadows: np.ndarray | None = None
+) -> np.ndarray:
     """Expressive masks ``(N, S, S)`` → PCA embeddings ``(N, C)`` float64, C = min(components, N, size²) (1 when
-    every frame is alike)."""
+    every frame is alike). Each mask is first cut to its :func:`aligned_crop` of side ``cfg.size``: the box of its
+    frame's shadow in ``shadows (N, S, S)``, as the losses crop the expressive region with the target's box (the
+    expressive part is then seen where it is on the shadow: an arm raised or lowered), or with None its own box."""
     from sklearn.decomposition import PCA
 
     masks = np.asarray(expressive)
     if masks.ndim != 3 or masks.shape[0] == 0:
         raise ValueError(f"expressive masks must be (N, S, S) with N ≥ 1, not an array of shape {masks.shape}")
-    small = np.stack([
-        cv2.resize((m != 0).astype(np.float32), (cfg.size, cfg.size), interpolation=cv2.INTER_AREA) for m in masks
-    ]).reshape(len(masks), -1)  # fmt: skip
-    small = small.astype(np.float64)
+    if shadows is not None and np.shape(shadows) != masks.shape:
+        raise ValueError(f"shadows must have the expressive masks' shape {masks.shape}, not {np.shape(shadows)}")
+    boxes = [None] * len(masks) if shadows is None else list(np.asarray(shadows))
+    crops = [aligned_crop(m, cfg.size, box_of=b) for m, b in zip(masks, boxes, strict=True)]
+    if cfg.blur > 0:  # outside the crop is backdrop (0), as in the crop itself
+        crops = [cv2.GaussianBlur(c, (0, 0), cfg.blur * cfg.size, borderType=cv2.BORDER_CONSTANT) for c in crops]
+    small = np.round(np.stack(crops).reshape(len(masks), -1), 9)  # shifted copies: bit-identical crops
     unique, inverse = np.unique(small, axis=0, return_inverse=True)
     if len(unique) == 1:  # every frame alike: no variance to project, every distance is 0
         return np.zeros((len(small), 1))
@@ -122,9 +177,12 @@ def merge_clusters(embeddings: np.ndarray, tau: float) -> list[list[int]]:
     return sorted((members[i] for i in np.flatnonzero(alive)), key=lambda m: m[0])
 
 
-def cluster_keyframes(expressive: np.ndarray, cfg: KeyframeConfig = KeyframeConfig()) -> Clusters:
-    """Expressive masks ``(N, S, S)`` → :class:`Clusters` (module doc): keyframes in order of first appearance."""
-    e = embed(expressive, cfg)
+def cluster_keyframes(
+    expressive: np.ndarray, cfg: KeyframeConfig = KeyframeConfig(), shadows: np.ndarray | None = None
+) -> Clusters:
+    """Expressive masks ``(N, S, S)`` → :class:`Clusters` (module doc): keyframes in order of first appearance.
+    ``shadows (N, S, S)``: the frames' shadow masks, whose boxes crop the expressive masks (:func:`embed`)."""
+    e = embed(expressive, cfg, shadows)
     members = merge_clusters(e, cfg.tau)
     assignment = np.empty(len(e), np.int64)
     reps = np.empty(len(members), np.int64)
