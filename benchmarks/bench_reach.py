@@ -3,12 +3,14 @@
 Draws ``--count`` self-exploration poses (seeded; :mod:`studio.evaluate.reachable`), frames each one's fine render
 like an image file, and imitates it with the studio's method, the studio's without the block sweep, and the
 paper's configuration (``--preset paper`` at the CPU budget: sampled search, hill climbing 8 × 1000), all with the
-shipped 128² self-model and no CLIP. Prints a Markdown table (mean IoU loss, its floor — the known pose's own shadow
-— the excess over the floor, the share of targets within 0.02 of it, the share in collision, seconds per target)
-and, last, a JSON line with the same and the ratios of each method's excess to the paper configuration's (below 1:
-closer to the floor).
+shipped 128² self-model and no CLIP. "roll auto" draws the same poses' shadows as a mount rolled by a random angle
+casts them (uniform over the circle, seeded) and runs the studio's method after ``--roll auto`` chose the roll: its
+row adds the roll error (mean and worst, degrees; the share found within 2°) and its floor is the known pose at the
+known roll. Prints a Markdown table (mean IoU loss, its floor — the known pose's own shadow — the excess over the
+floor, the share of targets within 0.02 of it, the share in collision, seconds per target) and, last, a JSON line
+with the same and the ratios of each method's excess to the paper configuration's (below 1: closer to the floor).
 
-    python benchmarks/bench_reach.py [--count 12] [--seed 7] [--methods studio no-sweep paper]
+    python benchmarks/bench_reach.py [--count 12] [--seed 7] [--methods studio no-sweep paper roll-auto]
 """
 
 from __future__ import annotations
@@ -17,12 +19,14 @@ import argparse
 import dataclasses
 import json
 import logging
+import math
 import time
 
 import numpy as np
 import torch
 
 from studio.evaluate.reachable import ReachableConfig, reach_summary, reachable_targets
+from studio.evaluate.table1 import score
 from studio.imitate.config import (
     CPU_REFINE,
     CPU_SEARCH,
@@ -34,6 +38,8 @@ from studio.imitate.config import (
     SweepConfig,
 )
 from studio.imitate.still import Imitator
+from studio.sim.roll import into_hand_frame, wrap_deg
+from studio.sim.shadow import ShadowRenderer
 from studio.targets.expressive import still_expressive
 
 METHODS = {  # name → (search, refine, imitate, sweep): `--preset studio|paper` (paper at the CPU budget),
@@ -41,24 +47,43 @@ METHODS = {  # name → (search, refine, imitate, sweep): `--preset studio|paper
     "studio": (STUDIO_SEARCH, CPU_REFINE, ImitateConfig(), SweepConfig()),
     "no-sweep": (CPU_SEARCH, CPU_REFINE, ImitateConfig(), PAPER_SWEEP),
     "paper": (CPU_SEARCH, PAPER_REFINE, PAPER_IMITATE, PAPER_SWEEP),
+    "roll-auto": (STUDIO_SEARCH, CPU_REFINE, ImitateConfig(), SweepConfig()),  # the studio's, on rolled targets
 }
+ROLL_FOUND_DEG = 2.0  # a roll within this of the true one counts as found
 
 
-def run_method(name: str, theta: np.ndarray, targets: np.ndarray) -> dict:
+def run_method(name: str, theta: np.ndarray, targets: np.ndarray, rolls: np.ndarray | None = None) -> dict:
+    """One method over the targets; with ``rolls (N,)`` rad the targets are rolled and the roll is chosen first
+    (roll auto), the pose then imitated in the hand's frame and scored as the rolled mount casts it."""
     search, refine, config, sweep = METHODS[name]
-    losses, floors, seconds, collides = [], [], [], []
+    losses, floors, seconds, collides, errors = [], [], [], [], []
     with Imitator(search=search, refine=refine, config=config, sweep=sweep) as im:
-        for truth, target in zip(theta, targets):
+        for i, (truth, target) in enumerate(zip(theta, targets)):
             expressive = still_expressive(target)
-            result = im.imitate(target, expressive)
-            floor = im.refiner.score(im.loss_fn(target, expressive), truth[None])[1]["iou_loss"][0]
-            losses.append(result.loss["iou_loss"])
+            loss_fn = im.loss_fn(target, expressive)
+            t0 = time.perf_counter()
+            if rolls is None:
+                result = im.imitate(target, expressive)
+                floor = im.refiner.score(loss_fn, truth[None])[1]["iou_loss"][0]
+                loss = result.loss["iou_loss"]
+            else:
+                choice = im.choose_roll(target[None], expressive[None] if expressive.any() else None)
+                errors.append(abs(wrap_deg(choice.deg - math.degrees(rolls[i]))))
+                result = im.imitate(*into_hand_frame(target, expressive, choice.roll))
+                rolled = ShadowRenderer(im.hand, im.renderer.rig.with_roll(choice.roll))
+                truth_rolled = ShadowRenderer(im.hand, im.renderer.rig.with_roll(float(rolls[i])))
+                loss = float(score(loss_fn, rolled.render_one(result.theta))["iou_loss"])
+                floor = score(loss_fn, truth_rolled.render_one(truth))["iou_loss"]
+            losses.append(loss)
             floors.append(float(floor))
-            seconds.append(result.seconds)
+            seconds.append(time.perf_counter() - t0)
             collides.append(not result.collision_free)
     row = reach_summary(np.array(losses), np.array(floors))
     row |= {"collide_pct": 100.0 * float(np.mean(collides)), "seconds": float(np.mean(seconds))}
     row["per_target"] = [round(x, 4) for x in losses]
+    if errors:
+        row |= {"roll_error_mean_deg": round(float(np.mean(errors)), 2), "roll_error_max_deg": round(max(errors), 2),
+                "roll_found_pct": 100.0 * float(np.mean(np.array(errors) <= ROLL_FOUND_DEG))}  # fmt: skip
     return row
 
 
@@ -71,12 +96,18 @@ def main() -> int:
     logging.basicConfig(level=logging.WARNING)
     torch.set_num_threads(1)
     cfg = ReachableConfig(count=args.count, seed=args.seed)
+    rolls = np.radians(np.random.default_rng(args.seed).uniform(-180.0, 180.0, args.count))
     with Imitator(config=dataclasses.replace(ImitateConfig(), retrieve=False)) as im:
         theta, targets = reachable_targets(im.hand, im.refiner.world, im.resolution, cfg)
+        if "roll-auto" in args.methods:
+            rolled_targets = reachable_targets(im.hand, im.refiner.world, im.resolution, cfg, rolls=rolls)[1]
     rows = {}
     for name in args.methods:
         t0 = time.perf_counter()
-        rows[name] = run_method(name, theta, targets)
+        if name == "roll-auto":
+            rows[name] = run_method(name, theta, rolled_targets, rolls)
+        else:
+            rows[name] = run_method(name, theta, targets)
         rows[name]["wall_seconds"] = round(time.perf_counter() - t0, 1)
     print(f"\n{args.count} reachable targets (seed {args.seed}), 128² shipped self-model, no CLIP, IoU loss:\n")
     print(
@@ -87,6 +118,12 @@ def main() -> int:
     for name, r in rows.items():
         print(f"| {name} | {r['iou_loss']:.3f} | {r['floor']:.3f} | {r['excess']:.3f} | {r['reached_pct']:.0f} "
               f"| {r['collide_pct']:.0f} | {r['seconds']:.1f} |")  # fmt: skip
+    if "roll-auto" in rows:
+        r = rows["roll-auto"]
+        print(
+            f"\nroll auto on {args.count} rolled targets: roll error mean {r['roll_error_mean_deg']:.2f}°, worst "
+            f"{r['roll_error_max_deg']:.2f}°, {r['roll_found_pct']:.0f} % within {ROLL_FOUND_DEG:g}°"
+        )
     summary = {"targets": args.count, "seed": args.seed, "methods": rows}
     if "paper" in rows and rows["paper"]["excess"] > 0:
         summary["excess_vs_paper"] = {n: round(r["excess"] / rows["paper"]["excess"], 3) for n, r in rows.items()}

@@ -51,7 +51,7 @@ def main() -> int:
     for name in names:
         video = load_video(root / name, VideoConfig())
         expressive = expressive_masks(video.masks)
-        clusters = cluster_keyframes(expressive)
+        clusters = cluster_keyframes(expressive, shadows=video.masks)
         targets[name] = keyframe_targets(video.masks, expressive, clusters.representatives)
     model, _ = load_selfmodel(DEFAULT_MODEL, device="cpu")
     loss_cfg = LossConfig(use_clip=False, crop_size=model.cfg.resolution)

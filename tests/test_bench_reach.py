@@ -1,5 +1,5 @@
 """benchmarks/bench_reach.py end to end on one reachable target: the table and the JSON line agree, the floor is
-the known pose's and the studio's answer is collision-free."""
+the known pose's and the studio's answer is collision-free; on a rolled copy of it roll auto finds the roll."""
 
 from __future__ import annotations
 
@@ -15,7 +15,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.mark.slow
 def test_bench_reach_one_target():
-    cmd = [sys.executable, str(ROOT / "benchmarks" / "bench_reach.py"), "--count", "1", "--methods", "studio"]
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "bench_reach.py"), "--count", "1", "--methods", "studio",
+           "roll-auto"]  # fmt: skip
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     lines = done.stdout.strip().splitlines()
@@ -25,3 +26,6 @@ def test_bench_reach_one_target():
     assert 0.0 <= row["floor"] < 0.2 and row["iou_loss"] == pytest.approx(row["per_target"][0], abs=1e-4)
     assert row["excess"] == pytest.approx(max(row["iou_loss"] - row["floor"], 0.0), abs=1e-9)
     assert any(line.startswith("| studio | ") for line in lines) and "excess_vs_paper" not in s
+    rolled = s["methods"]["roll-auto"]  # the same pose, cast by a mount rolled at random: its roll is found
+    assert rolled["roll_error_max_deg"] <= 2.0 and rolled["roll_found_pct"] == 100.0 and rolled["collide_pct"] == 0
+    assert rolled["excess"] < 0.1 and any("roll auto on 1 rolled targets" in line for line in lines)

@@ -74,7 +74,9 @@ def test_identical_frames_group_in_order_of_first_appearance():
 def test_tau_extremes():
     rng = np.random.default_rng(0)
     masks = (rng.random((7, 16, 16)) < 0.4).astype(np.uint8)
-    assert cluster_keyframes(masks, KeyframeConfig(tau=0.0)).count == 1  # d ≤ 1 always: everything merges
+    everything = KeyframeConfig(tau=0.0, one_iou=0.0)  # d ≤ 1 always: everything merges (no floor on the change)
+    assert cluster_keyframes(masks, everything).count == 1
+    assert cluster_keyframes(masks, KeyframeConfig(tau=0.0)).count == 2  # random frames: their shapes change
     masks[3] = masks[1]
     c = cluster_keyframes(masks, KeyframeConfig(tau=1.0))  # only identical frames merge
     assert c.count == 6 and c.assignment[3] == c.assignment[1]
@@ -304,3 +306,30 @@ def test_keyframes_verb_refuses_a_bad_tau(tmp_path):
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert r.returncode == 2 and "Traceback" not in r.stderr and "tau" in r.stderr
+
+
+def test_the_crop_pad_is_the_losses():
+    from studio.imitate.config import LossConfig
+    from studio.targets.keyframes import PAD
+
+    assert PAD == LossConfig().pad
+
+
+def test_a_steady_change_of_shape_keeps_two_keyframes_at_any_tau():
+    """An ellipse going steadily from 1:2 to 2:1 blends evenly, so merging relative to the clip's own largest
+    change would take it whole at a low tau; its first and last crops overlap far less than one_iou: two keyframes."""
+    import cv2
+
+    from studio.targets.keyframes import KeyframeConfig, cluster_keyframes, most_different_iou
+
+    frames = []
+    for i, r in enumerate(np.linspace(0.5, 2.0, 12)):
+        m = np.zeros((96, 96), np.uint8)
+        cv2.ellipse(m, (30 + 3 * i, 48), (int(20 * r**0.5), int(20 / r**0.5)), 0, 0, 360, 1, -1)
+        frames.append(m)
+    masks = np.stack(frames)
+    cfg = KeyframeConfig(tau=0.05)
+    assert most_different_iou(masks, cfg) < cfg.one_iou
+    assert cluster_keyframes(masks, cfg).count == 2
+    still = np.stack([frames[0]] * 6)
+    assert most_different_iou(still, cfg) == 1.0 and cluster_keyframes(still, cfg).count == 1

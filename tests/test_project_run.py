@@ -19,6 +19,7 @@ from studio.motion.show import load_show
 from studio.project.project import Project, ProjectError
 from studio.project.run import RunConfig, run_project
 from studio.project.show_timing import ShowLayout
+from studio.targets.keyframes import KeyframeConfig
 from studio.targets.video import DEFAULT_VIDEO
 
 STILL = asset("targets/asl_o.jpeg")
@@ -53,7 +54,8 @@ def fake_results(project: Project, hand) -> None:
 
 # ------------------------------------------------------------------------------------------ the show clock
 def test_show_timing_plays_sources_one_after_another(tmp_path, hand):
-    project = Project.create(tmp_path / "two.shadow", sources=[STILL, DEFAULT_VIDEO])
+    every_frame = KeyframeConfig(tau=1.0)  # each horse frame its own keyframe: one planner keyframe per frame
+    project = Project.create(tmp_path / "two.shadow", sources=[STILL, DEFAULT_VIDEO], clustering=every_frame)
     with pytest.raises(ProjectError, match="no result for keyframe"):
         project.show_timing()
     fake_results(project, hand)
@@ -146,20 +148,28 @@ def test_too_fast_without_allow_late_keeps_the_keyframes_and_lists_the_transitio
     path = tmp_path / "horse.shadow"
     project = Project.create(path, sources=[DEFAULT_VIDEO])
     ids = [kf.id for kf in project.keyframes]
-    rc, summary, text = run_cli(capsys, "project", "run", str(path), *TINY)
+    free = "--no-keep-clock"  # poses chosen without the servos' clock (the paper's way): transitions too fast
+    rc, summary, text = run_cli(capsys, "project", "run", str(path), *TINY, free)
     assert rc == 1, text
     assert summary["keyframes_optimised"] == ids and summary["show"] is None and summary["late_transitions"]
     assert "too fast:" in text and "allow late" in summary["message"] and "--allow-late" in text
     assert summary["transitions"] == len(ids) - 1
     project = Project.open(path)
     assert project.pending_keyframes() == [] and project.show is None
-    rc, summary, text = run_cli(capsys, "project", "run", str(path), *TINY, "--allow-late")
+    rc, summary, text = run_cli(capsys, "project", "run", str(path), *TINY, free, "--allow-late")
     assert rc == 0, text
     assert summary["keyframes_optimised"] == [] and summary["keyframes_skipped"] == ids
     assert summary["show"] == "planned" and summary["late_transitions"]
     late = summary["late_transitions"][0]
     assert late["needed_s"] > late["given_s"] and "late:" in text
     assert Project.open(path).show.duration > project.show_timing().end_s  # stretched: longer than the video
+    # the studio's default keeps every keyframe within the servos' reach at the clock: no late transition, a show
+    # exactly as long as the sampled video
+    kept = tmp_path / "kept.shadow"
+    Project.create(kept, sources=[DEFAULT_VIDEO])
+    rc, summary, text = run_cli(capsys, "project", "run", str(kept), *TINY)
+    assert rc == 0 and summary["show"] == "planned" and summary["late_transitions"] == [], text
+    assert summary["show_seconds"] == pytest.approx(Project.open(kept).show_timing().end_s)
 
 
 def test_a_cancel_keeps_only_the_keyframes_finished_before_it(tmp_path):
@@ -168,7 +178,8 @@ def test_a_cancel_keeps_only_the_keyframes_finished_before_it(tmp_path):
     submitted = []
 
     def on_job(job, what):
-        submitted.append(what)
+        if what.startswith("keyframe"):  # (the mount roll is chosen first)
+            submitted.append(what)
         if len(submitted) == 2:  # the first keyframe is done and saved; cancel the second as it starts
             cancel.set()
 

@@ -21,7 +21,7 @@ from widgets.state import StudioState
 def folder(tmp_path_factory):
     path = tmp_path_factory.mktemp("kf") / "horse.shadow"
     # 9 frames: 4 keyframes at τ 0.3, 1 at τ ≤ 0.25, 9 at τ ≥ 0.39
-    Project.create(path, [DEFAULT_VIDEO], video=VideoConfig(size=48, hz=8.0), clustering=KeyframeConfig(tau=0.3))
+    Project.create(path, [DEFAULT_VIDEO], video=VideoConfig(size=48, hz=8.0), clustering=KeyframeConfig(tau=0.42))
     return path
 
 
@@ -40,7 +40,7 @@ def test_tau_counts_live_and_edits_only_when_applied(state):
     panel = KeyframesPanel(state)
     p = state.project
     before, n_frames = state_doc(p.state), len(p.frames)
-    assert n_frames == 9 and panel.live_count == len(p.keyframes) == 4
+    assert n_frames == 9 and panel.live_count == len(p.keyframes) == 3
     assert len(panel.strip.children) == len(p.keyframes)
     last = p.keyframes[-1]
     card = panel.strip.children[-1]
@@ -54,12 +54,13 @@ def test_tau_counts_live_and_edits_only_when_applied(state):
     panel.tau.value = 0.99
     high = panel.live_count
     panel.tau.value = 0.0
-    assert panel.live_count == 1 < high == 9  # one cluster per source at τ 0, every frame its own at τ 0.99
+    assert panel.live_count == 2 < high == 9  # τ 0: the horse's shape changes, so two, never one; τ 0.99: each frame
     assert f"{panel.live_count} keyframes" in panel.count.value
     assert state_doc(p.state) == before and not p.can_undo  # the project is untouched
     state.edit("paint", 0, additions=np.ones(p.state.auto.shape[1:], np.uint8))  # the masks change: recounted
     panel.tau.value = 0.3
-    assert panel.live_count == len(cluster_keyframes(p.combined_masks(), KeyframeConfig(tau=0.3)).members) == 2
+    by_shape = cluster_keyframes(p.combined_masks(), KeyframeConfig(tau=0.3), p.state.targets)
+    assert panel.live_count == len(by_shape.members)
     state.undo()
     before = state_doc(p.state)
     panel.tau.value = 0.99

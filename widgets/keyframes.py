@@ -100,8 +100,10 @@ class KeyframesPanel:
         masks, cfg = self.masks(), replace(p.state.clustering, tau=float(tau))
         if cfg.tau not in self._counts:
             sources = np.array([f.source for f in p.frames])
+            targets = p.state.targets
             self._counts[cfg.tau] = sum(
-                len(cluster_keyframes(masks[sources == s], cfg).members) for s in np.unique(sources)
+                len(cluster_keyframes(masks[sources == s], cfg, targets[sources == s]).members)
+                for s in np.unique(sources)
             )
         return self._counts[cfg.tau]
 

@@ -23,7 +23,7 @@ def _keyframes(args: argparse.Namespace) -> int:
     src = Path(args.src)
     video = load_video(src, config_from_args(args, VideoConfig))
     expressive = expressive_masks(video.masks)
-    clusters = cluster_keyframes(expressive, config_from_args(args, KeyframeConfig))
+    clusters = cluster_keyframes(expressive, config_from_args(args, KeyframeConfig), video.masks)
     times = video.times
     for k, (group, rep) in enumerate(zip(clusters.members, clusters.representatives, strict=True)):
         print(

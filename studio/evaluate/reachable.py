@@ -37,10 +37,12 @@ class ReachableConfig:
 
 
 def reachable_targets(
-    hand: Hand, world: CollisionWorld, size: int, cfg: ReachableConfig | None = None, rig: Rig | None = None
-) -> tuple[np.ndarray, np.ndarray]:
+    hand: Hand, world: CollisionWorld, size: int, cfg: ReachableConfig | None = None, rig: Rig | None = None,
+    rolls: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """``cfg.count`` collision-free poses ``(N, 21)`` rad and their shadows as targets ``(N, size, size)`` uint8
-    (1 = shadow), framed like :func:`~studio.targets.images.load_target` frames an image file."""
+    (1 = shadow), framed like :func:`~studio.targets.images.load_target` frames an image file; with ``rolls (N,)``
+    rad, each as the mount rolled by its roll casts it (so roll auto has a known answer)."""
     cfg = cfg or ReachableConfig()
     rng = np.random.default_rng(cfg.seed)
     found: list[np.ndarray] = []
@@ -48,7 +50,11 @@ def reachable_targets(
         theta, _ = sample_poses(hand, 4 * cfg.count, rng, cfg.sampler)
         found.append(theta[~world.in_collision(theta)])
     theta = np.concatenate(found)[: cfg.count]
-    fine = ShadowRenderer(hand, (rig or Rig()).with_resolution(cfg.fine)).render(theta, check=False)
+    base = (rig or Rig()).with_resolution(cfg.fine)
+    if rolls is None:
+        fine = ShadowRenderer(hand, base).render(theta, check=False)
+    else:
+        fine = np.stack([ShadowRenderer(hand, base.with_roll(float(r))).render_one(th) for th, r in zip(theta, rolls)])
     margin = TargetConfig().margin
     targets = np.stack([square_frame(m, size, shadow_box(m), margin) for m in fine])
     return theta, targets

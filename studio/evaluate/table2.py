@@ -151,7 +151,7 @@ def sequence_from_masks(
     t0 = time.perf_counter()
     masks = np.asarray(masks)
     expressive = expressive_masks(masks)
-    clusters = cluster_keyframes(expressive, keyframe_cfg or KeyframeConfig())
+    clusters = cluster_keyframes(expressive, keyframe_cfg or KeyframeConfig(), masks)
     targets, exp = keyframe_targets(masks, expressive, clusters.representatives)
     times = np.arange(len(masks), dtype=float) if times is None else np.asarray(times, dtype=float)
     return PreparedSequence(name, Path(source or name), times, clusters.assignment, clusters.representatives,

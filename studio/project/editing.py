@@ -68,7 +68,13 @@ class Editing:
         sources, frames, targets, auto = load_sources(state.sources, paths, state.video, state.still, progress)
         new = replace(state, sources=sources, frames=frames, targets=frozen(targets), auto=frozen(auto))
         keyframes, next_id = edits.cluster(
-            frames, edits.combined_masks(new), state.clustering, state.keyframes, state.frames, state.next_id
+            frames,
+            edits.combined_masks(new),
+            state.clustering,
+            state.keyframes,
+            state.frames,
+            state.next_id,
+            shadows=new.targets,
         )
         ids = {kf.id for kf in keyframes}
         results = {k: r for k, r in state.results.items() if k in ids}
@@ -157,7 +163,8 @@ class Editing:
         with self._lock:
             s = self._state
             cfg = s.clustering if tau is None else replace(s.clustering, tau=float(tau))
-            keyframes, next_id = edits.cluster(s.frames, self.combined_masks(), cfg, s.keyframes, s.frames, s.next_id)
+            keyframes, next_id = edits.cluster(s.frames, self.combined_masks(), cfg, s.keyframes, s.frames, s.next_id,
+                                               shadows=s.targets)  # fmt: skip
             ids = {kf.id for kf in keyframes}
             results = {k: r for k, r in s.results.items() if k in ids}
             self._commit(f"recluster at tau {cfg.tau:g}", replace(s, clustering=cfg, keyframes=keyframes,

@@ -48,8 +48,10 @@ def cluster(
     old: Sequence[Keyframe] = (),
     old_frames: Sequence[Frame] = (),
     next_id: int = 0,
+    shadows: np.ndarray | None = None,
 ) -> tuple[tuple[Keyframe, ...], int]:
-    """Keyframes of ``frames`` from their expressive ``masks (N, S, S)``, clustered per source, and the next free id.
+    """Keyframes of ``frames`` from their expressive ``masks (N, S, S)``, clustered per source (by shape: each
+    cropped by its frame's shadow box in ``shadows (N, S, S)``, the frames' targets), and the next free id.
 
     ``old`` keyframes (over ``old_frames``) lend their id, time and hold to a cluster with the same frame keys and
     representative; every other cluster gets a new id from ``next_id`` on."""
@@ -59,7 +61,7 @@ def cluster(
     found: list[Keyframe] = []
     for s in sorted({f.source for f in frames}):
         idx = np.array([i for i, f in enumerate(frames) if f.source == s])
-        c = cluster_keyframes(masks[idx], cfg)
+        c = cluster_keyframes(masks[idx], cfg, None if shadows is None else np.asarray(shadows)[idx])
         for group, rep in zip(c.members, c.representatives, strict=True):
             members = tuple(int(idx[m]) for m in group)
             rep = int(idx[rep])

@@ -136,7 +136,7 @@ class Project(Editing, Running):
             clustering=clustering, weights=weights, frames=frames, targets=frozen(targets), auto=frozen(auto),
             additions={}, erasures={}, keyframes=(), next_id=0, results={}, mount=Mount.from_setting(roll),
         )  # fmt: skip
-        keyframes, next_id = edits.cluster(frames, edits.combined_masks(state), clustering)
+        keyframes, next_id = edits.cluster(frames, edits.combined_masks(state), clustering, shadows=state.targets)
         state = replace(state, keyframes=keyframes, next_id=next_id)
         path.mkdir(parents=True, exist_ok=True)
         save_state(path, state, state.created)

@@ -28,11 +28,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from studio.imitate.config import LossConfig
-
 log = logging.getLogger(__name__)
 
-PAD = LossConfig().pad  # the losses' crop pad, pixels of a 256-pixel image (scaled with the mask side)
+PAD = 5.0  # the losses' crop pad (LossConfig.pad; a test holds them equal), pixels of a 256-pixel image
 
 
 @dataclass(frozen=True)
@@ -53,12 +51,15 @@ class KeyframeConfig:
     size: int = 64  # side of the square each expressive mask's aligned crop is area-resized to before PCA, px [1, ∞)
     blur: float = 0.11  # σ of the Gaussian blur of each crop before PCA, fraction of its side (0: none) [0, ∞)
     components: int = 50  # PCA components kept (at most the frame count and size²) [1, ∞)
+    one_iou: float = 0.9  # frames whose crops overlap less than this (IoU) are never all one keyframe [0, 1]
 
     def __post_init__(self) -> None:
         if not 0 <= self.tau <= 1:
             raise ValueError(f"tau must be a similarity in [0, 1], not {self.tau}")
         if self.size < 1 or self.components < 1:
             raise ValueError("size and components must be at least 1")
+        if not 0 <= self.one_iou <= 1:
+            raise ValueError(f"one_iou must be an IoU in [0, 1], not {self.one_iou}")
         if not self.blur >= 0:
             raise ValueError(f"blur must be a fraction of the crop side ≥ 0, not {self.blur}")
 
@@ -114,6 +115,20 @@ def aligned_crop(mask: np.ndarray, size: int, pad: float = PAD, box_of: np.ndarr
     return weights(cy, m.shape[0]) @ m.astype(np.float64) @ weights(cx, m.shape[1]).T
 
 
+def _crops(masks: np.ndarray, cfg: KeyframeConfig, shadows: np.ndarray | None) -> list[np.ndarray]:
+    boxes = [None] * len(masks) if shadows is None else list(np.asarray(shadows))
+    return [aligned_crop(m, cfg.size, box_of=b) for m, b in zip(masks, boxes, strict=True)]
+
+
+def most_different_iou(expressive: np.ndarray, cfg: KeyframeConfig, shadows: np.ndarray | None = None) -> float:
+    """The soft IoU (Σ min / Σ max) of the aligned crops of the two frames least alike, 1 when all are alike: how
+    much the subject's shape changes through the clip, in the crops' own terms (not relative to the clip)."""
+    c = np.stack(_crops(np.asarray(expressive), cfg, shadows)).reshape(len(expressive), -1)
+    lo = np.minimum(c[:, None, :], c[None, :, :]).sum(axis=-1)
+    hi = np.maximum(c[:, None, :], c[None, :, :]).sum(axis=-1)
+    return float(np.where(hi > 0, lo / np.maximum(hi, 1e-12), 1.0).min())
+
+
 def embed(
     expressive: np.ndarray, cfg: KeyframeConfig = KeyframeConfig(), shadows: np.ndarray | None = None
 ) -> np.ndarray:
@@ -128,8 +143,7 @@ def embed(
         raise ValueError(f"expressive masks must be (N, S, S) with N ≥ 1, not an array of shape {masks.shape}")
     if shadows is not None and np.shape(shadows) != masks.shape:
         raise ValueError(f"shadows must have the expressive masks' shape {masks.shape}, not {np.shape(shadows)}")
-    boxes = [None] * len(masks) if shadows is None else list(np.asarray(shadows))
-    crops = [aligned_crop(m, cfg.size, box_of=b) for m, b in zip(masks, boxes, strict=True)]
+    crops = _crops(masks, cfg, shadows)
     if cfg.blur > 0:  # outside the crop is backdrop (0), as in the crop itself
         crops = [cv2.GaussianBlur(c, (0, 0), cfg.blur * cfg.size, borderType=cv2.BORDER_CONSTANT) for c in crops]
     small = np.round(np.stack(crops).reshape(len(masks), -1), 9)  # shifted copies: bit-identical crops
@@ -140,8 +154,9 @@ def embed(
     return pca.transform(unique)[inverse.ravel()]  # identical frames get bit-identical embeddings (d = 0 exactly)
 
 
-def merge_clusters(embeddings: np.ndarray, tau: float) -> list[list[int]]:
-    """Centroid merging of ``embeddings (N, C)`` until the closest pair's similarity ``1 − d`` falls below ``tau``.
+def merge_clusters(embeddings: np.ndarray, tau: float, keep: int = 1) -> list[list[int]]:
+    """Centroid merging of ``embeddings (N, C)`` until the closest pair's similarity ``1 − d`` falls below ``tau``
+    (or only ``keep`` clusters are left).
 
     ``d`` is the L2 distance between the clusters' mean embeddings over the largest distance between two frames.
     Returns the clusters as ascending member lists, ordered by first member. O(N²·C) time: after a merge only the
@@ -159,7 +174,7 @@ def merge_clusters(embeddings: np.ndarray, tau: float) -> list[list[int]]:
     sizes = np.ones(n)
     members: list[list[int]] = [[i] for i in range(n)]
     alive = np.ones(n, bool)
-    for _ in range(n - 1):
+    for _ in range(n - max(keep, 1)):
         flat = int(np.argmin(d))  # row-major: ties go to the lowest pair, so the merge order is reproducible
         i, j = divmod(flat, n)
         if not np.isfinite(d[i, j]) or 1.0 - d[i, j] < tau:
@@ -181,9 +196,13 @@ def cluster_keyframes(
     expressive: np.ndarray, cfg: KeyframeConfig = KeyframeConfig(), shadows: np.ndarray | None = None
 ) -> Clusters:
     """Expressive masks ``(N, S, S)`` → :class:`Clusters` (module doc): keyframes in order of first appearance.
-    ``shadows (N, S, S)``: the frames' shadow masks, whose boxes crop the expressive masks (:func:`embed`)."""
+    ``shadows (N, S, S)``: the frames' shadow masks, whose boxes crop the expressive masks (:func:`embed`). A clip
+    whose two least alike frames' crops overlap less than ``cfg.one_iou`` keeps at least two keyframes, whatever
+    ``tau`` (merging is relative to the clip's own largest change, so a steady change could otherwise merge whole)."""
     e = embed(expressive, cfg, shadows)
     members = merge_clusters(e, cfg.tau)
+    if len(members) == 1 and len(e) > 1 and most_different_iou(expressive, cfg, shadows) < cfg.one_iou:
+        members = merge_clusters(e, cfg.tau, keep=2)  # the shape changes through the clip: never one held pose
     assignment = np.empty(len(e), np.int64)
     reps = np.empty(len(members), np.int64)
     for k, group in enumerate(members):
