@@ -10,6 +10,8 @@ within the first answer's budget (≈ 3 ms an angle and target, compiled, :meth:
 3. **exact** (where it pays, since the index's 32-pixel crops are coarse): each refined angle's best index poses
    (the query's shortlist, scored on the renderer with the full loss, expressive term included) → the angle whose
    poses cast the targets best; then, with those poses held, halving steps on the rendered loss down to ``fine_deg``.
+   These scores are taken as the audience sees them: each pose rendered by the *rolled* mount and scored against the
+   target as it is, so a hole or a thin part that turning the target would blur never decides the roll.
 
 Pure compute over an index and a refiner (renderer + collision world); the caller turns the targets by the roll
 chosen and imitates them as usual.
@@ -23,11 +25,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+import torch
 
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
+from studio.imitate.rendered_loss import fast_loss
 from studio.imitate.retrieval import RetrievalIndex
 from studio.sim.roll import into_hand_frame, wrap_deg
+from studio.sim.shadow import ShadowRenderer
 
 
 @dataclass(frozen=True)
@@ -63,6 +68,24 @@ class RollChoice:
 
 
 LossFactory = Callable[[np.ndarray, "np.ndarray | None"], ImageLoss]  # (target, expressive) → its loss
+
+
+class _Scorer:
+    """Rendered shadows ``(P, R, R)`` → their totals ``(P,)`` under one target's loss (compiled when it can be)."""
+
+    def __init__(self, loss_fn: ImageLoss):
+        self.loss_fn, self.fast = loss_fn, fast_loss(loss_fn)
+
+    def __call__(self, shadows: np.ndarray) -> np.ndarray:
+        if self.fast is not None:
+            return self.fast(shadows)[0]
+        with torch.no_grad():
+            return self.loss_fn(torch.from_numpy(np.asarray(shadows, np.float32)))[0].double().cpu().numpy()
+
+
+def _rolled(refiner: Refiner, deg: float) -> ShadowRenderer:
+    """The refiner's renderer with the mount rolled by ``deg`` degrees."""
+    return ShadowRenderer(refiner.hand, refiner.renderer.rig.with_roll(math.radians(deg)))
 
 
 def _turned(targets: np.ndarray, deg: float) -> np.ndarray:
@@ -120,21 +143,25 @@ def choose_roll(
         pairs = [into_hand_frame(t, e, math.radians(deg)) for t, e in zip(targets, exps, strict=True)]
         return [make_loss(t, e) for t, e in pairs], [t for t, _ in pairs]
 
+    seen = [_Scorer(make_loss(t, e)) for t, e in zip(targets, exps, strict=True)]  # the targets as they are
+
     def exact_at(deg: float) -> tuple[float, list[np.ndarray]]:
         fns, turned = losses(deg)
+        rolled = _rolled(refiner, deg)
         poses, total = [], 0.0
-        for fn, t in zip(fns, turned, strict=True):
+        for fn, t, audience in zip(fns, turned, seen, strict=True):
             got = index.query(t, lambda th, fn=fn: refiner.score(fn, th)[0], cfg.exact_k)
             poses.append(got.theta)
-            total += float(got.loss[0])
+            total += float(audience(rolled.render(got.theta, check=False)).min())
         return total / len(fns), poses
 
     tried = [(d, *exact_at(d)) for d in dict.fromkeys(round(wrap_deg(d), 6) for d in refined)]
     best_deg, _, poses = min(tried, key=lambda r: r[1])
 
-    def held(deg: float) -> float:  # the held poses' rendered loss with the targets turned by deg
-        fns, _ = losses(deg)
-        return float(np.mean([refiner.score(fn, p)[0].min() for fn, p in zip(fns, poses, strict=True)]))
+    def held(deg: float) -> float:  # the held poses' loss as the mount rolled by deg casts them
+        rolled = _rolled(refiner, deg)
+        each = [audience(rolled.render(p, check=False)).min() for audience, p in zip(seen, poses, strict=True)]
+        return float(np.mean(each))
 
     best_deg = wrap_deg(_halve(lambda ds: [held(d) for d in ds], best_deg, cfg.index_deg / 2, cfg.fine_deg))
     upright = exact_at(0.0)[0]

@@ -31,15 +31,16 @@ from typing import TYPE_CHECKING, Any
 from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
 from studio.imitate.transitions import TransitionConfig
 from studio.jobs.engine import _plan
-from studio.jobs.events import JobError, JobState, Reporter
+from studio.jobs.events import JobState, Reporter
 from studio.jobs.queue import Job, JobQueue
 from studio.motion.plan import PlanConfig
 from studio.project.jobs import queue_for, roll_job, video_job
+from studio.project.run_report import RunReport, TooFast
 from studio.project.show_timing import ShowLayout, keyframe_box
 from studio.project.state import ProjectError
 from studio.project.status import ProjectHandle, check_sources
 from studio.project.summary import project_transitions
-from studio.sim.roll import mount_text, roll_deg
+from studio.sim.roll import roll_deg
 
 if TYPE_CHECKING:
     from studio.motion.plan import Keyframes
@@ -55,52 +56,6 @@ class RunConfig:
     layout: ShowLayout = field(default_factory=ShowLayout)  # how the sources share the show clock
     transitions: TransitionConfig = field(default_factory=TransitionConfig)  # the transition-success test
     device: str | None = None  # where the self-model and CLIP run: "cpu", "cuda" (None: CUDA when present)
-
-
-@dataclass
-class TooFast:
-    """What the plan step returns when a transition is too fast for the servos and ``allow_late`` is off."""
-
-    segments: list  # studio.motion.errors.SegmentTiming of every late segment
-    home_added: bool  # the planner prepended home at t = 0
-    message: str  # the planner's message
-
-
-@dataclass
-class RunReport:
-    """What a run did (plain data; :meth:`summary` is the CLI's JSON)."""
-
-    project: str  # the project folder
-    optimised: list[int] = field(default_factory=list)  # keyframe ids computed and saved by this run, in order
-    skipped: list[int] = field(default_factory=list)  # keyframe ids already current (not recomputed)
-    show: str | None = None  # "planned" (by this run), "current" (kept), or None (no show: see message)
-    show_seconds: float | None = None  # the show's duration, s
-    late: list[dict] = field(default_factory=list)  # transitions too fast for the servos (frames, needed vs given s)
-    transitions: dict = field(default_factory=dict)  # success, transitions, rate (per source, summed)
-    cancelled: bool = False  # the cancel event stopped the run
-    error: JobError | None = None  # why a job failed (nothing of it was applied)
-    message: str = ""  # one line: what happened
-    too_fast: bool = False  # no show because transitions are too fast for the servos (``late`` lists them)
-    roll: float = 0.0  # the mount roll the keyframes are optimised for, rad
-    roll_chosen: bool = False  # this run chose it (``--roll auto``)
-    seconds: float = 0.0  # wall time of the run
-
-    @property
-    def ok(self) -> bool:
-        """Every keyframe current and a show planned (or kept)."""
-        return not self.cancelled and self.error is None and self.show is not None
-
-    def summary(self) -> dict:
-        rate = self.transitions.get("rate")
-        return {
-            "project": self.project, "keyframes_optimised": self.optimised, "keyframes_skipped": self.skipped,
-            "show": self.show, "show_seconds": self.show_seconds, "late_transitions": self.late,
-            "transition_success": rate, "transitions_ok": self.transitions.get("success", 0),
-            "transitions": self.transitions.get("transitions", 0), "cancelled": self.cancelled,
-            "error": None if self.error is None else str(self.error), "message": self.message,
-            "roll_deg": roll_deg(self.roll), "mount": mount_text(self.roll),
-            "seconds": round(self.seconds, 2),
-        }  # fmt: skip
 
 
 def _previous(project: ProjectHandle, k: int) -> tuple[int, int | None]:
@@ -317,5 +272,10 @@ def _finish(report: RunReport, project: ProjectHandle, cfg: RunConfig, t0: float
     if project.show is not None and report.show is not None:
         report.show_seconds = round(project.show.duration, 4)
     report.transitions = project_transitions(project.state, cfg.transitions)
+    report.transitions_literal = project_transitions(project.state, replace(cfg.transitions, total="image"))
+    n = report.transitions.get("transitions", 0)
+    if n and report.show is not None:
+        report.message += (f"; transitions {report.transitions['success']}/{n} (L_base), "
+                           f"{report.transitions_literal['success']}/{n} (L_base + L_expr, the paper's)")  # fmt: skip
     report.seconds = time.perf_counter() - t0
     return report

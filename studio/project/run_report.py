@@ -1,0 +1,58 @@
+"""What a project run did (plain data): :class:`RunReport`, the CLI's JSON summary and the notebook's message, and
+:class:`TooFast`, what the plan step returns when a transition is too fast for the servos."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from studio.jobs.events import JobError
+from studio.sim.roll import mount_text, roll_deg
+
+
+@dataclass
+class TooFast:
+    """What the plan step returns when a transition is too fast for the servos and ``allow_late`` is off."""
+
+    segments: list  # studio.motion.errors.SegmentTiming of every late segment
+    home_added: bool  # the planner prepended home at t = 0
+    message: str  # the planner's message
+
+
+@dataclass
+class RunReport:
+    """What a run did (plain data; :meth:`summary` is the CLI's JSON)."""
+
+    project: str  # the project folder
+    optimised: list[int] = field(default_factory=list)  # keyframe ids computed and saved by this run, in order
+    skipped: list[int] = field(default_factory=list)  # keyframe ids already current (not recomputed)
+    show: str | None = None  # "planned" (by this run), "current" (kept), or None (no show: see message)
+    show_seconds: float | None = None  # the show's duration, s
+    late: list[dict] = field(default_factory=list)  # transitions too fast for the servos (frames, needed vs given s)
+    transitions: dict = field(default_factory=dict)  # success, transitions, rate (per source, summed): L_base ≤ 0.35
+    transitions_literal: dict = field(default_factory=dict)  # the same, the paper's literal reading: L_base + L_expr
+    cancelled: bool = False  # the cancel event stopped the run
+    error: JobError | None = None  # why a job failed (nothing of it was applied)
+    message: str = ""  # one line: what happened
+    too_fast: bool = False  # no show because transitions are too fast for the servos (``late`` lists them)
+    roll: float = 0.0  # the mount roll the keyframes are optimised for, rad
+    roll_chosen: bool = False  # this run chose it (``--roll auto``)
+    seconds: float = 0.0  # wall time of the run
+
+    @property
+    def ok(self) -> bool:
+        """Every keyframe current and a show planned (or kept)."""
+        return not self.cancelled and self.error is None and self.show is not None
+
+    def summary(self) -> dict:
+        rate = self.transitions.get("rate")
+        return {
+            "project": self.project, "keyframes_optimised": self.optimised, "keyframes_skipped": self.skipped,
+            "show": self.show, "show_seconds": self.show_seconds, "late_transitions": self.late,
+            "transition_success": rate, "transitions_ok": self.transitions.get("success", 0),
+            "transition_success_literal": self.transitions_literal.get("rate"),
+            "transitions_ok_literal": self.transitions_literal.get("success", 0),
+            "transitions": self.transitions.get("transitions", 0), "cancelled": self.cancelled,
+            "error": None if self.error is None else str(self.error), "message": self.message,
+            "roll_deg": roll_deg(self.roll), "mount": mount_text(self.roll),
+            "seconds": round(self.seconds, 2),
+        }  # fmt: skip
