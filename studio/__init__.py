@@ -32,6 +32,8 @@ _API: dict[str, str] = {
     "load_hand": "studio.sim.hand",
     "Rig": "studio.sim.shadow",
     "ShadowRenderer": "studio.sim.shadow",
+    "into_hand_frame": "studio.sim.roll",
+    "mount_text": "studio.sim.roll",
     "CollisionWorld": "studio.sim.physics",
     # footage: stills, videos, segmentation, expressive masks, keyframes
     "DEFAULT_TARGET": "studio.targets.images",
@@ -63,11 +65,15 @@ _API: dict[str, str] = {
     "imitate_still": "studio.imitate.still",
     "imitate_sequence": "studio.imitate.sequence",
     "find_clip": "studio.imitate.clip_loss",
+    "choose_roll": "studio.imitate.roll_search",
+    "RollSearchConfig": "studio.imitate.roll_search",
     # motion and the show file
     "Keyframes": "studio.motion.plan",
     "load_keyframes": "studio.motion.plan",
     "PlanConfig": "studio.motion.plan",
     "plan_show": "studio.motion.plan",
+    "reach": "studio.motion.reach",
+    "reach_box": "studio.motion.reach",
     "Show": "studio.motion.show",
     "save_show": "studio.motion.show",
     "load_show": "studio.motion.show",
@@ -75,7 +81,7 @@ _API: dict[str, str] = {
     # projects and the pipeline every face runs
     "Project": "studio.project.project",
     "RunConfig": "studio.project.run",
-    "RunReport": "studio.project.run",
+    "RunReport": "studio.project.run_report",
     "SourceSettings": "studio.project.pipeline",
     "VideoResult": "studio.project.pipeline",
     "imitate_video": "studio.project.pipeline",
