@@ -67,7 +67,8 @@ def run_method(name: str, theta: np.ndarray, targets: np.ndarray, rolls: np.ndar
                 floor = im.refiner.score(loss_fn, truth[None])[1]["iou_loss"][0]
                 loss = result.loss["iou_loss"]
             else:
-                choice = im.choose_roll(target[None], expressive[None] if expressive.any() else None)
+                has = expressive is not None and expressive.any()
+                choice = im.choose_roll(target[None], expressive[None] if has else None)
                 errors.append(abs(wrap_deg(choice.deg - math.degrees(rolls[i]))))
                 result = im.imitate(*into_hand_frame(target, expressive, choice.roll))
                 rolled = ShadowRenderer(im.hand, im.renderer.rig.with_roll(choice.roll))
