@@ -202,9 +202,9 @@ def test_scoring_at_another_side_renders_every_pose_there(setup):
         result = evaluator.run([("ring", ring(), ring(64))])
     assert result.settings["score_resolution"] == 64 and result.settings["losses"]["crop_size"] == 64
     assert any("rendered at 64²" in n for n in result.notes)
-    renderer = ShadowRenderer(hand, Rig(resolution=64))
     loss_fn = ImageLoss(ring(64), imitator.loss_cfg.__class__(use_clip=False, crop_size=64), None, find_holes(ring(64)))
     for rec in result.records:  # Random / Nearest Neighbour too: their training pose rendered at 64², not the image
+        renderer = ShadowRenderer(hand, Rig(resolution=64, roll=math.radians(rec["roll_deg"])))  # the rolled rows too
         _, comps = loss_fn(torch.from_numpy(renderer.render_one(np.array(rec["theta"])).astype(np.float32)[None]))
         assert rec["total"] == pytest.approx(float(comps["total"][0]), abs=1e-5)
     with pytest.raises(ValueError, match="score_resolution"):

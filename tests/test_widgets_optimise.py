@@ -26,7 +26,8 @@ LONG = SequenceConfig(first=SearchConfig(batch=4, iterations=1_000_000, lr=0.08,
 
 @pytest.fixture
 def state(tmp_path):
-    project = Project.create(tmp_path / "still.shadow", sources=[asset("targets/asl_o.jpeg")])
+    # the upright rig: these tests follow the keyframe jobs (roll auto's job: tests/test_pipeline.py, test_mount.py)
+    project = Project.create(tmp_path / "still.shadow", sources=[asset("targets/asl_o.jpeg")], roll=0)
     s = StudioState(project, queue_for(project))
     yield s
     s.close()
@@ -147,7 +148,7 @@ def test_the_writer_redraws_on_its_own_at_most_ten_times_a_second(state):
 def test_the_whole_video_runs_the_sources_keyframes_in_order_one_job_each(tmp_path):
     from studio.targets.video import DEFAULT_VIDEO
 
-    project = Project.create(tmp_path / "two.shadow", sources=[asset("targets/asl_o.jpeg"), DEFAULT_VIDEO])
+    project = Project.create(tmp_path / "two.shadow", sources=[asset("targets/asl_o.jpeg"), DEFAULT_VIDEO], roll=0)
     state = StudioState(project, queue_for(project))
     panel = optimise_panel(state, OptimiseConfig(sequence=TINY))
     try:

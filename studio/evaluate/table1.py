@@ -28,7 +28,7 @@ from studio.imitate.losses import ImageLoss
 from studio.imitate.still import Imitator
 from studio.learn.inverse import InverseCNN
 from studio.progress import ProgressFn, report, staged, stopped
-from studio.sim.roll import into_hand_frame, roll_deg
+from studio.sim.roll import file_deg, into_hand_frame
 from studio.sim.shadow import ShadowRenderer
 from studio.targets.expressive import still_expressive
 
@@ -164,7 +164,7 @@ class Evaluator:
                 out.shadow = self._renderer(out.roll, self.score_resolution).render_one(out.theta)
         records = []
         for method, out in outputs.items():
-            rec = {"target": name, "method": method, **score(loss_fn, out.shadow), "roll_deg": roll_deg(out.roll)}
+            rec = {"target": name, "method": method, **score(loss_fn, out.shadow), "roll_deg": file_deg(out.roll)}
             rec |= {"collides": out.collides, "seconds": out.seconds, "theta": [float(x) for x in out.theta]}
             records.append(rec)
         return records
