@@ -194,7 +194,7 @@ def test_scoring_at_another_side_renders_every_pose_there(setup):
     from studio.sim.shadow import Rig, ShadowRenderer
 
     imitator, hand = setup["imitator"], setup["hand"]
-    cfg = EvalConfig(score_resolution=64)
+    cfg = EvalConfig(score_resolution=64, roll=0)  # the rolled rows: the table fixture
     with Evaluator(imitator, InverseCNN(TINY_INVERSE, hand), setup["data"], cfg) as evaluator:
         assert evaluator.score_resolution == 64
         with pytest.raises(ValueError, match="64²"):
