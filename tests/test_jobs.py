@@ -219,7 +219,8 @@ def test_plan_and_play_jobs(hand):
     assert got[1].ok and got[1].commands > 0
     steps = [(e.stage, e.step, e.total) for e in rec.events if e.job_id == plan.id and e.state == JobState.RUNNING]
     steps = [s for s in steps if s[0] not in ("start", "apply")]
-    assert steps == [("path", 1, 3), ("path", 2, 3), ("path", 3, 3), ("timing", 1, 1), ("show", 1, 1)]
+    assert steps == [("keyframes", 0, 2), ("keyframes", 2, 2), ("path", 1, 3), ("path", 2, 3), ("path", 3, 3),
+                     ("timing", 1, 1), ("show", 1, 1)]  # fmt: skip
     ticks = [(e.step, e.total) for e in rec.events if e.job_id == play.id and e.stage == "play"]
     assert ticks and ticks[-1][0] == ticks[-1][1]
 

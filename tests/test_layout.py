@@ -23,7 +23,15 @@ ALLOWED = {
     "project": {"sim", "targets", "learn", "imitate", "motion", "evaluate", "review", "jobs"},
     "cli": {"sim", "targets", "learn", "imitate", "motion", "evaluate", "review", "jobs", "project"},
 }
-FOUNDATION = {"studio.errors", "studio.atomic", "studio.assets", "studio.home", "studio.progress"}
+FOUNDATION = {
+    "studio.errors",
+    "studio.atomic",
+    "studio.assets",
+    "studio.home",
+    "studio.progress",
+    "studio.jsonfile",
+    "studio.path_checks",
+}  # path_checks: outputs never over inputs; jsonfile: the one bounded JSON reader
 
 
 def modules() -> dict[str, Path]:

@@ -188,7 +188,7 @@ def test_every_long_engine_call_reports_typed_progress(tmp_path, hand):
     q = hand.rest_pose().copy()
     q[hand.joint_names.index("index_pip")] = 0.6
     show = plan_show(hand, Keyframes.at([0.5], [q]), progress=strict).show
-    assert strict.take() == ["path"] * 3 + ["timing", "show"]
+    assert strict.take() == ["keyframes"] * 2 + ["path"] * 3 + ["timing", "show"]
     if sys.platform != "win32":  # playback on the emulator (POSIX pseudo-terminals): a Progress per tick
         from hardware.dry_run import play_show
 

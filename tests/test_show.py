@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from studio.errors import StudioError
+from studio.motion.bounds import MAX_OFFSET_S
 from studio.motion.show import KeyframeMarker, MediaRef, Show, ShowError, export_csv, load_show, save_show, show_schema
 from studio.sim.hand import load_hand
 
@@ -38,7 +39,7 @@ def doc_of(show: Show) -> dict:
     return json.loads(json.dumps(show.to_dict()))
 
 
-finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
+finite = st.floats(-MAX_OFFSET_S, MAX_OFFSET_S, allow_nan=False, allow_infinity=False)  # a media offset's bounds
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

@@ -10,9 +10,6 @@ from pathlib import Path
 from studio.cli.flags import add_config_flags, config_from_args
 from studio.learn.config import CollectConfig
 
-# CollectConfig's comments give no ranges: they are stated here
-COLLECT_RANGES = {"n": "[1, ∞)", "shard_size": "[1, ∞)", "seed": "[0, ∞)", "resolution": "[8, ∞)", "window": "(0, ∞)"}
-
 
 def _collect(args: argparse.Namespace) -> int:
     from studio.jobs import TqdmBars
@@ -31,6 +28,6 @@ def _collect(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("collect", help="sample poses, render their shadows, write resumable shards")
     p.add_argument("--out", default="data/selfexplore", help="dataset folder (default data/selfexplore)")
-    add_config_flags(p, CollectConfig, ("n", "shard_size", "seed", "resolution", "window"), ranges=COLLECT_RANGES)
+    add_config_flags(p, CollectConfig, ("n", "shard_size", "seed", "resolution", "window"))
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_collect)

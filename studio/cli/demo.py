@@ -63,12 +63,14 @@ def _play(show, queue, cancel, **_):
 
 
 def _demo(args: argparse.Namespace) -> int:
+    from studio.path_checks import check_outputs
     from studio.project.outputs import self_model_predictor
     from studio.project.project import ProjectError
     from studio.review.recording import ProjectRecording
 
     t0 = time.perf_counter()
     out = Path(args.out)
+    check_outputs([out / "show.json", out / "review.rrd"], inputs=[args.model, args.clip_weights])
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file; give a folder for demo.shadow, show.json and review.rrd")
     out.mkdir(parents=True, exist_ok=True)

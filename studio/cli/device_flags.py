@@ -1,7 +1,10 @@
 """Where the engine's torch work runs: ``--device`` and ``--threads``, and :func:`torch_threads` that applies it.
 
 One torch thread is far faster than torch's default when the 2 CPU cores are shared, and close to it otherwise, so
-``--threads`` defaults to 1 everywhere; the table verbs also take 0 for torch's own default."""
+``--threads`` defaults to 1 everywhere; the table verbs also take 0 for torch's own default. ``--threads`` is bounded
+by :data:`MAX_THREADS` (``TrainerConfig.threads``' range, stated once), and ``--device`` is checked as it is read
+(:func:`device_arg`): ``cuda`` on a machine without a GPU is one line, at once, not an internal error an hour later.
+"""
 
 from __future__ import annotations
 
@@ -9,17 +12,38 @@ import argparse
 import contextlib
 from collections.abc import Iterator
 
-from studio.cli.flags import ranged
+from studio.cli.flags import field_docs, ranged
+from studio.learn.config import TrainerConfig
+
+MAX_THREADS = int(field_docs(TrainerConfig)["threads"].range.hi)  # more threads than this only slow torch down
+DEVICES = ("cpu", "cuda")  # what --device names (cuda:N picks one GPU)
+
+
+def device_arg(text: str) -> str:
+    """``cpu``, ``cuda`` or ``cuda:N`` when that GPU is there; an argparse error (one line) otherwise."""
+    name, _, index = text.strip().lower().partition(":")
+    if name not in DEVICES or (index and (name != "cuda" or not index.isdigit())):
+        raise argparse.ArgumentTypeError(f"expected cpu or cuda (cuda:N for one GPU), got {text!r}")
+    if name == "cuda":
+        import torch
+
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            raise argparse.ArgumentTypeError(f"{text}: this machine has no CUDA GPU that torch can use; use cpu")
+        if index and int(index) >= count:
+            raise argparse.ArgumentTypeError(f"{text}: {count} CUDA GPU(s) here: cuda:0 to cuda:{count - 1}")
+    return text.strip().lower()
 
 
 def add_device_flags(parser: argparse.ArgumentParser, zero_threads: bool = False) -> None:
     """``--device cpu|cuda`` (for the self-model and CLIP) and ``--threads N`` (≥ 1; ≥ 0 with ``zero_threads``,
     0 = torch's default)."""
-    parser.add_argument("--device", default=None,
+    parser.add_argument("--device", type=device_arg, default=None,
                         help="cpu or cuda, for the self-model and CLIP (default: cuda when present)")  # fmt: skip
     lowest = "0 = torch's default" if zero_threads else "≥ 1"
-    parser.add_argument("--threads", type=ranged(int, "[0, ∞)" if zero_threads else "[1, ∞)"), default=1, metavar="N",
-                        help=f"torch CPU threads (default: 1, fastest on shared cores; {lowest})")  # fmt: skip
+    parser.add_argument("--threads", type=ranged(int, f"[{int(not zero_threads)}, {MAX_THREADS}]"), default=1,
+                        metavar="N", help=f"torch CPU threads (default: 1, fastest on shared cores; {lowest}, "
+                                          f"≤ {MAX_THREADS})")  # fmt: skip
 
 
 @contextlib.contextmanager

@@ -37,6 +37,9 @@ def _train_inverse(args: argparse.Namespace) -> int:
 
 def _evaluate(args: argparse.Namespace) -> int:
     files = gather_targets(args.targets, args.per_folder, args.per_class)  # a bad path fails before torch loads
+    from studio.evaluate.table1 import FILES
+
+    _check_table_folder(args.out, FILES, [*args.targets, args.model, args.inverse])
     with torch_threads(args.threads):
         return _run_evaluation(args, files)
 
@@ -74,7 +77,17 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
     return 0
 
 
+def _check_table_folder(out: str, files: tuple[str, ...], inputs: list) -> None:
+    """Refuse a table folder whose files would overwrite an input or land inside a folder of targets."""
+    from studio.path_checks import check_outputs
+
+    check_outputs([Path(out) / f for f in files], inputs=inputs, folders=[p for p in inputs if p and Path(p).is_dir()])
+
+
 def _evaluate_video(args: argparse.Namespace) -> int:
+    from studio.evaluate.table2 import FILES
+
+    _check_table_folder(args.out, FILES, [*args.sources, args.model])
     with torch_threads(args.threads):
         return _run_video_evaluation(args)
 
@@ -146,9 +159,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", default=None, help="self-model checkpoint (default assets/models/selfmodel_cpu128.pt)")
     p.add_argument("--inverse", default=str(DEFAULT_INVERSE), help="inverse-CNN checkpoint (from train-inverse)")
     p.add_argument("--nn-data", default="data/sx128", help="training shards for Random and Nearest Neighbour")
-    p.add_argument("--per-folder", type=ranged(int, "[1, ∞)"), default=None, metavar="N",
+    p.add_argument("--per-folder", type=ranged(int, "[1, 100000]"), default=None, metavar="N",
                    help="take the first N images of each sub-folder (default: all)")  # fmt: skip
-    p.add_argument("--per-class", type=ranged(int, "[1, ∞)"), default=None, metavar="N",
+    p.add_argument("--per-class", type=ranged(int, "[1, 100000]"), default=None, metavar="N",
                    help="then the first N images of each class (the name before its last '-': camel-1)")  # fmt: skip
     add_source_flags(p, video=False)
     add_budget_flags(p, video=False)

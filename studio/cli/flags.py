@@ -41,6 +41,7 @@ from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+SEED_RANGE = "[0, 4294967295]"  # a seed flag's range: numpy and torch take any 32-bit unsigned seed
 _RANGE = re.compile(r"\s*([\[(])\s*([^,\[\]()]+?)\s*,\s*([^,\[\]()]+?)\s*([\])])\s*$")
 
 

@@ -8,19 +8,22 @@ from pathlib import Path
 
 import numpy as np
 
-from studio.cli.flags import add_config_flags, config_from_args, ranged
+from studio.cli.flags import SEED_RANGE, add_config_flags, config_from_args, ranged
 from studio.errors import StudioError
+from studio.path_checks import check_outputs
 from studio.sim.shadow import Rig
 
 
 def read_pose_json(path: Path, hand) -> np.ndarray:
     """A pose file: ``{joint_name: rad, ...}`` or ``{"pose": {...}}`` or a list of 21 angles (rad)."""
+    from studio.jsonfile import JsonFileError, read_json
+
     if not Path(path).is_file():
         raise StudioError(f"{path}: pose file not found (give 'rest', 'random' or a JSON file of joint angles)")
     try:
-        data = json.loads(Path(path).read_text())
-    except json.JSONDecodeError as e:
-        raise StudioError(f"{path}: not valid JSON ({e})") from None
+        data = read_json(path, what="pose file")
+    except JsonFileError as e:
+        raise StudioError(f"{e} (render takes 'rest', 'random' or a pose file: JSON of joint angles)") from None
     if isinstance(data, dict) and isinstance(data.get("pose"), dict):
         data = data["pose"]
     if isinstance(data, dict):
@@ -51,6 +54,8 @@ def _render(args: argparse.Namespace) -> int:
     from studio.sim.sampling import sample_poses
     from studio.sim.shadow import ShadowRenderer
 
+    pose_file = None if args.pose in ("rest", "random") else Path(args.pose)
+    check_outputs([args.out], inputs=[pose_file, args.urdf])
     hand = load_hand(args.urdf)
     if args.pose == "rest":
         theta = hand.rest_pose()
@@ -66,6 +71,7 @@ def _render(args: argparse.Namespace) -> int:
 
 
 def _gen_urdf(args: argparse.Namespace) -> int:
+    from studio.atomic import write_text
     from studio.sim.hand import DEFAULT_URDF
     from studio.sim.handgen import generate_urdf
 
@@ -75,7 +81,7 @@ def _gen_urdf(args: argparse.Namespace) -> int:
         same = out.is_file() and out.read_text() == text
         print(f"{out}: {'up to date' if same else 'differs from the generator'}")
         return 0 if same else 1
-    out.write_text(text)
+    write_text(out, text)  # atomic (studio.atomic): a URDF is never half-written
     print(f"wrote {out}")
     return 0
 
@@ -84,8 +90,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("render", help="write the shadow of a pose (rest, random, or a JSON file) as PNG")
     p.add_argument("pose", nargs="?", default="rest", help="'rest', 'random', or a JSON file of joint angles (rad)")
     p.add_argument("--out", default="shadow.png", help="PNG file to write (default: shadow.png)")
-    add_config_flags(p, Rig, ("resolution", "window"), ranges={"resolution": "[8, ∞)", "window": "(0, ∞)"})
-    p.add_argument("--seed", type=ranged(int, "[0, ∞)"), default=0, metavar="N", help="seed for 'random' (default 0)")
+    add_config_flags(p, Rig, ("resolution", "window"))
+    p.add_argument("--seed", type=ranged(int, SEED_RANGE), default=0, metavar="N", help="seed for 'random' (default 0)")
     p.add_argument("--mask", action="store_true", help="write white shadow on black (1 = shadow) instead")
     p.add_argument("--urdf", default=None, help="hand URDF (default: the shipped assets/hand.urdf)")
     p.set_defaults(func=_render)

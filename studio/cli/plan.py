@@ -7,26 +7,36 @@ import dataclasses
 from pathlib import Path
 
 from studio.cli.flags import add_config_flags, config_from_args
+from studio.cli.progress import add_quiet_flag
 from studio.motion.limits import LimitsConfig
 from studio.motion.path import PathConfig
 from studio.motion.plan import PlanConfig, load_keyframes, plan_show
 from studio.motion.show import export_csv, load_show, save_show
 from studio.motion.show_info import show_info_lines
 from studio.motion.timing import TimingConfig
+from studio.path_checks import check_outputs
+from studio.progress import report
 from studio.sim.hand import load_hand
 
 
 def _plan(args: argparse.Namespace) -> int:
-    hand = load_hand(args.urdf)
-    kf = load_keyframes(args.poses, hand)
-    base = PlanConfig()
-    cfg = dataclasses.replace(
-        base,
-        limits=config_from_args(args, LimitsConfig, base=base.limits),
-        path=config_from_args(args, PathConfig, base=base.path),
-        timing=config_from_args(args, TimingConfig, base=base.timing),
-    )
-    result = plan_show(hand, kf, cfg, title=args.title)
+    from studio.cli.progress import ctrl_c_cancels
+    from studio.jobs.bars import TqdmBars
+
+    check_outputs([args.out, args.csv], inputs=[args.poses, args.urdf])
+    with TqdmBars(disable=args.quiet) as bars:
+        report(bars, "read keyframes")  # a bar within a second, whatever the file's size
+        hand = load_hand(args.urdf)
+        kf = load_keyframes(args.poses, hand)
+        base = PlanConfig()
+        cfg = dataclasses.replace(
+            base,
+            limits=config_from_args(args, LimitsConfig, base=base.limits),
+            path=config_from_args(args, PathConfig, base=base.path),
+            timing=config_from_args(args, TimingConfig, base=base.timing),
+        )
+        with ctrl_c_cancels() as cancel:
+            result = plan_show(hand, kf, cfg, title=args.title, progress=bars, cancel=cancel)
     out = save_show(result.show, args.out, hand)
     for seg in result.trajectory.late:
         print(f"warning: {seg.describe()}; stretched, later keyframes are late by the difference")
@@ -58,6 +68,7 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _csv(args: argparse.Namespace) -> int:
+    check_outputs([args.out], inputs=[args.show, args.urdf])
     show = load_show(args.show, load_hand(args.urdf))
     print(f"wrote {export_csv(show, args.out, degrees=args.degrees)}")
     return 0
@@ -71,10 +82,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--title", default=None, help="show title (default: the keyframes file's, else 'untitled')")
     p.add_argument("--csv", type=Path, default=None, help="also export the samples as CSV")
     add_config_flags(p, TimingConfig, ("allow_late",))
-    add_config_flags(p, LimitsConfig, ("velocity_scale", "acceleration", "jerk"),
-                     ranges={"velocity_scale": "(0, 1]", "acceleration": "(0, ∞)", "jerk": "(0, ∞)"})  # fmt: skip
-    add_config_flags(p, PathConfig, ("seed",), ranges={"seed": "[0, ∞)"})
+    add_config_flags(p, LimitsConfig, ("velocity_scale", "acceleration", "jerk"))
+    add_config_flags(p, PathConfig, ("seed",))
     p.add_argument("--urdf", type=Path, default=None, help="hand URDF (default: the shipped hand)")
+    add_quiet_flag(p)
     p.set_defaults(func=_plan)
 
     for name, fn, text in (("validate", _validate, "check a show file"), ("show-info", _info, "describe a show")):

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from studio.cli.clip_flags import add_clip_arguments
 from studio.cli.device_flags import add_device_flags
-from studio.cli.flags import add_config_flags, config_from_args, dest_of, given, ranged
+from studio.cli.flags import SEED_RANGE, add_config_flags, config_from_args, dest_of, given, ranged
 from studio.cli.progress import add_quiet_flag
 from studio.imitate.config import (
     METHODS,
@@ -44,7 +44,6 @@ BUDGETS = (  # (flag prefix, the SequenceConfig field, its config class, the fie
 )
 VIDEO_FIELDS = ("mode", "expressive", "temporal", "keep_clock", "clock_margin")  # fields only a video uses
 LIMITS = ("velocity_scale", "acceleration", "jerk")
-LIMIT_RANGES = {"velocity_scale": "(0, 1]", "acceleration": "(0, ∞)", "jerk": "(0, ∞)"}
 
 
 def add_budget_flags(parser: argparse.ArgumentParser, video: bool = True, modes: bool = True) -> None:
@@ -67,7 +66,7 @@ def add_budget_flags(parser: argparse.ArgumentParser, video: bool = True, modes:
                                  f"pose (default: {base.mode})")  # fmt: skip
     parser.add_argument("--no-refine", action="store_true",
                         help="keep the searched poses (no rendered-shadow refinement)")  # fmt: skip
-    parser.add_argument("--seed", type=ranged(int, "[0, ∞)"), default=None, metavar="N",
+    parser.add_argument("--seed", type=ranged(int, SEED_RANGE), default=None, metavar="N",
                         help="seed of every search and refinement (default: the preset's)")  # fmt: skip
     for action in parser._actions:
         if action.dest == "refine_method":
@@ -102,7 +101,7 @@ def add_show_flags(parser: argparse.ArgumentParser, allow_late: bool = False, la
     from studio.project.show_timing import ShowLayout
 
     add_config_flags(parser, TimingConfig, ("allow_late",), base=TimingConfig(allow_late=allow_late))
-    add_config_flags(parser, LimitsConfig, LIMITS, ranges=LIMIT_RANGES)
+    add_config_flags(parser, LimitsConfig, LIMITS)
     if layout:
         add_config_flags(parser, ShowLayout)
 

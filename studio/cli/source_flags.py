@@ -61,8 +61,8 @@ def roll_arg(text: str) -> str | float:
         deg = float(text)
     except ValueError:
         deg = float("nan")
-    if deg != deg or abs(deg) == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected auto or an angle in degrees, got {text!r}")
+    if deg != deg or not -360 <= deg <= 360:  # NaN, inf, or more than a turn
+        raise argparse.ArgumentTypeError(f"expected auto or an angle in degrees in [-360, 360], got {text!r}")
     return deg
 
 

@@ -22,6 +22,7 @@ TRAINER_FLAGS = ("steps", "batch_size", "lr", "weight_decay", "warmup", "eval_ev
 def add_trainer_flags(p: argparse.ArgumentParser, base) -> None:
     """Add ``--out``, ``--data``/``--on-the-fly``, the trainer's flags (defaults from ``base``, a training config),
     ``--resume``, ``--force`` and ``--quiet``."""
+    from studio.cli.device_flags import device_arg
     from studio.learn.config import TrainerConfig
 
     add_config_flags(p, TrainerConfig, ("out",), base=base)
@@ -30,6 +31,9 @@ def add_trainer_flags(p: argparse.ArgumentParser, base) -> None:
     src.add_argument("--on-the-fly", dest="data", action="store_const", const=None,
                      help="render fresh pairs every step (the default)")  # fmt: skip
     add_config_flags(p, TrainerConfig, TRAINER_FLAGS, base=base)
+    for action in p._actions:  # --device is checked as it is read: cuda without a GPU is one line, at once
+        if action.dest == "device":
+            action.type = device_arg
     again = p.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true", help="continue training the checkpoint at --out")
     again.add_argument("--force", action="store_true", help="replace an existing checkpoint at --out")
@@ -40,8 +44,10 @@ def run_training(args: argparse.Namespace, desc: str, steps: int, out: str, trai
     """Run ``train(resume=, overwrite=, progress=)`` under one progress bar named ``desc`` over ``steps`` (the running
     training loss as its best, the last validation and test losses after it); print the JSON summary last."""
     from studio.jobs import TqdmBars
+    from studio.path_checks import check_outputs
     from studio.progress import Progress
 
+    check_outputs([out], inputs=[args.data])  # the checkpoint never replaces a shard it trains on
     with TqdmBars(disable=args.quiet, leave=True) as bars:
         held = {"loss": math.nan}  # the trainer's "val" and "test" stages go on the one bar, after the training loss
 

@@ -15,12 +15,15 @@ from studio.cli.flags import add_config_flags, config_from_args
 
 
 def _keyframes(args: argparse.Namespace) -> int:
+    from studio.path_checks import check_outputs
     from studio.review.sheets import keyframe_sheet, write_png
     from studio.targets.expressive import expressive_masks
     from studio.targets.keyframes import KeyframeConfig, cluster_keyframes
     from studio.targets.video import VideoConfig, load_video
 
     src = Path(args.src)
+    sheet_path = Path(args.out) / f"{src.stem or 'video'}_keyframes.png"
+    check_outputs([sheet_path], inputs=[src], folders=[src] if src.is_dir() else [])  # never a frame of its own
     video = load_video(src, config_from_args(args, VideoConfig))
     expressive = expressive_masks(video.masks)
     clusters = cluster_keyframes(expressive, config_from_args(args, KeyframeConfig), video.masks)
@@ -34,7 +37,7 @@ def _keyframes(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     sheet = write_png(
-        out / f"{src.stem or 'video'}_keyframes.png",
+        sheet_path,
         keyframe_sheet(video.masks, expressive, clusters.members, clusters.representatives, times=times),
     )
     summary = {

@@ -20,9 +20,9 @@ class NNConfig:
 class EvalConfig:
     """How ``evaluate`` runs the baselines (ours is configured by the :class:`~studio.imitate.still.Imitator`)."""
 
-    seed: int = 0  # seed of the Random baseline's draws
+    seed: int = 0  # seed of the Random baseline's draws [0, 4294967295]
     nn: NNConfig = field(default_factory=NNConfig)  # Nearest Neighbour search settings
-    score_resolution: int = 0  # render and score every method's pose at this side, pixels (0: the model's; paper 256)
+    score_resolution: int = 0  # render and score every pose at this side, pixels (0: the model's; paper 256) [0, 2048]
     roll: str | float = "auto"  # rows of ours on a rolled mount beside the paper rig's: "auto", degrees, 0 = none
 
     def __post_init__(self) -> None:

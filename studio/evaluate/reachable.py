@@ -26,9 +26,9 @@ from studio.targets.images import TargetConfig, shadow_box, square_frame
 class ReachableConfig:
     """How reachable targets are drawn."""
 
-    count: int = 12  # targets [1, ∞)
-    seed: int = 7  # seed of the pose draws [0, ∞)
-    fine: int = 1024  # side, pixels, of the render the target is framed from (sharper than the model's) [8, ∞)
+    count: int = 12  # targets [1, 10000]
+    seed: int = 7  # seed of the pose draws [0, 4294967295]
+    fine: int = 1024  # side, pixels, of the render the target is framed from (sharper than the model's) [8, 8192]
     sampler: SamplerConfig = field(default_factory=SamplerConfig)  # the self-exploration mix the poses are drawn from
 
     def __post_init__(self) -> None:

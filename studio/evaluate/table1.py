@@ -307,14 +307,17 @@ def to_markdown(rows: list[dict], notes: Sequence[str] = ()) -> str:
     return markdown_table("Method", rows, {**LOSS_COLUMNS, **EXTRA_COLUMNS}, "method", DIGITS, "total", notes)
 
 
+FILES = ("table1.md", "table1.csv", "per_target.csv", "settings.json")  # what write_table writes into its folder
+
+
 def write_table(result: EvalResult, out: Path) -> dict[str, str]:
     """Write ``table1.md``, ``table1.csv`` (one row per method), ``per_target.csv`` and ``settings.json`` (model,
     losses with ``use_clip``, search, refinement, Nearest Neighbour); returns their paths."""
     keys = ["method", *LOSS_COLUMNS.values(), "collide_pct", "seconds", "targets", "expressive_targets"]
     rec_keys = ["target", "method", *LOSS_COLUMNS.values(), "collides", "seconds", "roll_deg"]
     texts = {
-        "markdown": ("table1.md", to_markdown(result.rows, result.notes)),
-        "csv": ("table1.csv", csv_text(keys, result.rows)),
-        "per_target": ("per_target.csv", csv_text(rec_keys, result.records)),
+        "markdown": (FILES[0], to_markdown(result.rows, result.notes)),
+        "csv": (FILES[1], csv_text(keys, result.rows)),
+        "per_target": (FILES[2], csv_text(rec_keys, result.records)),
     }
     return write_report(out, texts, result.settings)

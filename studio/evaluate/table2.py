@@ -37,6 +37,7 @@ from studio.imitate.transitions import TransitionConfig
 from studio.motion.limits import JointLimits, LimitsConfig
 from studio.motion.reach import clock_boxes
 from studio.motion.video_timing import transition_times, video_end, video_keyframes
+from studio.path_checks import check_text
 from studio.progress import ProgressFn, report, staged, stopped
 from studio.sim.roll import into_hand_frame, roll_deg
 from studio.targets.expressive import expressive_masks
@@ -123,6 +124,7 @@ def gather_sequences(paths: Sequence[str | Path]) -> list[Path]:
             raise TargetError(f"no sequences in {p}: no frames ({', '.join(frames)}), no frame sub-folders and no "
                               f"video files ({', '.join(videos)})")  # fmt: skip
         out += found
+    check_text(out, "sequence name")  # named in the tables written at the end: refused now, not then
     return out
 
 
@@ -371,6 +373,9 @@ def to_markdown(rows: list[dict], notes: Sequence[str] = ()) -> str:
     return markdown_table("Row", rows, {**LOSS_COLUMNS, **EXTRA_COLUMNS}, "row", DIGITS, "total", notes)
 
 
+FILES = ("table2.md", "table2.csv", "per_sequence.csv", "per_keyframe.csv", "settings.json")  # what write_table writes
+
+
 def write_table(result: Table2Result, out: Path) -> dict[str, str]:
     """Write ``table2.md``, ``table2.csv`` (one row per row), ``per_sequence.csv``, ``per_keyframe.csv`` and
     ``settings.json``; returns their paths."""
@@ -380,10 +385,10 @@ def write_table(result: Table2Result, out: Path) -> dict[str, str]:
                 "mean_step", "max_step", "in_collision", "late", "roll_deg", "seconds"]  # fmt: skip
     kf_keys = ["sequence", "row", "keyframe", "frame", "time", *LOSS_KEYS, "total_full", "collision_free", "seconds"]
     texts = {
-        "markdown": ("table2.md", to_markdown(result.rows, result.notes)),
-        "csv": ("table2.csv", csv_text(keys, result.rows)),
-        "per_sequence": ("per_sequence.csv", csv_text(rec_keys, result.records)),
-        "per_keyframe": ("per_keyframe.csv", csv_text(kf_keys, result.keyframes)),
+        "markdown": (FILES[0], to_markdown(result.rows, result.notes)),
+        "csv": (FILES[1], csv_text(keys, result.rows)),
+        "per_sequence": (FILES[2], csv_text(rec_keys, result.records)),
+        "per_keyframe": (FILES[3], csv_text(kf_keys, result.keyframes)),
     }
     return write_report(out, texts, result.settings)
 

@@ -37,13 +37,15 @@ class LossConfig:
 class SearchConfig:
     """Gradient search settings (paper defaults; see ``CPU_SEARCH`` for the quick CPU preset)."""
 
-    batch: int = 256  # joint vectors optimised together [1, ∞)
-    iterations: int = 2000  # gradient steps [1, ∞)
-    lr: float = 0.05  # Adam step size on the unconstrained parameters φ (0, ∞)
-    init_noise: float = 0.05  # std (rad) around a given initial pose (sequence frames after the first) [0, ∞)
+    # bounds of every budget: what 2 cores and ~24 GiB finish in hours (a batch is ~2 MB each through the 128²
+    # self-model and back: 2048 is ~4 GB; more steps only cost time, bounded at a few hours)
+    batch: int = 256  # joint vectors optimised together [1, 2048]
+    iterations: int = 2000  # gradient steps [1, 100000]
+    lr: float = 0.05  # Adam step size on the unconstrained parameters φ (0, 10]
+    init_noise: float = 0.05  # std (rad) around a given initial pose (sequence frames after the first) [0, 3.2]
     include_rest: bool = True  # one sample of the batch starts at the rest pose
-    seed: int = 0  # initialisation seed [0, ∞)
-    log_every: int = 10  # record the loss curve every this many steps [1, ∞)
+    seed: int = 0  # initialisation seed [0, 4294967295]
+    log_every: int = 10  # record the loss curve every this many steps [1, 100000]
 
 
 CPU_SEARCH = SearchConfig(batch=32, iterations=150, lr=0.08)  # seconds on 2 CPU cores with the 128² model
@@ -57,15 +59,15 @@ class RefineConfig:
     """Hill-climbing schedule (paper defaults)."""
 
     method: str = "hill"  # "hill": the paper's hill climbing; "cmaes": CMA-ES (studio.imitate.cmaes) per restart
-    restarts: int = 8  # hill: chains (the paper's restarts), run in parallel; cmaes: runs, one after another [1, ∞)
-    steps: int = 1000  # hill: proposals per chain; cmaes: generations per run [0, ∞)
-    popsize: int = 16  # cmaes: candidates per generation [2, ∞)
-    restart_noise: float = 0.25  # std, rad, of the chains' start around the best pose (chain 0 on it) [0, ∞)
-    sigma0: float = 0.08  # initial proposal std (cmaes: initial step size), rad (0, ∞)
+    restarts: int = 8  # hill: chains (the paper's restarts), run in parallel; cmaes: runs, one after another [1, 64]
+    steps: int = 1000  # hill: proposals per chain; cmaes: generations per run [0, 100000]
+    popsize: int = 16  # cmaes: candidates per generation [2, 1024]
+    restart_noise: float = 0.25  # std, rad, of the chains' start around the best pose (chain 0 on it) [0, 3.2]
+    sigma0: float = 0.08  # initial proposal std (cmaes: initial step size), rad (0, 3.2]
     decay: float = 0.995  # hill: σ multiplier per step (0, 1]
-    sigma_min: float = 0.01  # hill: σ floor, rad [0, ∞)
-    seed: int = 0  # proposal noise seed [0, ∞)
-    log_every: int = 10  # record the best loss every this many steps [1, ∞)
+    sigma_min: float = 0.01  # hill: σ floor, rad [0, 3.2]
+    seed: int = 0  # proposal noise seed [0, 4294967295]
+    log_every: int = 10  # record the best loss every this many steps [1, 100000]
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -83,14 +85,14 @@ CPU_REFINE = RefineConfig(method="cmaes", restarts=1, steps=150, popsize=16, sig
 class SweepConfig:
     """How many poses are swept and how hard (the studio's defaults; ``starts=0`` turns the sweep off)."""
 
-    starts: int = 4  # distinct retrieved poses swept, best first (0: no sweep, the paper's method) [0, ∞)
-    draws: int = 1024  # settings drawn for a finger's joints per block [1, ∞)
-    wrist_draws: int = 256  # settings drawn for the wrist (one joint) per pass [1, ∞)
+    starts: int = 4  # distinct retrieved poses swept, best first (0: no sweep, the paper's method) [0, 64]
+    draws: int = 1024  # settings drawn for a finger's joints per block [1, 16384]
+    wrist_draws: int = 256  # settings drawn for the wrist (one joint) per pass [1, 16384]
     local_share: float = 0.25  # share of the draws taken near the block's current setting, not uniform [0, 1]
-    local_sigma: float = 0.15  # std, rad, of those local draws (clipped to the limits) (0, ∞)
-    passes: int = 3  # at most this many passes over all blocks; stops after a pass that improves nothing [1, ∞)
-    checks: int = 16  # a block's best improving draws checked for collisions, best first, before moving on [1, ∞)
-    seed: int = 0  # seed of the draws [0, ∞)
+    local_sigma: float = 0.15  # std, rad, of those local draws (clipped to the limits) (0, 3.2]
+    passes: int = 3  # at most this many passes over all blocks; stops after a pass that improves nothing [1, 100]
+    checks: int = 16  # a block's best improving draws checked for collisions, best first, before moving on [1, 1024]
+    seed: int = 0  # seed of the draws [0, 4294967295]
 
     def __post_init__(self) -> None:
         if self.starts < 0 or self.draws < 1 or self.wrist_draws < 1 or self.passes < 1 or self.checks < 1:
@@ -107,7 +109,7 @@ class ImitateConfig:
     """What ``Imitator.imitate`` does around the search and the refinement (defaults: the studio's method;
     :data:`PAPER_IMITATE`: the paper's)."""
 
-    candidates: int = 4  # distinct best poses refined, each with the full refinement schedule [1, ∞)
+    candidates: int = 4  # distinct best poses refined, each with the full refinement schedule [1, 64]
     retrieve: bool = True  # answer first from the retrieval index and seed the search with its best distinct poses
     select: str = "rendered"  # pick the unrefined pose and the candidates by "rendered" shadow loss or "model" loss
 
@@ -134,7 +136,7 @@ class SequenceConfig:
     first: SearchConfig = PAPER_SEQUENCE_FIRST  # search of the first keyframe (every keyframe when independent)
     next: SearchConfig = PAPER_SEQUENCE_NEXT  # sequential, later keyframes: from θ*_{k−1} + N(0, init_noise)
     refine: RefineConfig = RefineConfig()  # hill climbing of each keyframe on the rendered shadow
-    candidates: int = 4  # distinct best search results refined per keyframe, the best kept [1, ∞)
+    candidates: int = 4  # distinct best search results refined per keyframe, the best kept [1, 64]
     refine_enabled: bool = True  # False: keep the searched poses (no rendered-shadow refinement)
     retrieve: bool = False  # a keyframe searched from scratch starts from retrieval + block sweep (the still method)
     sweep: SweepConfig = SweepConfig()  # the block sweep of those seeds (retrieve; starts=0: retrieval alone)

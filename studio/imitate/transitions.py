@@ -41,9 +41,9 @@ TOTALS = ("base", "image", "full")  # the readings of "L_total" the test can com
 class TransitionConfig:
     """Thresholds of the transition-success test (paper values, DESIGN §4)."""
 
-    max_total: float = 0.35  # each endpoint's total (``total``) at most this [0, ∞)
-    max_mean_step: float = 0.85  # mean over joints of |θ_{k+1} − θ_k| at most this, rad [0, ∞)
-    max_step: float = 2.00  # largest single-joint |θ_{k+1} − θ_k| at most this, rad [0, ∞)
+    max_total: float = 0.35  # each endpoint's total (``total``) at most this [0, 1000]
+    max_mean_step: float = 0.85  # mean over joints of |θ_{k+1} − θ_k| at most this, rad [0, 10]
+    max_step: float = 2.00  # largest single-joint |θ_{k+1} − θ_k| at most this, rad [0, 10]
     total: str = "base"  # endpoint total compared: "base" L_base, "image" L_base + L_expr, "full" + L_temp (doc)
 
     def __post_init__(self) -> None:

@@ -198,10 +198,10 @@ def plan_job(
 ) -> Job:  # fmt: skip
     """Plan a show through ``keyframes`` (:func:`studio.motion.plan.plan_show`) → :class:`PlannedShow`.
 
-    Stages "path", "timing" and "show" (:func:`~studio.motion.plan.plan_show`). The job's cancel event goes to
-    ``plan_show``, which raises :class:`~studio.motion.errors.PlanCancelled` within one collision query or timing
-    round: the job ends ``cancelled`` and applies nothing. A keyframe in collision or a segment too fast fails the job
-    with the planner's typed error."""
+    Stages "keyframes", "path", "timing" and "show" (:func:`~studio.motion.plan.plan_show`). The job's cancel event
+    goes to ``plan_show``, which raises :class:`~studio.motion.errors.PlanCancelled` within one collision query or
+    timing round: the job ends ``cancelled`` and applies nothing. A keyframe in collision or a segment too fast fails
+    the job with the planner's typed error."""
     return Job("plan", functools.partial(_plan, keyframes=keyframes, cfg=cfg, show_title=show_title), apply, title)
 
 

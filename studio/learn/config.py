@@ -50,16 +50,16 @@ class TrainerConfig:
 
     out: str = "runs/model.pt"  # checkpoint file written (and resumed from)
     data: str | None = None  # shard folder made by `collect` (0.7/0.2/0.1 split); unset: pairs rendered on the fly
-    steps: int = 6000  # optimiser steps [1, ∞)
-    batch_size: int = 64  # pairs per step [1, ∞)
-    lr: float = 2e-3  # peak AdamW learning rate (0, ∞)
-    weight_decay: float = 1e-4  # AdamW weight decay [0, ∞)
-    warmup: int = 200  # linear warm-up steps before the cosine decay to lr/50 [0, ∞)
-    eval_every: int = 500  # steps between validation + checkpoint [1, ∞)
-    eval_size: int = 2048  # on-the-fly validation and test set size (shards use their own splits) [1, ∞)
-    seed: int = 0  # data and initialisation seed
+    steps: int = 6000  # optimiser steps [1, 10000000]
+    batch_size: int = 64  # pairs per step (~2 MB each through the 128² self-model and back) [1, 1024]
+    lr: float = 2e-3  # peak AdamW learning rate (0, 10]
+    weight_decay: float = 1e-4  # AdamW weight decay [0, 10]
+    warmup: int = 200  # linear warm-up steps before the cosine decay to lr/50 [0, 10000000]
+    eval_every: int = 500  # steps between validation + checkpoint [1, 10000000]
+    eval_size: int = 2048  # on-the-fly validation and test set size (shards use their own splits) [1, 20000]
+    seed: int = 0  # data and initialisation seed [0, 4294967295]
     device: str | None = None  # "cpu" or "cuda"; unset: CUDA when present
-    threads: int | None = None  # torch CPU threads; unset: torch's default [1, ∞)
+    threads: int | None = None  # torch CPU threads; unset: torch's default [1, 256]
 
     def __post_init__(self) -> None:
         problems = [
@@ -87,7 +87,7 @@ class TrainConfig(TrainerConfig):
     out: str = "runs/selfmodel.pt"  # checkpoint file written (and resumed from)
     model: str = "cpu"  # architecture preset: "cpu" (128², small) or "paper" (256²)
     input: str = "fk"  # "fk" (the paper's model) or "theta" (the ablation: sin/cos of the raw angles)
-    resolution: int | None = None  # output resolution instead of the preset's (16, 32, 64, 128, 256...)
+    resolution: int | None = None  # output resolution instead of the preset's (16, 32, 64, 128, 256...) [16, 1024]
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -104,7 +104,7 @@ class TrainConfig(TrainerConfig):
 class InverseConfig:
     """Architecture of the inverse CNN."""
 
-    input_size: int = 64  # side of the aligned shadow crop the CNN sees, pixels (a multiple of 16) [16, ∞)
+    input_size: int = 64  # side of the aligned shadow crop the CNN sees, pixels (a multiple of 16) [16, 512]
     channels: tuple[int, ...] = (16, 32, 64, 128)  # conv widths; each stage halves the side (stride 2)
     hidden: int = 256  # width of the fully connected layer before the 21 outputs
     pad: float = 5.0  # crop padding, pixels of a 256-pixel image (as the losses' LossConfig.pad)
@@ -122,7 +122,7 @@ class InverseTrainConfig(TrainerConfig):
     steps: int = 3000  # optimiser steps
     warmup: int = 100  # linear warm-up steps
     eval_size: int = 1024  # on-the-fly validation and test set size (shards use their own splits)
-    resolution: int = 128  # rendered shadow side for on-the-fly pairs, pixels (the self-model's) [16, ∞)
+    resolution: int = 128  # rendered shadow side for on-the-fly pairs, pixels (the self-model's) [16, 1024]
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -134,11 +134,11 @@ class InverseTrainConfig(TrainerConfig):
 class CollectConfig:
     """What ``shadow-studio collect`` makes."""
 
-    n: int = 20000  # total number of (pose, shadow) pairs
-    shard_size: int = 5000  # samples per shard file
-    seed: int = 0  # shard k is drawn from the seed sequence (seed, k)
-    resolution: int = 256  # shadow image side, pixels
-    window: float = 0.6  # backdrop window side, metres (see studio.sim.shadow.Rig)
+    n: int = 20000  # total number of (pose, shadow) pairs [1, 10000000]
+    shard_size: int = 5000  # samples per shard file (held in memory while written: 5000 at 1024² is 5 GB) [1, 5000]
+    seed: int = 0  # shard k is drawn from the seed sequence (seed, k) [0, 4294967295]
+    resolution: int = 256  # shadow image side, pixels [8, 1024]
+    window: float = 0.6  # backdrop window side, metres (see studio.sim.shadow.Rig) (0, 100]
 
     def __post_init__(self) -> None:
         if self.n < 1 or self.shard_size < 1:

@@ -20,10 +20,11 @@ from studio.sim.hand import Hand
 class LimitsConfig:
     """How the per-joint velocity, acceleration and jerk limits are derived from the hand."""
 
-    velocity_scale: float = 0.75  # fraction of the URDF velocity limit (LX-15D no-load 5.2 rad/s → 3.9 rad/s)
-    acceleration: float = 20.0  # rad/s²; 3.9 rad/s is reached in ~0.2 s
-    jerk: float = 200.0  # rad/s³; acceleration ramps up in 0.1 s
-    wrist_scale: float = 0.5  # the wrist turns the whole hand: its velocity/acceleration/jerk are scaled by this
+    # bounds: below 0.01 a move of one radian outlasts what Ruckig can time (hours); far above what a servo does
+    velocity_scale: float = 0.75  # fraction of the URDF velocity limit (LX-15D no-load 5.2 rad/s → 3.9 rad/s) [0.01, 1]
+    acceleration: float = 20.0  # rad/s²; 3.9 rad/s is reached in ~0.2 s [0.01, 10000]
+    jerk: float = 200.0  # rad/s³; acceleration ramps up in 0.1 s [0.01, 1000000]
+    wrist_scale: float = 0.5  # the wrist turns the whole hand: its velocity/acceleration/jerk are scaled by this (0, 1]
     overrides: dict[str, tuple[float, float, float]] = field(default_factory=dict)  # joint → (vel, acc, jerk)
 
 

@@ -50,7 +50,7 @@ class PathConfig:
     tip_candidates: int = 20  # fingertip candidates per point (paper: 20)
     tip_fraction: tuple[float, float] = (0.05, 0.25)  # step toward the nearest keyframe's DIP angles (paper: 5–25 %)
     tip_noise_deg: float = 2.0  # DIP noise, degrees (paper: ±2°)
-    seed: int = 0  # random seed of both passes (plans are reproducible)
+    seed: int = 0  # random seed of both passes (plans are reproducible) [0, 4294967295]
     detour: DetourConfig = field(default_factory=DetourConfig)  # RRT-Connect when noise recovery stalls
 
 

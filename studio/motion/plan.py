@@ -33,6 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from studio.jsonfile import JsonFileError, read_json
+from studio.motion.bounds import MAX_KEYFRAMES, MAX_SHOW_S, MAX_SOURCE_FRAME, fmt, is_number, number_problem
 from studio.motion.errors import KeyframeCollisionError, PlanError, check_cancel
 from studio.motion.limits import JointLimits, LimitsConfig
 from studio.motion.path import Path, PathConfig, build_path, keyframe_spline
@@ -80,49 +82,86 @@ class Keyframes:
 
 
 def parse_keyframes(doc: Any, hand: Hand) -> Keyframes:
-    """Validate a POSES.json document; raises ``PlanError`` saying which keyframe is wrong."""
+    """Validate a POSES.json document; raises ``PlanError`` saying which keyframe is wrong.
+
+    Every field has its JSON type (``"t": "2.5"`` and ``"hold": "false"`` are refused, never read as 2.5 and True) and
+    its bounds (:mod:`studio.motion.bounds`): at most ``MAX_KEYFRAMES`` keyframes, times in ``[0, MAX_SHOW_S]``."""
     if not isinstance(doc, dict) or not isinstance(doc.get("keyframes"), list) or not doc["keyframes"]:
         raise PlanError('a keyframes file must be {"keyframes": [{"t": seconds, "pose": {joint: rad}}, ...]}')
+    if len(doc["keyframes"]) > MAX_KEYFRAMES:
+        raise PlanError(
+            f"the file has {len(doc['keyframes'])} keyframes; a show is planned through at most {MAX_KEYFRAMES} "
+            "(split it into several shows)"
+        )
     times, poses, hold, frames, targets, losses = [], [], [], [], [], []
     for i, k in enumerate(doc["keyframes"]):
         if not isinstance(k, dict) or "t" not in k or not isinstance(k.get("pose"), dict):
             raise PlanError(f'keyframe {i} needs "t" (seconds) and "pose" ({{joint: rad}})')
+        problem = _keyframe_field_problem(k)
+        if problem:
+            raise PlanError(f"keyframe {i}: {problem}")
         try:
-            t = float(k["t"])
             q = hand.pose_from_dict(k["pose"])
             hand.check_theta(q)
         except (TypeError, ValueError) as e:
-            raise PlanError(f"keyframe {i} (t = {k.get('t')}): {e}") from None
-        if not np.isfinite(t) or t < 0:
-            raise PlanError(f"keyframe {i}: time {k['t']!r} must be a finite number of seconds ≥ 0")
-        times.append(t)
+            raise PlanError(f"keyframe {i} (t = {fmt(k['t'])}): {e}") from None
+        times.append(float(k["t"]))
         poses.append(q)
-        hold.append(bool(k.get("hold", False)))
-        frames.append(k.get("source_frame"))
+        hold.append(k.get("hold", False))
+        frames.append(None if k.get("source_frame") is None else int(k["source_frame"]))
         targets.append(k.get("target"))
         losses.append(k.get("loss", k.get("losses")))
     times_a = np.array(times)
     if (np.diff(times_a) <= 0).any():
         i = int(np.flatnonzero(np.diff(times_a) <= 0)[0]) + 1
-        raise PlanError(f"keyframe {i} (t = {times[i]}) is not after keyframe {i - 1} (t = {times[i - 1]})")
+        raise PlanError(
+            f"keyframe {i} (t = {fmt(times[i])}) is not after keyframe {i - 1} (t = {fmt(times[i - 1])}); "
+            "keyframe times must increase"
+        )
+    for where, entries in (("keyframes", doc["keyframes"]), ("poses", doc.get("poses") or [])):
+        ids = [e.get("id") for e in entries if isinstance(e, dict) and e.get("id") is not None]
+        repeated = sorted({x for x in ids if ids.count(x) > 1}, key=str)
+        if repeated:
+            raise PlanError(f"{where}: keyframe id {repeated[0]!r} appears more than once; each id names one keyframe")
     extra = {k: doc[k] for k in ("title", "loss_weights", "media", "calibration", "roll_deg") if k in doc}
-    if "roll_deg" in extra and not (isinstance(extra["roll_deg"], (int, float)) and math.isfinite(extra["roll_deg"])):
-        raise PlanError(f"roll_deg must be the mount roll in degrees, not {extra['roll_deg']!r}")
+    if "roll_deg" in extra and number_problem("roll_deg", extra["roll_deg"], -180, 180, "of degrees"):
+        raise PlanError(f"{number_problem('roll_deg', extra['roll_deg'], -180, 180, 'of degrees')} (the mount roll)")
+    for key in ("title", "calibration"):
+        if extra.get(key) is not None and not isinstance(extra[key], str):
+            raise PlanError(f"{key} must be a string, not {extra[key]!r}")
     if any(x is not None for x in losses):
         extra["keyframe_losses"] = losses
-    return Keyframes(times_a, np.array(poses), np.array(hold), frames, targets, extra)
+    return Keyframes(times_a, np.array(poses), np.array(hold, dtype=bool), frames, targets, extra)
+
+
+def _keyframe_field_problem(k: dict[str, Any]) -> str | None:
+    """What is wrong with the fields of one keyframe entry besides its pose (None when nothing is)."""
+    problem = number_problem("t", k["t"], 0.0, MAX_SHOW_S, "of seconds")
+    if problem:
+        return problem
+    if "hold" in k and not isinstance(k["hold"], bool):
+        return f'"hold" is {k["hold"]!r}; it must be true or false (JSON booleans, not strings or numbers)'
+    frame = k.get("source_frame")
+    if frame is not None and (not is_number(frame) or not 0 <= frame <= MAX_SOURCE_FRAME or frame != int(frame)):
+        return f'"source_frame" is {frame!r}; it must be a frame index in [0, {MAX_SOURCE_FRAME}] or null'
+    if k.get("target") is not None and not isinstance(k["target"], str):
+        return f'"target" is {k["target"]!r}; it must be a string (a path or id) or null'
+    return None
 
 
 def load_keyframes(path: str | FilePath, hand: Hand) -> Keyframes:
-    """Read and validate a POSES.json file."""
+    """Read and validate a POSES.json file (:func:`parse_keyframes`); a bad file is a ``PlanError`` naming it."""
     path = FilePath(path)
     if not path.is_file():
         raise FileNotFoundError(f"keyframes file not found: {path}")
     try:
-        doc = json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise PlanError(f"{path}: not valid JSON at line {e.lineno} column {e.colno}: {e.msg}") from None
-    return parse_keyframes(doc, hand)
+        doc = read_json(path, what="keyframes file")
+    except JsonFileError as e:
+        raise PlanError(str(e)) from None
+    try:
+        return parse_keyframes(doc, hand)
+    except PlanError as e:
+        raise PlanError(f"{path}: {e}") from None
 
 
 def with_home(hand: Hand, kf: Keyframes) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
@@ -184,8 +223,9 @@ def plan_show(
 ) -> PlanResult:
     """Plan a show through ``keyframes``. Raises ``KeyframeCollisionError``, ``PathError``, ``SegmentTooFastError``.
 
-    Reports stages "path" (:func:`~studio.motion.path.build_path`: a step per segment walked and repaired, then the
-    fingertip pass and the corners), "timing" (:func:`~studio.motion.timing.time_path`: a step per segment timed and
+    Reports stages "keyframes" (0 of K at once, K of K when every keyframe is checked for collisions), "path"
+    (:func:`~studio.motion.path.build_path`: a step per segment walked and repaired, then the fingertip pass and the
+    corners), "timing" (:func:`~studio.motion.timing.time_path`: a step per segment timed and
     collision-checked along the trajectory) and "show" (1 of 1: sampled). Setting ``cancel`` raises
     :class:`~studio.motion.errors.PlanCancelled` (a :class:`~studio.errors.Cancelled`, not a ``PlanError``) between
     the stages and within one collision query or timing round inside them: half a plan is no show, so there is
@@ -198,7 +238,9 @@ def plan_show(
         if (np.diff(times) < cfg.min_segment_s).any():
             raise PlanError(f"keyframes must be at least {cfg.min_segment_s} s apart (home is at t = 0)")
         check_cancel(cancel)
+        report(progress, "keyframes", 0, len(poses))  # shown at once: checking thousands of keyframes takes seconds
         check_keyframes(world, poses, times)
+        report(progress, "keyframes", len(poses), len(poses))
         limits = JointLimits.from_hand(hand, cfg.limits)
         path = build_path(hand, world, times, poses, cfg.path, progress, cancel)
         check_cancel(cancel)

@@ -32,6 +32,8 @@ import numpy as np
 
 from studio.atomic import write_text
 from studio.errors import StudioError
+from studio.jsonfile import JsonFileError, read_json
+from studio.motion.bounds import MAX_SHOW_BYTES
 from studio.motion.limits import JointLimits
 from studio.motion.show_checks import FORMAT_NAME, show_problems
 from studio.sim.hand import Hand, load_hand
@@ -227,14 +229,10 @@ def load_show(path: str | Path, hand: Hand | None = None) -> Show:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"show file not found: {path}")
-    text = path.read_text(encoding="utf-8", errors="replace")
     try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise ShowError(
-            f"not valid JSON (truncated or corrupt?) at line {e.lineno} column {e.colno}: {e.msg}; plan the show again",
-            path,
-        ) from None
+        doc = read_json(path, MAX_SHOW_BYTES, "show file")
+    except JsonFileError as e:
+        raise ShowError(f"{e.reason}; plan the show again" if e.corrupt else e.reason, path) from None
     hand = hand or load_hand()
     problems = show_problems(doc, hand, schema=show_schema())
     if problems:

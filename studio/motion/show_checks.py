@@ -11,6 +11,17 @@ from typing import Any
 
 import numpy as np
 
+from studio.motion.bounds import (
+    MAX_KEYFRAMES,
+    MAX_LIMIT,
+    MAX_OFFSET_S,
+    MAX_RATE_HZ,
+    MAX_SAMPLES,
+    MAX_SHOW_S,
+    MAX_SOURCE_FRAME,
+    fmt,
+    is_number,
+)
 from studio.motion.limits import limit_problems
 from studio.sim.hand import Hand
 
@@ -65,12 +76,14 @@ def _sample_problems(rows: list[list[float]], names: list[str], limits: dict[str
     if problems:
         return problems
     if t[0] != 0.0:
-        problems.append(f"the first sample is at t = {t[0]!r} s; a show starts at t = 0")
+        problems.append(f"the first sample is at t = {fmt(t[0])} s; a show starts at t = 0")
+    if t.max() > MAX_SHOW_S:
+        problems.append(f"the show lasts {fmt(t.max())} s; a show lasts at most {fmt(MAX_SHOW_S)} s")
     back = np.flatnonzero(np.diff(t) <= 0)
     if back.size:
         i = int(back[0]) + 1
         problems.append(
-            f"time goes backwards or repeats at sample {i} (t = {t[i]!r} s after {t[i - 1]!r} s, "
+            f"time goes backwards or repeats at sample {i} (t = {fmt(t[i])} s after {fmt(t[i - 1])} s, "
             f"{back.size} place(s) in all); times must strictly increase"
         )
     if limits is not None and not limit_problems(limits, names):
@@ -96,10 +109,15 @@ def _sample_problems(rows: list[list[float]], names: list[str], limits: dict[str
 
 
 def _keyframe_problems(keyframes: list[dict[str, Any]], duration: float | None) -> list[str]:
+    if len(keyframes) > MAX_KEYFRAMES:
+        return [f"the show has {len(keyframes)} keyframe markers; a show has at most {MAX_KEYFRAMES}"]
     times = [k.get("t") for k in keyframes]
-    if not all(isinstance(x, (int, float)) and np.isfinite(x) for x in times):
+    if not all(is_number(x) and np.isfinite(x) for x in times):
         return ["a keyframe marker has a NaN/inf or missing time"]
     problems = []
+    frames = [k.get("source_frame") for k in keyframes]
+    if any(f is not None and not (is_number(f) and 0 <= f <= MAX_SOURCE_FRAME) for f in frames):
+        problems.append(f"a keyframe marker's source_frame is not a frame index in [0, {MAX_SOURCE_FRAME}]")
     if any(b < a for a, b in zip(times, times[1:])):
         problems.append("keyframe markers are not in time order")
     if duration is not None and any(x < 0 or x > duration + 1e-9 for x in times):
@@ -130,10 +148,18 @@ def show_problems(doc: Any, hand: Hand | None = None, schema: dict[str, Any] | N
     names = list(doc["hand"]["joint_names"])
     if hand is not None:
         problems += _name_problems(names, hand)
-    if not np.isfinite(doc["rate_hz"]) or doc["rate_hz"] <= 0:
-        problems.append(f"rate_hz is {doc['rate_hz']!r}; it must be a positive number (40)")
+    rate = doc["rate_hz"]
+    if not is_number(rate) or not np.isfinite(rate) or not 0 < rate <= MAX_RATE_HZ:
+        shown = fmt(rate) if is_number(rate) else repr(rate)
+        problems.append(f"rate_hz is {shown}; it must be a number of Hz in (0, {fmt(MAX_RATE_HZ)}] (servos play 40)")
     limits = doc["limits"]
     lp = limit_problems(limits, names)
+    if not lp:
+        lp = [
+            f"limits.{k} states {fmt(max(limits[k]))}; it must be at most {fmt(MAX_LIMIT)}"
+            for k in ("velocity", "acceleration", "jerk")
+            if limits[k] and max(limits[k]) > MAX_LIMIT
+        ]
     problems += lp
     if hand is not None and not lp and not problems:
         limits = {
@@ -145,12 +171,16 @@ def show_problems(doc: Any, hand: Hand | None = None, schema: dict[str, Any] | N
     if not rows:
         problems.append("the show has no samples")
         duration = None
+    elif len(rows) > MAX_SAMPLES:
+        problems.append(f"the show has {len(rows)} samples; a show file holds at most {MAX_SAMPLES}")
+        duration = None
     else:
         sp = _sample_problems(rows, names, None if lp else limits)
         problems += sp
         duration = None if sp else float(rows[-1][0])
     problems += _keyframe_problems(doc.get("keyframes", []), duration)
     media = doc.get("media")
-    if media and not np.isfinite(media.get("offset_s", 0.0)):
-        problems.append("media.offset_s must be a finite number of seconds")
+    offset = (media or {}).get("offset_s", 0.0)
+    if media and not (is_number(offset) and np.isfinite(offset) and abs(offset) <= MAX_OFFSET_S):
+        problems.append(f"media.offset_s must be a number of seconds in [-{fmt(MAX_OFFSET_S)}, {fmt(MAX_OFFSET_S)}]")
     return problems

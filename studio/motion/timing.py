@@ -125,7 +125,10 @@ class _Solver:
         inp.synchronization = Synchronization.Phase if straight else Synchronization.Time
         inp.minimum_duration = duration
         traj = Trajectory(self.dof)
-        res = self.ruckig.calculate(inp, traj)
+        try:
+            res = self.ruckig.calculate(inp, traj)
+        except ValueError:  # a code the binding's Result lacks: -101, the motion outlasts what Ruckig computes
+            return None
         return traj if res in (Result.Working, Result.Finished) else None
 
 
@@ -184,7 +187,11 @@ class SegmentTimer:
         for k in range(n):
             tr = self.solver.solve(q[k], v[k], q[k + 1], v[k + 1], None, bool(straight[k]))
             if tr is None:
-                raise PlanError(f"Ruckig found no motion between path states near t = {tau[k]:.3f} s")
+                raise PlanError(
+                    f"no motion reaches the path state near t = {tau[k]:.3f} s within the limits: the velocity, "
+                    "acceleration or jerk limits are too small to reach it (a motion of hours), or the state lies "
+                    "outside a joint's range; raise the limits"
+                )
             minimum[k] = tr.duration
         total = t1 - t0
         for _ in range(10):

@@ -47,8 +47,8 @@ from studio.sim.hand import load_hand
 class ShowLayout:
     """How a project's sources share the show clock (module doc)."""
 
-    still_hold_s: float = 2.0  # seconds a still's pose is held on the show clock (0, ∞)
-    gap_s: float = 1.5  # seconds between one source's end and the next source's start: the move between them [0, ∞)
+    still_hold_s: float = 2.0  # seconds a still's pose is held on the show clock (0, 3600]
+    gap_s: float = 1.5  # seconds between one source's end and the next source's start: the move between them [0, 3600]
 
     def __post_init__(self) -> None:
         if not self.still_hold_s > 0 or not self.gap_s >= 0:

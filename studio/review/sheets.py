@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from studio.atomic import write_bytes
+from studio.atomic import write_bytes, write_via
 
 BACKDROP = (235, 235, 235)  # RGB of the lit backdrop
 SHADOW = (40, 40, 40)  # RGB of plain shadow
@@ -169,31 +169,30 @@ VIDEO_CODEC = "mp4v"  # MPEG-4 part 2: encodes in opencv-python-headless's bundl
 def write_video(path: str | Path, frames_rgb: Sequence[np.ndarray], fps: float, codec: str = VIDEO_CODEC) -> Path:
     """Write RGB frames ``(H, W, 3)`` uint8 (all one size) as a video at ``fps``; returns the path.
 
-    Written to a temporary name beside ``path`` and renamed when complete (a video is never half-written).
-    Odd sides are padded to even ones (MPEG-4 wants even sides). Raises ``OSError`` when no encoder opens."""
+    Written atomically (:func:`studio.atomic.write_via`: into a private temporary folder beside ``path``, whose
+    random name nobody can plant a symlink at, then renamed: a video is never half-written). Odd sides are padded to
+    even ones (MPEG-4 wants even sides). Raises ``OSError`` when no encoder opens."""
     path = Path(path)
     if not len(frames_rgb):
         raise ValueError("a video needs at least one frame")
     h, w = frames_rgb[0].shape[:2]
     H, W = h + h % 2, w + w % 2
-    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
-    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*codec), float(fps), (W, H))
-    if not writer.isOpened():
-        raise OSError(f"OpenCV could not open a {codec!r} video encoder for {path}")
-    try:
-        for f in frames_rgb:
-            if f.shape[:2] != (h, w):
-                raise ValueError(f"every video frame must be {h}×{w}, got {f.shape[:2]}")
-            frame = np.full((H, W, 3), GAP, np.uint8)
-            frame[:h, :w] = f
-            writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
-    except BaseException:
-        writer.release()
-        tmp.unlink(missing_ok=True)
-        raise
-    writer.release()
-    tmp.replace(path)
-    return path
+
+    def encode(tmp: Path) -> None:
+        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*codec), float(fps), (W, H))
+        if not writer.isOpened():
+            raise OSError(f"OpenCV could not open a {codec!r} video encoder for {path}")
+        try:
+            for f in frames_rgb:
+                if f.shape[:2] != (h, w):
+                    raise ValueError(f"every video frame must be {h}×{w}, got {f.shape[:2]}")
+                frame = np.full((H, W, 3), GAP, np.uint8)
+                frame[:h, :w] = f
+                writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+        finally:
+            writer.release()
+
+    return write_via(path, encode)
 
 
 def write_png(path: str | Path, rgb: np.ndarray) -> Path:

@@ -7,6 +7,7 @@ everything else (FK, renderer, PyBullet, servo map) takes a :class:`Hand`.
 from __future__ import annotations
 
 import hashlib
+import numbers
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -115,6 +116,9 @@ class Hand:
         missing = [n for n in names if n not in pose]
         if unknown or missing:
             raise ValueError(f"pose does not match the hand's joints: unknown {unknown}, missing {missing}")
+        bad = next((n for n in names if isinstance(pose[n], bool) or not isinstance(pose[n], numbers.Real)), None)
+        if bad is not None:  # "0.5" and true are not angles (float() would read them as 0.5 and 1.0)
+            raise ValueError(f"joint {bad} is {pose[bad]!r}; every angle must be a number of radians")
         return np.array([float(pose[n]) for n in names])
 
     def pose_to_dict(self, theta: np.ndarray) -> dict[str, float]:

@@ -24,8 +24,8 @@ class Rig:
 
     light: tuple[float, float, float] = (0.0, 0.0, 3.0)  # point light position
     backdrop_z: float = -1.0  # the backdrop is the plane z = backdrop_z
-    window: float = 0.6  # side of the square backdrop window imaged, centred on the light axis
-    resolution: int = 256  # pixels per side of shadow images
+    window: float = 0.6  # side of the square backdrop window imaged, centred on the light axis (0, 100]
+    resolution: int = 256  # pixels per side of shadow images (8192² is 64 MB; 100000² would be 10 GB) [8, 8192]
     roll: float = 0.0  # mount roll about the light axis, rad, counter-clockwise as the audience sees the backdrop
 
     def __post_init__(self) -> None:

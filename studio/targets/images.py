@@ -38,6 +38,7 @@ from PIL import Image, ImageOps, UnidentifiedImageError
 
 from studio.assets import asset
 from studio.errors import TargetError
+from studio.path_checks import check_text
 
 log = logging.getLogger(__name__)
 
@@ -53,13 +54,13 @@ class TargetConfig:
     polarity: str = "auto"  # "auto" (border = backdrop), "bright" (white shape on black), "dark" (black on white)
     threshold: float | None = 25.0  # shadowness (after polarity) above which a pixel is shadow; None: Otsu [0, 255)
     auto_otsu: bool = True  # use Otsu instead of the fixed threshold when the border (backdrop) is above it
-    max_components: int = 3  # keep at most this many 8-connected shadow pieces, largest first [1, ∞)
+    max_components: int = 3  # keep at most this many 8-connected shadow pieces, largest first [1, 1000]
     min_component_share: float = 0.1  # drop pieces smaller than this fraction of the largest piece (specks) [0, 1]
     min_hole_area: float = 0.015  # smallest real opening's core: < 1 → fraction of the shadow area, ≥ 1 → pixels
     min_core_share: float = 0.3  # a hole whose core is less than this share of its area is a crease [0, 1]
     backdrop_level: float = 0.25  # core pixels: shadowness ≤ backdrop_level × threshold (surely backdrop) [0, 1]
     frame: str = "shadow"  # load_target(size=…) frames "shadow" (its bounding box + margin) or the whole "image"
-    margin: float = 0.1  # frame margin around the shadow box on each side, fraction of its longer side [0, ∞)
+    margin: float = 0.1  # frame margin around the shadow box on each side, fraction of its longer side [0, 10]
 
     def __post_init__(self) -> None:
         if self.polarity not in ("auto", "bright", "dark"):
@@ -296,4 +297,5 @@ def gather_targets(
         if not found:
             raise TargetError(f"no target images ({', '.join(IMAGE_SUFFIXES)}) in {p} or its sub-folders")
         out += found
+    check_text(out, "target file name")  # named in the tables written at the end: refused now, not then
     return out

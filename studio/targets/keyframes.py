@@ -48,9 +48,9 @@ class KeyframeConfig:
     #   all six at 4 Hz (camel needs ≥ 0.333, dog ≤ 0.312), nor with σ ≤ 3 px of 64; blur 0.11 (σ 7 px) is the least
     #   blur whose interval is 0.03 wide (σ 6 px: 0.017, σ 10 px: 0.067 but coarser shapes).
     tau: float = 0.404  # similarity 1 − d at which the two closest clusters still merge; higher = more keyframes [0, 1]
-    size: int = 64  # side of the square each expressive mask's aligned crop is area-resized to before PCA, px [1, ∞)
-    blur: float = 0.11  # σ of the Gaussian blur of each crop before PCA, fraction of its side (0: none) [0, ∞)
-    components: int = 50  # PCA components kept (at most the frame count and size²) [1, ∞)
+    size: int = 64  # side of the square each expressive mask's aligned crop is area-resized to before PCA, px [1, 512]
+    blur: float = 0.11  # σ of the Gaussian blur of each crop before PCA, fraction of its side (0: none) [0, 10]
+    components: int = 50  # PCA components kept (at most the frame count and size²) [1, 1000]
     one_iou: float = 0.9  # frames whose crops overlap less than this (IoU) are never all one keyframe [0, 1]
 
     def __post_init__(self) -> None:

@@ -65,9 +65,11 @@ DEFAULT_VIDEO = asset("videos/muybridge_horse.gif")  # Muybridge's galloping hor
 class VideoConfig:
     """How a video becomes a sequence of shadow masks (defaults: the paper's, and load every shared sequence)."""
 
-    hz: float = 4.0  # sampling rate (paper 2.35–5.48 Hz); sample k = the source frame nearest k / hz, (0, fps]
-    fps: float | None = None  # source rate of a frame folder (None: 24); a video file or GIF uses its own rate
-    size: int = 128  # side of the square frame all masks share, pixels [1, ∞)
+    hz: float = 4.0  # sampling rate (paper 2.35–5.48 Hz); sample k: the source frame nearest k / hz (≤ fps) (0, 240]
+    fps: float | None = None  # source rate of a frame folder (None: 24); a video file or GIF has its own (0, 1000]
+    # size: a project stores every frame's masks at this side (N × S² bytes, twice): 2048 keeps a 1,000-frame
+    # project within ~8 GB; the self-model works at 128-256
+    size: int = 128  # side of the square frame all masks share, pixels [8, 2048]
     threshold: float | None = 128.0  # shadowness level for shadow footage (paper: grey 128); None = Otsu [0, 255)
     kind: str = "auto"  # "mask" | "shadow" | "auto" (colour → segmentation needed, binary {0,255} → mask, else shadow)
     margin: float = 0.1  # margin around the union of the shadow boxes on each side, fraction of its longer side
@@ -88,8 +90,8 @@ class VideoConfig:
             raise ValueError(f"kind must be 'auto', 'mask' or 'shadow', not {self.kind!r}")
         if self.polarity not in ("auto", "bright", "dark"):
             raise ValueError(f"polarity must be 'auto', 'bright' or 'dark', not {self.polarity!r}")
-        if self.size < 1 or self.margin < 0 or not 0 <= self.max_bad_share <= 1:
-            raise ValueError("size must be ≥ 1, margin ≥ 0 and max_bad_share in [0, 1]")
+        if not 8 <= self.size <= 2048 or self.margin < 0 or not 0 <= self.max_bad_share <= 1:
+            raise ValueError("size must be in [8, 2048] pixels, margin ≥ 0 and max_bad_share in [0, 1]")
         if self.threshold is not None and not 0 <= self.threshold < 255:
             raise ValueError("threshold must be a grey level in [0, 255) or None (Otsu)")
 
