@@ -8,7 +8,9 @@ reads, scanning, the e-stop latch) is built on them here, once. Positions on thi
 Failing safe (DESIGN §5.13): :meth:`ServoBus.estop` latches: from then on every command that would make a servo
 move is refused with :class:`EStopLatched` (MOVE_STOP and torque-off still go out) until
 :meth:`ServoBus.reset_estop`. The check runs under the bus lock right before each write, so a motion write either
-reached the wire before the e-stop's MOVE_STOP or never goes out.
+reached the wire before the e-stop's MOVE_STOP or never goes out. The latch is also a file (:mod:`hardware.estop`)
+that every bus of every process reads before each motion write: an e-stop set anywhere holds everywhere until one
+reset, wherever it is made (a reset made elsewhere also clears this bus's latch).
 """
 
 from __future__ import annotations
@@ -21,7 +23,16 @@ from dataclasses import dataclass
 from typing import TypeVar
 
 from hardware import constants as C
-from hardware.errors import BusError, ChecksumError, EStopLatched, ProtocolError, ServoTimeout, UnexpectedReply
+from hardware import estop as latch_file
+from hardware.errors import (
+    BusError,
+    ChecksumError,
+    EStopLatched,
+    EStopResetFailed,
+    ProtocolError,
+    ServoTimeout,
+    UnexpectedReply,
+)
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +63,8 @@ class ServoBus(ABC):
 
     def __init__(self) -> None:
         self._lock = threading.RLock()  # one conversation on the wire at a time
-        self._estop = threading.Event()  # the e-stop latch: set by estop(), cleared only by reset_estop()
+        self._estop = threading.Event()  # this process's e-stop latch: set by estop(), cleared by a reset
+        self._estop_shared = False  # the latch above is also the file's (a reset elsewhere clears both)
 
     @abstractmethod
     def connect(self) -> None:
@@ -87,40 +99,78 @@ class ServoBus(ABC):
         """Send commands that no servo answers, back to back in one write. Raises :class:`EStopLatched` (sending
         nothing) when the e-stop is latched and any of them would make a servo move."""
         with self._lock:
-            if self._estop.is_set() and any(is_motion(r) for r in requests):
-                raise EStopLatched(
-                    f"the e-stop is latched on {self.label}: no servo moves until it is reset (reset_estop(); "
-                    "in `jog`, type reset)"
-                )
+            if any(is_motion(r) for r in requests) and self.estop_latched:
+                raise EStopLatched(self.latch_message())
             self._transmit(requests)
 
     # --- e-stop --------------------------------------------------------------------------------------------
-    def estop(self, release_torque: bool = False) -> bool:
-        """Latch the e-stop and halt every servo now (MOVE_STOP broadcast, then torque off if ``release_torque``).
+    def estop(self, release_torque: bool = False, by: str = "an e-stop") -> bool:
+        """Latch the e-stop and halt every servo now (MOVE_STOP broadcast, then torque off if ``release_torque``),
+        then record the latch in its file (``by`` says what pressed it) so that every process refuses motion.
 
         Safe from any thread and never raises; from now on every motion command is refused until
         :meth:`reset_estop`. Returns whether the halt reached the bus (False: the port failed; cut the power)."""
         self._estop.set()
         log.info("e-stop latched on %s", self.label)
+        reached = True
         try:
             self.stop()
             if release_torque:
                 self.set_torque(False)
         except Exception as e:  # the latch holds whatever happens to the port
             log.error("e-stop latched but the halt did not reach %s (%s): cut the servos' power", self.label, e)
-            return False
-        return True
+            reached = False
+        try:
+            latch_file.set_latch(f"{by} on {self.label}")
+            self._estop_shared = True
+        except OSError as e:  # this process still refuses motion; other processes cannot know
+            log.error("the e-stop is latched in this process only: writing %s failed (%s)", latch_file.latch_path(), e)
+        return reached
 
     def reset_estop(self) -> None:
-        """Clear the e-stop latch: motion commands go out again."""
-        if self._estop.is_set():
+        """Clear the e-stop latch, here and in its file (for every process): motion commands go out again.
+        Raises :class:`EStopLatched` when the file cannot be removed (the latch then stays)."""
+        try:
+            cleared = latch_file.clear_latch()
+        except OSError as e:
+            raise EStopResetFailed(
+                f"the e-stop could not be reset: removing {latch_file.latch_path()} failed ({e.strerror or e}); "
+                "remove that file by hand"
+            ) from e
+        if self._estop.is_set() or cleared is not None:
             log.info("e-stop reset on %s", self.label)
         self._estop.clear()
+        self._estop_shared = False
+
+    def check_estop(self) -> bool:
+        """Latch here and halt every servo when the latch file appeared (an e-stop pressed in another process)
+        while this bus is not latched yet; returns whether it did. Never raises (a watcher thread calls it)."""
+        if self._estop.is_set() or not latch_file.is_latched():
+            return False
+        self._estop.set()
+        self._estop_shared = True
+        log.info("e-stop latched elsewhere: halting %s", self.label)
+        try:
+            self.stop()
+        except Exception as e:
+            log.error("e-stop latched but the halt did not reach %s (%s): cut the servos' power", self.label, e)
+        return True
 
     @property
     def estop_latched(self) -> bool:
-        """True from :meth:`estop` until :meth:`reset_estop`."""
-        return self._estop.is_set()
+        """True from :meth:`estop` (here, or in any process: the latch file) until :meth:`reset_estop`."""
+        if self._estop.is_set():
+            if self._estop_shared and not latch_file.is_latched():  # reset in another process
+                self._estop.clear()
+                self._estop_shared = False
+                log.info("e-stop reset elsewhere: %s may move again", self.label)
+                return False
+            return True
+        return latch_file.is_latched()
+
+    def latch_message(self) -> str:
+        """The one line that says the e-stop is latched, who set it, and that nothing moves until a reset."""
+        return latch_file.latched_message(self.label)
 
     # --- motion --------------------------------------------------------------------------------------------
     def move_batch(self, targets: Mapping[int, float], duration_s: float) -> dict[int, int]:

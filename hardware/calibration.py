@@ -29,7 +29,7 @@ import yaml
 from studio.assets import asset
 
 from hardware import constants as C
-from hardware.errors import CalibrationError, CalibrationMissing, MountMismatch
+from hardware.errors import CalibrationError, CalibrationMissing, MountMismatch, ShowForAnotherHand
 from studio.atomic import write_text
 from studio.sim.hand import Hand
 from studio.sim.roll import file_deg, mount_text, wrap_deg
@@ -167,6 +167,22 @@ def check_mount(show_roll: float, cal: Calibration, path: str | Path | None = No
             f"this show wants the hand mounted at roll {want:+.1f}° but the calibration{where} records the rig at "
             f"{have:+.1f}°: {mount_text(show_roll)}, then record that roll in the calibration"
         )
+
+
+def check_show_hand(show_hash: str, hand: Hand, path: str | Path | None = None, force: bool = False) -> None:
+    """Raise :class:`ShowForAnotherHand` when a show was planned for another hand model (URDF hash ``show_hash``)
+    than ``hand``: its angles were checked against another hand's limits and speeds. ``force`` plays it anyway
+    (logged as a warning)."""
+    if show_hash == hand.hash:
+        return
+    where = f" {path}" if path else ""
+    if force:
+        log.warning("playing the show%s planned for hand %s on hand %s (forced)", where, show_hash, hand.hash)
+        return
+    raise ShowForAnotherHand(
+        f"the show{where} was planned for another hand model (hand {show_hash}, this one is {hand.hash}): plan it "
+        "again for this hand, or force it if you are sure the two hands move alike"
+    )
 
 
 def default_calibration(hand: Hand, margin: float = 0.05) -> Calibration:

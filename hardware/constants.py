@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 HEADER = b"\x55\x55"  # two start bytes of every packet
@@ -118,3 +119,31 @@ def describe_faults(bits: int) -> str:
     """``"over-temperature, locked rotor"`` for a fault byte; ``"none"`` for 0."""
     names = [n for b, n in FAULT_NAMES.items() if bits & b]
     return ", ".join(names) if names else "none"
+
+
+def check_ids(ids: Iterable[int], what: str = "servo ID") -> list[int]:
+    """``ids`` as a list, or ``ValueError`` naming the first outside 0..MAX_ID (254 is the broadcast address, which
+    no servo has)."""
+    out = [int(i) for i in ids]
+    bad = [i for i in out if not 0 <= i <= MAX_ID]
+    if bad:
+        raise ValueError(f"{what} {bad[0]} is outside 0..{MAX_ID} ({BROADCAST_ID} is the broadcast address)")
+    return out
+
+
+def parse_ids(text: str) -> list[int]:
+    """``"1-21"`` or ``"3,5,9-11"`` (``""``: none) → the list of servo IDs, each in 0..MAX_ID; ``ValueError`` saying
+    what is wrong otherwise."""
+    out: list[int] = []
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        a, dash, b = part.partition("-")
+        if not a.strip().isdigit() or (dash and not b.strip().isdigit()):
+            raise ValueError(f"{part!r} is not an ID or a range of IDs: write e.g. 5 or 1-21 or 3,5,9-11")
+        lo, hi = int(a), int(b) if dash else int(a)
+        if hi < lo:
+            raise ValueError(f"{part!r} runs backwards: write the lower ID first, e.g. {hi}-{lo}")
+        if dash and hi > MAX_ID:
+            raise ValueError(f"{part!r} goes past {MAX_ID}: servo IDs are 0..{MAX_ID} ({BROADCAST_ID} is the broadcast "
+                             "address)")  # fmt: skip
+        out.extend(check_ids(range(lo, hi + 1)))
+    return out

@@ -15,7 +15,7 @@ from __future__ import annotations
 import threading
 
 from hardware.bus import ServoBus
-from hardware.calibration import Calibration, check_mount, load_calibration
+from hardware.calibration import Calibration, check_mount, check_show_hand, load_calibration
 from hardware.playback_log import PlaybackResult
 from hardware.player import Player, PlayerConfig, SampleHook
 from hardware.session import ServoSession
@@ -34,6 +34,7 @@ def play_show(
     on_sample: SampleHook | None = None,
     *,
     bus: ServoBus | None = None,
+    force: bool = False,
 ) -> PlaybackResult:
     """Play ``show`` through a :class:`~hardware.player.Player` on ``bus`` (connected; left open), or, when
     ``bus`` is None, on the emulator started for it with the calibration's servo IDs (a
@@ -42,15 +43,18 @@ def play_show(
     ``calibration`` defaults to the shipped one; ``progress`` gets ``Progress("play", tick, ticks)``;
     ``on_sample`` is the player's per-tick hook (review's commanded vs measured series). Never raises for a stop
     condition (the result says why); raises ``BusError`` where the emulator cannot run (no pseudo-terminals on this
-    system), and :class:`~hardware.errors.MountMismatch` before anything moves when ``calibration`` records the rig
-    at another mount roll than the show's.
+    system), :class:`~hardware.errors.MountMismatch` before anything moves when ``calibration`` records the rig
+    at another mount roll than the show's, and :class:`~hardware.errors.ShowForAnotherHand` when the show was
+    planned for another hand model (unless ``force``).
     """
-    cal = calibration or load_calibration(None, hand or load_hand())
+    hand = hand or load_hand()
+    cal = calibration or load_calibration(None, hand)
+    check_show_hand(show.hand_hash, hand, force=force)  # another hand's limits and speeds: refused unless forced
     check_mount(show.roll, cal)  # a rig calibrated at another roll: refused before the servos are touched
     cfg = config or PlayerConfig()
     if bus is None:
         with ServoSession(calibration=cal, release_on_close=not cfg.hold_torque_on_stop) as session:
-            return play_show(show, cal, cfg, progress=progress, cancel=cancel, on_sample=on_sample, bus=session.bus)
+            return play_show(show, cal, cfg, hand, progress, cancel, on_sample, bus=session.bus, force=force)
     player = Player(bus, cal, cfg, on_sample=on_sample)
     return player.play(show.times, show.positions, show.joint_names, cancel=cancel, progress=progress)
 

@@ -42,6 +42,8 @@ class ServoEmulator:
         positions: dict[int, int] | None = None,
         duplicate_ids: tuple[int, ...] = (),
     ):
+        ids = C.check_ids(ids)  # ValueError for an ID no servo can have (254 is the broadcast address)
+        duplicate_ids = tuple(C.check_ids(duplicate_ids))
         self.config = config or EmulatorConfig()
         self.faults = faults or Faults()
         start = positions or {}

@@ -42,11 +42,20 @@ class BusError(HardwareError):
 
 
 class EStopLatched(HardwareError):
-    """A motion command was refused because the bus's e-stop is latched (clear it with ``reset_estop()``)."""
+    """A motion command was refused because the e-stop is latched, in this process or in its file (any process);
+    ``reset_estop()`` clears it (a face says how: ``shadow-studio estop --reset``, the Jog panel's reset)."""
 
     def __init__(self, message: str, sent: dict[int, int] | None = None):
         self.sent = dict(sent or {})  # {id: units} that went out before the latch refused the rest
         super().__init__(message)
+
+
+class EStopResetFailed(EStopLatched):
+    """The e-stop could not be reset (its file cannot be removed): it stays latched."""
+
+
+class ShowForAnotherHand(HardwareError):
+    """A show planned for another hand model (URDF) than the one these servos drive (refused unless forced)."""
 
 
 class CalibrationError(HardwareError):

@@ -4,8 +4,9 @@
 by method calls or by text commands through :meth:`Jog.execute`; the terminal verb and the notebook's jog panel
 are thin faces of it. Every move is clipped to the soft limits and paced at ``speed_rad_s``.
 
-Failing safe (DESIGN §5.13): ``stop`` latches the bus's e-stop (every later move raises ``EStopLatched`` until
-``reset``); a servo that misses a read leaves its angle unknown (NaN) instead of ending the session, and a move of
+Failing safe (DESIGN §5.13): ``stop`` latches the bus's e-stop, for every process (its file, :mod:`hardware.estop`):
+every later move raises ``EStopLatched`` until ``reset`` (or ``shadow-studio estop --reset``); a typed angle must be
+finite; a servo that misses a read leaves its angle unknown (NaN) instead of ending the session, and a move of
 a joint whose angle is unknown reads it first (``ServoTimeout`` if it still does not answer).
 """
 
@@ -106,7 +107,9 @@ class Jog:
         return float(self.target[j])
 
     def go(self, angle_rad: float) -> JogMove:
-        """Move the selected joint to ``angle_rad`` (clipped to its soft limits)."""
+        """Move the selected joint to ``angle_rad`` (clipped to its soft limits); ``ValueError`` for NaN or ±inf."""
+        if not math.isfinite(angle_rad):
+            raise ValueError(f"cannot move {self.joint} to {angle_rad} rad: give a finite angle")
         j = self.index
         self._known(j)
         want = self.target.copy()
@@ -144,12 +147,13 @@ class Jog:
         self.bus.set_torque(on, self.cal.ids)
 
     def estop(self) -> bool:
-        """Latch the bus's e-stop: halt every servo (broadcast), release torque if configured; every later move is
-        refused until :meth:`reset`. Never raises; returns whether the halt reached the bus."""
-        return self.bus.estop(release_torque=self.cfg.release_on_estop)
+        """Latch the bus's e-stop (for every process): halt every servo (broadcast), release torque if configured;
+        every later move is refused until :meth:`reset`. Never raises; returns whether the halt reached the bus."""
+        return self.bus.estop(release_torque=self.cfg.release_on_estop, by="jog")
 
     def reset(self) -> None:
-        """Clear the e-stop; the target becomes the measured pose (where the e-stop left each servo)."""
+        """Clear the e-stop (for every process: wherever it was pressed); the target becomes the measured pose
+        (where the e-stop left each servo). ``EStopResetFailed`` when its file cannot be removed."""
         self.bus.reset_estop()
         here = self.read_array(strict=False)
         self.target = np.where(np.isnan(here), self.target, np.clip(here, self.cal.lower, self.cal.upper))
@@ -166,10 +170,10 @@ class Jog:
             self.select(args[0])
             return self.status()
         if cmd == "step" and args:
-            self.cfg.step_rad = math.radians(float(args[0]))
+            self.cfg.step_rad = math.radians(_degrees(args[0], "step", positive=True))
             return f"step {args[0]} deg"
         if cmd == "go" and args:
-            return self._say(self.go(math.radians(float(args[0]))))
+            return self._say(self.go(math.radians(_degrees(args[0], "go"))))
         if cmd == "home":
             return self._say(self.home())
         if cmd in ("on", "off"):
@@ -206,3 +210,15 @@ class Jog:
         if m.joint == "all":
             return f"home in {m.duration_s:.2f} s{note}"
         return f"{m.joint} -> {math.degrees(m.sent):.1f} deg in {m.duration_s:.2f} s{note}"
+
+
+def _degrees(text: str, command: str, positive: bool = False) -> float:
+    """A typed angle in degrees: a finite number (above 0 when ``positive``), else ``ValueError`` saying so."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or (positive and value <= 0):
+        kind = "a number of degrees above 0" if positive else "a finite number of degrees"
+        raise ValueError(f"{command} {text}: give {kind}, e.g. {command} 10")
+    return value

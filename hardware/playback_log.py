@@ -21,7 +21,7 @@ class StopReason(str, Enum):
     """Why playback ended."""
 
     COMPLETED = "completed"
-    INTERRUPTED = "interrupted (Ctrl-C)"
+    INTERRUPTED = "interrupted"  # Ctrl-C or a stop signal (SIGTERM, SIGHUP); the message says which
     CANCELLED = "cancelled"
     ESTOP = "e-stop"
     FAULT = "servo fault"

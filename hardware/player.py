@@ -13,8 +13,11 @@ Stops: Ctrl-C, :meth:`Player.estop`, the cancel event, a fault bit, over-tempera
 ``max_missed_reads`` failed reads of one servo, a tracking error, a lost port (``BusError``), a raising hook, or
 a bug. Whatever ends the loop (DESIGN §5.13), the player sends MOVE_STOP (best effort: a failing stop makes the
 torque "unknown"), holds or releases torque as configured and records the result in :attr:`Player.last_result`,
-which says why; only a bug is then re-raised. The e-stop is the bus's latch (:meth:`ServoBus.estop`): while it
-is latched :meth:`Player.play` sends a stop and returns ESTOP at once; only ``bus.reset_estop()`` clears it.
+which says why; only a bug is then re-raised. The e-stop is the bus's latch (:meth:`ServoBus.estop`), shared by
+every process through its file (:mod:`hardware.estop`): while it is latched :meth:`Player.play` sends a stop and
+returns ESTOP at once, and one pressed anywhere during a show stops it before the next batch; only a reset
+(``bus.reset_estop()``, ``shadow-studio estop --reset``) clears it. A stop signal that the command line turns into
+``KeyboardInterrupt`` (SIGTERM, SIGHUP: ``studio.cli.signals``) ends playback as Ctrl-C does, its message naming it.
 """
 
 from __future__ import annotations
@@ -98,7 +101,7 @@ class Player:
 
         Playback ends with ESTOP; nothing moves again until ``bus.reset_estop()``. Returns whether the halt reached
         the bus."""
-        return self.bus.estop()
+        return self.bus.estop(by="the player")
 
     def _columns(self, times: np.ndarray, positions: np.ndarray, joint_names: list[str]):
         """Check a show; returns ``(times (N,) s, q (N, J) rad in calibration order)`` or raises ValueError."""
@@ -144,7 +147,7 @@ class Player:
         rec = Recording(len(self.cal.ids))
         self.last_result = None
         if self.bus.estop_latched:
-            return self._finish(StopReason.ESTOP, "the e-stop is latched: reset it (bus.reset_estop()) first", rec)
+            return self._finish(StopReason.ESTOP, self.bus.latch_message(), rec)
         self._columns(times, positions, joint_names)  # a bad show fails here, before the bus is touched
         try:
             reason, message = self._run(times, positions, joint_names, rec, cancel, progress)
@@ -156,8 +159,8 @@ class Player:
             reason, message = StopReason.LOST_COMMUNICATION, str(e)
         except HardwareError as e:
             reason, message = StopReason.LOST_COMMUNICATION, f"the bus failed: {e}"
-        except KeyboardInterrupt:
-            reason, message = StopReason.INTERRUPTED, "stopped by Ctrl-C"
+        except KeyboardInterrupt as e:  # Ctrl-C, or a stop signal raised as one (str names it: "SIGTERM")
+            reason, message = StopReason.INTERRUPTED, f"stopped by {e or 'Ctrl-C'}"
         except BaseException as e:  # a bug: stop safely and keep the log, then let it surface
             self._finish(StopReason.ERROR, f"playback crashed ({type(e).__name__}: {e})", rec)
             raise

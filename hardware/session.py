@@ -14,7 +14,10 @@ then torque off when ``release_on_close`` (else torque is left as the servos hol
 back (which also waits until the stop has reached the servos, on the emulator before its thread ends), closes
 the port and stops the emulator it started. :meth:`close` never raises: :class:`CloseReport` says what it managed
 ("unknown" torque when the bus failed: cut the servos' power). The e-stop is the bus's latch: a session neither
-sets nor clears it. A log (the player's) is written by whoever plays, inside the session, before it closes.
+sets nor clears it, but while open it watches the latch's file (:mod:`hardware.estop`, every ``WATCH_S``) and halts
+the servos as soon as an e-stop is pressed in another process (``shadow-studio estop``, another face), even while
+this process waits for its user. A log (the player's) is written by whoever plays, inside the session, before it
+closes.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from hardware.serial_bus import BusConfig, SerialServoBus
 log = logging.getLogger(__name__)
 
 EMULATOR_IDS = tuple(range(1, 22))  # the emulator's servos when neither ids nor a calibration name them
+WATCH_S = 0.05  # how often an open session looks for an e-stop pressed in another process, s
 
 
 def load_emulator() -> ModuleType:
@@ -96,6 +100,8 @@ class ServoSession:
         self.report: CloseReport | None = None  # set by close()
         self._bus: SerialServoBus | None = None
         self._lock = threading.RLock()
+        self._unwatch = threading.Event()  # set by close(): the e-stop watcher ends
+        self._watcher: threading.Thread | None = None
 
     # --- lifecycle -------------------------------------------------------------------------------------------
     def open(self) -> ServoSession:
@@ -119,8 +125,15 @@ class ServoSession:
                     emulator.stop()
                 raise
             self.emulator, self._bus = emulator, bus
+            self._watcher = threading.Thread(target=self._watch, args=(bus,), name="estop-watch", daemon=True)
+            self._watcher.start()
             log.debug("servo session open on %s", bus.config.port)
         return self
+
+    def _watch(self, bus: SerialServoBus) -> None:
+        """Until close: halt the servos when an e-stop is latched in another process (its file appears)."""
+        while not self._unwatch.wait(WATCH_S):
+            bus.check_estop()  # never raises
 
     def close(self) -> CloseReport:
         """Stop every servo, set torque as configured, read it back, close the port and the emulator. Never raises
@@ -129,6 +142,10 @@ class ServoSession:
             if self.report is not None:
                 return self.report
             bus, emulator, self._bus = self._bus, self.emulator, None
+            self._unwatch.set()
+            watcher, self._watcher = self._watcher, None
+            if watcher is not None and watcher is not threading.current_thread():
+                watcher.join(1.0)
             if bus is None:
                 report = CloseReport(False, "unknown", f"the session on {self.where} was never opened: nothing sent")
             else:  # what stands if the halt itself is interrupted (Ctrl-C)

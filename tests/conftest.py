@@ -13,6 +13,15 @@ from PIL import Image
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 
 
+@pytest.fixture(autouse=True)
+def estop_file(tmp_path_factory, monkeypatch) -> Path:
+    """Every test has an e-stop latch file of its own (``$SHADOW_STUDIO_ESTOP``, inherited by its subprocesses): an
+    e-stop pressed in one test, or on this machine, never stops another's servos. The path, not yet created."""
+    path = tmp_path_factory.mktemp("estop", numbered=True) / "estop.json"
+    monkeypatch.setenv("SHADOW_STUDIO_ESTOP", str(path))
+    return path
+
+
 @pytest.fixture(scope="session")
 def hand():
     from studio.sim.hand import load_hand

@@ -10,9 +10,11 @@ import re
 import signal
 import subprocess
 import sys
+import time
 import urllib.error
 import urllib.request
 
+import psutil
 import pytest
 from studio.assets import asset
 
@@ -66,3 +68,79 @@ def test_lab_refuses_a_folder_that_is_not_a_project(tmp_path):
     done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "not a project" in done.stderr
     assert not (tmp_path / "home" / "lab").exists()  # nothing started, nothing copied
+
+
+def family(pid: int) -> list[psutil.Process]:
+    """The processes below ``pid`` that still run."""
+    try:
+        return running(psutil.Process(pid).children(recursive=True))
+    except psutil.NoSuchProcess:
+        return []
+
+
+def running(procs: list[psutil.Process]) -> list[psutil.Process]:
+    """Those of ``procs`` that still run (a zombie does not)."""
+    out = []
+    for p in procs:
+        try:
+            if p.is_running() and p.status() != psutil.STATUS_ZOMBIE:
+                out.append(p)
+        except psutil.NoSuchProcess:
+            pass
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("how", ["SIGTERM", "Ctrl-C in the background"])
+def test_a_stop_signal_ends_lab_its_server_and_its_kernels_and_the_token_is_on_no_command_line(tmp_path, how):
+    """`lab` with a kernel running: nothing it started listens beyond 127.0.0.1, no command line carries the token,
+    and SIGTERM (or Ctrl-C's SIGINT to a `lab &` whose shell ignores SIGINT) stops lab, the server and the kernel."""
+    project = Project.create(tmp_path / "mine.shadow", sources=[asset("targets/asl_o.jpeg")])
+    port = free_port(19988)
+    env = os.environ | {"SHADOW_STUDIO_HOME": str(tmp_path / "home"), "JUPYTER_CONFIG_DIR": str(tmp_path / "config"),
+                        "JUPYTER_RUNTIME_DIR": str(tmp_path / "runtime")}  # fmt: skip
+    cmd = [sys.executable, "-m", "studio.cli.main", "lab", str(project.path), "--port", str(port), "--no-browser"]
+    background = how != "SIGTERM"
+    ignore_sigint = (lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)) if background else None
+    with open(tmp_path / "stderr.txt", "w") as err:  # a file: Jupyter's log would fill a pipe nobody reads
+        proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=err, text=True, preexec_fn=ignore_sigint)
+    started = []
+    try:
+        token = None
+        for line in proc.stdout:
+            if m := re.search(rf"http://127\.0\.0\.1:{port}/lab/tree/studio\.ipynb\?token=(\w+)", line):
+                token = m.group(1)
+                break
+        assert token, f"no URL printed (exit code {proc.poll()}): {(tmp_path / 'stderr.txt').read_text()[-2000:]}"
+        request = urllib.request.Request(
+            f"http://127.0.0.1:{port}/api/kernels?token={token}",
+            data=b'{"name": "python3"}',
+            headers={"Content-Type": "application/json"},
+            method="POST",
+        )
+        with urllib.request.urlopen(request, timeout=30) as r:
+            assert r.status == 201
+        deadline = time.monotonic() + 60
+        while not any("ipykernel" in " ".join(p.cmdline()) for p in family(proc.pid)):
+            assert time.monotonic() < deadline, "the kernel did not start"
+            time.sleep(0.2)
+        started = [psutil.Process(proc.pid), *family(proc.pid)]
+        for p in started:
+            assert token not in "\0".join(p.cmdline()), p.cmdline()  # what `ps` shows any local user
+            socks = {c.laddr.ip for c in p.net_connections("tcp") if c.status == "LISTEN"}
+            assert socks <= {"127.0.0.1"}, (p.cmdline(), socks)
+        if os.geteuid() == 0:  # as root, lab passes --allow-root itself and says so
+            assert "--allow-root" in started[1].cmdline()
+            assert "running as root: JupyterLab is started with --allow-root" in (tmp_path / "stderr.txt").read_text()
+        proc.send_signal(signal.SIGTERM if how == "SIGTERM" else signal.SIGINT)
+        assert proc.wait(60) == 0
+        deadline = time.monotonic() + 10
+        while running(started) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not running(started), [p.cmdline() for p in running(started)]
+        assert "stopping JupyterLab" in (tmp_path / "stderr.txt").read_text()
+    finally:
+        for p in running(started):
+            p.kill()
+        if proc.poll() is None:
+            proc.kill()

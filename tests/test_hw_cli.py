@@ -18,7 +18,10 @@ from hardware.calibration import default_calibration, load_calibration, save_cal
 from hardware.emulator import ServoEmulator
 from studio.cli.main import main
 
-ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+def env() -> dict[str, str]:
+    """The environment of a subprocess: this test's (its own e-stop latch file, conftest), unbuffered output."""
+    return {**os.environ, "PYTHONUNBUFFERED": "1"}
 
 
 @pytest.fixture
@@ -32,7 +35,7 @@ def emulate():
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
-            env=ENV,
+            env=env(),
         )
         procs.append(proc)
         port = proc.stdout.readline().strip()
@@ -135,7 +138,7 @@ def test_play_survives_the_emulator_dying(emulate, hand, tmp_path):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env=ENV,
+        env=env(),
     )
     try:
         assert play.stdout.readline().startswith("playing 'tiny'"), play.stderr.read()
@@ -244,6 +247,145 @@ assert main(["show-info", {str(show)!r}]) == 0
 assert "hardware.emulator" not in sys.modules and "serial" not in sys.modules
 assert main(["emulate"]) == 2
 """
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=ENV, timeout=300)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env(), timeout=300)
     assert r.returncode == 0, r.stderr
     assert "tiny" in r.stdout and "POSIX" in r.stderr and "Traceback" not in r.stderr
+
+
+class RecordingEmulator(ServoEmulator):
+    """The emulator, keeping ``(servo id, command code)`` of every packet the host sent (the stop packet is seen)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.seen: list[tuple[int, int]] = []
+
+    def _handle(self, pkt):
+        self.seen.append((pkt.servo_id, pkt.cmd))
+        return super()._handle(pkt)
+
+    def stopped_after_the_last_move(self) -> bool:
+        """A MOVE_STOP broadcast arrived after the last move command."""
+        moves = [k for k, (_, c) in enumerate(self.seen) if c == C.MOVE_TIME_WRITE.code]
+        stops = [k for k, (i, c) in enumerate(self.seen) if c == C.MOVE_STOP.code and i == C.BROADCAST_ID]
+        return bool(moves and stops and stops[-1] > moves[-1])
+
+
+def _start(args: list[str], **kwargs) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "studio.cli", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env(), **kwargs)  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "signals, code, name",
+    [
+        ((signal.SIGTERM,), 143, "SIGTERM"),
+        pytest.param((signal.SIGINT, signal.SIGINT), 130, "Ctrl-C", marks=pytest.mark.slow),  # twice: still 130
+        pytest.param((signal.SIGHUP,), 129, "SIGHUP", marks=pytest.mark.slow),
+    ],
+)
+def test_a_stop_signal_mid_show_stops_the_servos_writes_the_log_and_says_so(hand, tmp_path, signals, code, name):
+    """`play` in a subprocess on a port, stopped mid-show by a signal: the stop packet reaches the servos after the
+    last move, torque held, the log written, one line naming the signal, exit code 128 + the signal."""
+    show = _tiny_show(hand, tmp_path / "long.json", 6.0)
+    cal = tmp_path / "cal.yaml"
+    save_calibration(default_calibration(hand), cal)
+    log = tmp_path / "run.npz"
+    with RecordingEmulator(range(1, 22)) as emu:
+        play = _start(["play", str(show), "--port", emu.port, "--calibration", str(cal), "--log", str(log), "--quiet"])
+        try:
+            assert play.stdout.readline().startswith("playing 'tiny'"), play.stderr.read()
+            time.sleep(1.0)
+            for sig in signals:
+                play.send_signal(sig)
+                time.sleep(0.02)
+            out, err = play.communicate(timeout=60)
+        finally:
+            if play.poll() is None:
+                play.kill()
+        assert emu.stopped_after_the_last_move() and all(emu.servo(i).torque for i in range(1, 22))
+        before = emu.positions()
+        time.sleep(0.1)
+        assert emu.positions() == before  # nothing moves after the verb ended
+    said = [line for line in err.splitlines() if line.strip() and not line.startswith("INFO ")]
+    lines = [line for line in said if "already stopping" not in line]  # what a second Ctrl-C prints meanwhile
+    assert play.returncode == code, err
+    assert len(lines) == 1 and f"play: stopped: interrupted: stopped by {name}; torque held" in lines[0], err
+    saved = np.load(log)
+    assert str(saved["reason"]) == "INTERRUPTED" and name in str(saved["message"]) and str(saved["torque"]) == "held"
+    assert 10 < len(saved["sent"]) < 6 * 40 and f"saved to {log}" in out
+
+
+def test_sigterm_ends_jog_with_the_servos_stopped_and_its_log(tmp_path):
+    """`jog` waiting for its user, SIGTERM: the servos get the stop, one line, exit code 143, its log written."""
+    log = tmp_path / "jog.txt"
+    with RecordingEmulator(range(1, 22)) as emu:
+        jog = _start(["jog", "--port", emu.port, "--log", str(log)], stdin=subprocess.PIPE)
+        try:
+            jog.stdin.write("go 20\n")
+            jog.stdin.flush()
+            for line in jog.stdout:
+                if "wrist -> 20.0 deg" in line:
+                    break
+            jog.send_signal(signal.SIGTERM)
+            out, err = jog.communicate(timeout=60)
+        finally:
+            if jog.poll() is None:
+                jog.kill()
+        assert emu.stopped_after_the_last_move() and emu.servo(1).torque
+    lines = [line for line in err.splitlines() if line.strip() and not line.startswith("INFO ")]
+    assert jog.returncode == 143 and len(lines) == 1, err
+    assert "jog: stopped by SIGTERM: servos stopped, torque held" in lines[0]
+    text = log.read_text()
+    assert "> go 20" in text and "wrist -> 20.0 deg" in text and "end: stopped by SIGTERM" in text
+    assert f"jog log saved to {log}" in out
+
+
+def test_servo_ids_are_0_to_253_and_bad_lists_are_one_usage_line(in_process, hand, tmp_path):
+    for args, words in [
+        (("--ids", "0-300"), "argument --ids: '0-300' goes past 253: servo IDs are 0..253 (254 is the broadcast"),
+        (("--ids", "254"), "servo ID 254 is outside 0..253"),
+        (("--missing", "abc"), "argument --missing: 'abc' is not an ID or a range of IDs"),
+        (("--duplicate", "9-3"), "argument --duplicate: '9-3' runs backwards"),
+    ]:
+        done = in_process("emulate", *args)
+        assert done.returncode == 2 and done.stderr.count("\n") == 1 and words in done.stderr, done.stderr
+        assert "invalid literal" not in done.stderr and "Traceback" not in done.stderr
+    done = in_process("scan", "--port", "/dev/null", "--ids", "250-255")
+    assert done.returncode == 2 and "'250-255' goes past 253" in done.stderr
+    with pytest.raises(ValueError, match="servo ID 254 is outside 0..253"):
+        ServoEmulator([1, 254])
+    bad = tmp_path / "cal.yaml"
+    save_calibration(default_calibration(hand), bad)
+    bad.write_text(bad.read_text().replace("id: 21", "id: 254"))
+    done = in_process("play", str(_tiny_show(hand, tmp_path / "s.json", 0.2)), "--dry-run", "--calibration", bad)
+    assert done.returncode == 2 and "servo ID 254 is outside 0..253" in done.stderr
+
+
+def test_a_show_for_another_hand_is_refused_unless_forced(hand, tmp_path, capsys):
+    from dataclasses import replace
+
+    from studio.motion.show import load_show, save_show
+
+    show = tmp_path / "other.json"
+    save_show(replace(load_show(_tiny_show(hand, show, 0.3)), hand_hash="0123456789abcdef"), show)
+    assert main(["play", str(show), "--dry-run", "--log", str(tmp_path / "a.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "planned for another hand model (hand 0123456789abcdef" in err and "pass --force" in err
+    assert not (tmp_path / "a.npz").exists()
+    assert main(["play", str(show), "--dry-run", "--log", str(tmp_path / "b.npz"), "--force"]) == 0
+    assert "completed" in capsys.readouterr().out
+
+
+def test_play_and_jog_keep_a_log_in_the_studio_home_by_default(hand, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("SHADOW_STUDIO_HOME", str(tmp_path / "home"))
+    assert main(["play", str(_tiny_show(hand, tmp_path / "s.json", 0.3)), "--dry-run", "--quiet"]) == 0
+    [log] = (tmp_path / "home" / "logs").glob("play-*.npz")
+    assert f"command vs measured saved to {log}" in capsys.readouterr().out
+    assert str(np.load(log)["reason"]) == "COMPLETED"
+    with ServoEmulator(range(1, 22)) as emu:
+        monkeypatch.setattr(sys, "stdin", io.StringIO("j wrist\nquit\n"))
+        assert main(["jog", "--port", emu.port]) == 0
+    [journal] = (tmp_path / "home" / "logs").glob("jog-*.txt")
+    assert f"jog log saved to {journal}" in capsys.readouterr().out
+    text = journal.read_text()
+    assert f"# shadow-studio jog on {emu.port}" in text and "> j wrist" in text and "end: servos stopped" in text

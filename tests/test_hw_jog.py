@@ -112,3 +112,33 @@ def test_estop_latches_through_home(hand):
         j.bus.read_position(21)
         want = np.round(cal.to_units(home)).astype(int)
         assert [emu.servo(i).last_move[0] for i in cal.ids] == want.tolist()
+
+
+def test_typed_angles_must_be_finite(jog):
+    emu, j = jog
+    j.select("wrist")
+    refused = {
+        "go nan": "go nan: give a finite number of degrees",
+        "go inf": "go inf: give a finite",
+        "go -inf": "go -inf: give a finite",
+        "go ten": "go ten: give a finite",
+        "step nan": "step nan: give a number of degrees above 0",
+        "step 0": "step 0: give a number",
+    }
+    for line, words in refused.items():
+        with pytest.raises(ValueError, match=words):
+            j.execute(line)
+    with pytest.raises(ValueError, match="give a finite angle"):
+        j.go(math.nan)
+    j.bus.read_position(1)
+    assert emu.servo(1).last_move == (500, 0) and j.target[0] == pytest.approx(0.0)  # nothing was sent
+    assert "wrist -> 10.0 deg" in j.execute("go 10")
+
+
+def test_estop_from_jog_latches_for_every_process_and_reset_clears_it(jog, estop_file):
+    emu, j = jog
+    assert "E-STOP" in j.execute("stop")
+    assert estop_file.is_file() and "jog on servo bus" in estop_file.read_text()
+    with pytest.raises(EStopLatched, match="set by jog"):
+        j.go(0.1)
+    assert "e-stop reset" in j.execute("reset") and not estop_file.exists() and not j.bus.estop_latched

@@ -120,3 +120,22 @@ def test_close_stops_the_server():
     with pytest.raises(OSError), socket.create_connection(("127.0.0.1", port), timeout=1):
         pass
     s.close()  # idempotent
+
+
+def listening(pid: int) -> set[tuple[str, int]]:
+    """``(address, port)`` of every TCP socket that process ``pid`` listens on."""
+    return {(c.laddr.ip, c.laddr.port) for c in psutil.Process(pid).net_connections("tcp") if c.status == "LISTEN"}
+
+
+def test_the_server_listens_on_localhost_only(scene):
+    """Both the zmq socket and the viewer's web server (meshcat's own binds 0.0.0.0 and [::]): 127.0.0.1 only, so
+    another machine cannot reach the scene, whatever address it tries."""
+    socks = listening(scene.server_pid)
+    web, zmq = urlparse(scene.url).port, urlparse(scene.vis.window.zmq_url).port
+    assert socks == {("127.0.0.1", web), ("127.0.0.1", zmq)}, socks
+    inet = (socket.AF_INET, socket.AF_INET6)
+    ips = [a.address for addrs in psutil.net_if_addrs().values() for a in addrs if a.family in inet]
+    outside = [ip for ip in ips if not ip.startswith(("127.", "::1", "fe80"))]
+    for address in outside:  # the machine's other addresses: nothing answers there
+        with pytest.raises(OSError), socket.create_connection((address, web), timeout=1):
+            pass

@@ -176,3 +176,20 @@ def test_disconnect_stops_and_releases_torque_when_configured(state, hand):
         assert not any(s.torque for s in emulator.servos)  # the emulator's own servos, read after it stopped
     finally:
         p.close()
+
+
+def test_the_panels_estop_is_every_processs_and_a_latch_set_elsewhere_holds_here(panel, estop_file):
+    """The e-stop button writes the shared latch (a `play` in another process is refused); connecting while a latch
+    set elsewhere holds says so and moves nothing until reset, which clears it for every process."""
+    from hardware import estop
+
+    assert panel.connect()
+    panel.estop_button.click()
+    assert estop_file.is_file() and "jog on servo bus" in estop.read_latch().by
+    panel.disconnect()
+    assert estop.is_latched()  # the latch outlives the connection (and the process)
+    assert panel.connect()
+    assert "the e-stop is latched (set by jog" in panel.message.value and "press reset" in panel.message.value
+    assert panel.bus.estop_latched and all(s.disabled for s in panel.sliders)
+    panel.reset_button.click()
+    assert not estop.is_latched() and not any(s.disabled for s in panel.sliders), panel.message.value

@@ -5,9 +5,10 @@ emulator (21 virtual servos on a pseudo-terminal, started with the calibration's
 a serial port; a slider per joint spans that joint's soft limits (``hardware.calibration``) and moves its servo at
 jog speed; read back the measured angles on demand or periodically (a background thread that only sets label
 values, ≤ 10 Hz); torque on/off; home; the selected keyframe's pose, ramped; a large e-stop that latches the bus
-(a separate reset clears it). Failing safe (DESIGN §5.13): every error becomes a message in the panel, never a
-traceback; a lost port disables the sliders; anything unexpected sends a stop; a disconnect (the session's close)
-stops every servo and leaves torque held (or released, ``release_on_close``), as the message says.
+(a separate reset clears it; the latch is shared with every process, :mod:`hardware.estop`). Failing safe (DESIGN
+§5.13): every error becomes a message in the panel, never a traceback; a lost port disables the sliders; anything
+unexpected sends a stop; a disconnect (the session's close) stops every servo and leaves torque held (or released,
+``release_on_close``), as the message says.
 """
 
 from __future__ import annotations
@@ -192,7 +193,9 @@ class JogPanel:
         self._set_enabled(True, self.bus.estop_latched)
         what = "the emulator" if port is None else port
         note = f"; servos {silent} did not answer (check their cables)" if silent else ": every servo answered"
-        self._say(f"connected to {what} ({len(self.cal.ids)} servos){note}", error=bool(silent))
+        if self.bus.estop_latched:  # pressed here before, in another panel or another process: it still holds
+            note += f". {self.bus.latch_message()}: press reset e-stop to move them"
+        self._say(f"connected to {what} ({len(self.cal.ids)} servos){note}", error=bool(silent) or "e-stop" in note)
         return True
 
     def disconnect(self) -> None:

@@ -1,8 +1,9 @@
 """``shadow-studio <verb>``: the command-line face of the engine.
 
 Each verb lives in a module that exposes ``register(subparsers)``: it adds its parser and sets ``func`` to a
-function ``(args) -> int``. Errors users can meet (``StudioError``, ``ValueError``, missing files, bad flags) are
-printed as one line on stderr with exit code 2, never as a traceback. Any other exception is a bug: one line
+function ``(args) -> int``. Errors users can meet (``StudioError``, ``ValueError``, missing files, bad flags, a full
+disk or a name too long: :mod:`studio.cli.os_errors`, a word that is not UTF-8 text) are printed as one line on
+stderr with exit code 2, never as a traceback. Any other exception is a bug: one line
 ``internal error: …`` and exit code 1; ``-v`` shows its traceback (and the traceback of a user error too).
 """
 
@@ -16,8 +17,10 @@ import traceback
 from collections.abc import Iterable
 
 from studio.cli.flags import CliParser
+from studio.cli.os_errors import os_error_line
 from studio.cli.runs import advice
 from studio.errors import StudioError
+from studio.path_checks import check_text
 
 # Modules that contribute verbs, in --help order.
 VERB_MODULES = (
@@ -28,6 +31,7 @@ VERB_MODULES = (
     "studio.cli.imitate",
     "studio.cli.video",
     "studio.cli.servos",
+    "studio.cli.estop",
     "studio.cli.plan",
     "studio.cli.project",
     "studio.cli.demo",
@@ -53,6 +57,7 @@ VERBS = {
     "calibrate": "studio.cli.servos",
     "play": "studio.cli.servos",
     "jog": "studio.cli.servos",
+    "estop": "studio.cli.estop",
     "plan": "studio.cli.plan",
     "validate": "studio.cli.plan",
     "show-info": "studio.cli.plan",
@@ -96,22 +101,36 @@ def main(argv: list[str] | None = None, verb_modules: Iterable[str] | None = Non
         parser.print_help()
         return 0
     try:
+        check_text(argv, "name")  # a word in another encoding fails at the start, not when printed at the end
         return int(args.func(args) or 0)
     except (StudioError, ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as e:
         if args.verbose:
             traceback.print_exc()
         print(f"shadow-studio {args.verb}: error: {e}{advice(e)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"shadow-studio {args.verb}: interrupted", file=sys.stderr)
-        return 130
-    except Exception as e:  # a bug: one line, or the traceback with -v
+    except OSError as e:  # a full disk, a name too long...: one line naming the file; any other errno is a bug
+        line = os_error_line(e)
+        if line is None:
+            return _internal_error(args, e)
         if args.verbose:
             traceback.print_exc()
-            return 1
-        message = f"{type(e).__name__}: {e}".replace("\n", " ")
-        print(f"shadow-studio {args.verb}: internal error: {message} (run with -v for the traceback)", file=sys.stderr)
+        print(f"shadow-studio {args.verb}: error: {line}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM/SIGHUP where a verb handles them (studio.cli.signals)
+        print(f"shadow-studio {args.verb}: interrupted{f' by {e}' if str(e) else ''}", file=sys.stderr)
+        return getattr(e, "exit_code", 130)
+    except Exception as e:  # a bug: one line, or the traceback with -v
+        return _internal_error(args, e)
+
+
+def _internal_error(args: argparse.Namespace, e: Exception) -> int:
+    """A bug: one line, or the traceback with -v; exit code 1."""
+    if args.verbose:
+        traceback.print_exc()
         return 1
+    message = f"{type(e).__name__}: {e}".replace("\n", " ")
+    print(f"shadow-studio {args.verb}: internal error: {message} (run with -v for the traceback)", file=sys.stderr)
+    return 1
 
 
 if __name__ == "__main__":

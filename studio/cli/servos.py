@@ -4,8 +4,13 @@ They open the servos through :class:`hardware.session.ServoSession` and fail saf
 ends, the session stops every servo and leaves torque held (``play --release-on-stop``: released); a lost port
 (``BusError``) ends the verb with one line and exit code 2 (through ``main``); ``jog`` and ``calibrate`` carry on
 after a servo misses a read; ``calibrate`` checks ``--out`` before it touches the bus and keeps what was calibrated
-in ``<out>.partial.yaml`` when it ends early; ``play --log`` writes its log however playback ends. The emulator
-(POSIX only: pty, termios) is imported only by the verbs that use it.
+in ``<out>.partial.yaml`` when it ends early. ``play`` and ``jog`` write their log however they end (``--log``,
+default ``<studio home>/logs/play-<time>.npz`` / ``jog-<time>.txt``). Ctrl-C, SIGTERM and SIGHUP end ``play``,
+``jog`` and ``calibrate`` alike (``studio.cli.signals``): stop sent, torque as configured, log written, one line,
+exit code 128 + the signal (Ctrl-C 130, SIGTERM 143). ``play`` refuses before it opens the port while the e-stop is
+latched (any process: ``hardware.estop``; ``shadow-studio estop --reset`` clears it) and when the show was planned
+for another hand (unless ``--force``). Servo IDs are 0..253 wherever they are typed. The emulator (POSIX only: pty,
+termios) is imported only by the verbs that use it.
 """
 
 from __future__ import annotations
@@ -15,6 +20,8 @@ import math
 import sys
 import time
 from dataclasses import replace
+from datetime import datetime
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -23,33 +30,38 @@ from hardware.bus import scan
 from hardware.calibration import (
     Calibration,
     check_mount,
+    check_show_hand,
     check_writable,
     default_calibration,
     load_calibration,
     save_calibration,
 )
+from hardware.constants import parse_ids
 from hardware.emulator_config import EmulatorConfig, Faults
 from hardware.errors import BusError, EStopLatched, ProtocolError, ServoTimeout
+from hardware.estop import check_not_latched
 from hardware.jog import HELP, Jog
-from hardware.playback_log import PlaybackResult, save_playback_log
+from hardware.playback_log import PlaybackResult, StopReason, save_playback_log
 from hardware.player import Player, PlayerConfig
 from hardware.serial_bus import BusConfig
 from hardware.session import ServoSession, load_emulator
 from hardware.wizard import CalibrationWizard
-from studio.cli.flags import add_config_flags, config_from_args
+from studio.atomic import write_text
+from studio.cli.flags import add_config_flags, config_from_args, ranged
 from studio.cli.progress import add_quiet_flag
 from studio.cli.runs import advice
+from studio.cli.servo_logs import log_path, save_log
+from studio.cli.signals import exit_code, stop_on_signals
 from studio.sim.hand import load_hand
 from studio.sim.roll import mount_text
 
 
 def _ids(text: str) -> list[int]:
-    """``"1-21"`` or ``"3,5,9-11"`` → list of IDs."""
-    out: list[int] = []
-    for part in filter(None, text.split(",")):
-        a, _, b = part.partition("-")
-        out.extend(range(int(a), int(b or a) + 1))
-    return out
+    """``"1-21"`` or ``"3,5,9-11"`` → list of IDs in 0..253: an argparse type (a bad list is one usage line)."""
+    try:
+        return parse_ids(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def _bus_args(p: argparse.ArgumentParser, port_required: bool = True) -> None:
@@ -71,24 +83,25 @@ def _session(
 
 def cmd_emulate(args) -> int:
     em = load_emulator()
-    ids = {k: frozenset(_ids(getattr(args, k))) for k in ("missing", "stuck", "hot")}
+    ids = {k: frozenset(getattr(args, k)) for k in ("missing", "stuck", "hot")}
     faults = config_from_args(args, Faults, **{f"{k}_ids": v for k, v in ids.items()})
-    dups = tuple(_ids(args.duplicate))
-    with em.ServoEmulator(_ids(args.ids), config_from_args(args, EmulatorConfig), faults, duplicate_ids=dups) as emu:
+    dups = tuple(args.duplicate)
+    emulator = em.ServoEmulator(args.ids, config_from_args(args, EmulatorConfig), faults, duplicate_ids=dups)
+    with stop_on_signals("emulate"), emulator as emu:  # Ctrl-C, SIGTERM, SIGHUP: the pty is closed, exit 0
         print(emu.port, flush=True)
         print(f"{len(emu.servos)} virtual servos; Ctrl-C to stop", file=sys.stderr, flush=True)
         try:
             while True:
                 time.sleep(0.5)
-        except KeyboardInterrupt:
-            print(f"stopped after {emu.packets_seen} packets", file=sys.stderr)
+        except KeyboardInterrupt as e:
+            print(f"stopped ({e or 'Ctrl-C'}) after {emu.packets_seen} packets", file=sys.stderr)
     return 0
 
 
 def cmd_scan(args) -> int:
     expected = load_calibration(args.calibration, load_hand()).ids if args.calibration else []
     with _session(args) as session:
-        report = scan(session.bus, _ids(args.ids), expected)
+        report = scan(session.bus, args.ids, expected)
     print(f"present: {report.present or 'none'}")
     if report.duplicates:
         print(f"DUPLICATE IDs (two servos answer at once): {report.duplicates}: give one of each a new ID")
@@ -111,7 +124,7 @@ def cmd_calibrate(args) -> int:
     check_writable(args.out)  # before the bus: a session is not lost to a typo in --out
     hand = load_hand()
     start = load_calibration(args.start, hand) if args.start else default_calibration(hand)
-    with _session(args, start) as session:
+    with stop_on_signals("calibrate"), _session(args, start) as session:
         wiz = CalibrationWizard(session.bus, hand, start)
         print("commands: + - 'step N' free hold set skip   (empty line = set)")
         print(wiz.prompt())
@@ -119,14 +132,14 @@ def cmd_calibrate(args) -> int:
             for line in sys.stdin:
                 try:
                     print(wiz.execute(line))
-                except (ValueError, ServoTimeout, ProtocolError) as e:  # a missed read: type it again
+                except (ValueError, ServoTimeout, ProtocolError, EStopLatched) as e:  # a missed read: type it again
                     print(f"? {e}{advice(e)}")
                 if wiz.finished:
                     break
         except BusError as e:  # the port is gone: keep what was done, say so in the one error line
             raise BusError(f"{e}; {_save_progress(wiz, args.out)}") from e
-        except KeyboardInterrupt:
-            print(f"interrupted; {_save_progress(wiz, args.out)}", file=sys.stderr)
+        except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM, SIGHUP: main says "interrupted", exit 128 + signal
+            print(f"stopped by {e or 'Ctrl-C'}; {_save_progress(wiz, args.out)}", file=sys.stderr)
             raise
         if not wiz.finished:
             print(f"input ended before every joint was calibrated; {_save_progress(wiz, args.out)}", file=sys.stderr)
@@ -148,11 +161,14 @@ def cmd_play(args) -> int:
     hand = load_hand()
     cal = load_calibration(args.calibration, hand)
     show = load_show(args.show, hand)
+    check_show_hand(show.hand_hash, hand, args.show, force=args.force)
     check_mount(show.roll, cal, args.calibration)
     cfg = PlayerConfig(hold_torque_on_stop=not args.release_on_stop)
     if not args.dry_run and not args.port:
         raise ValueError("give --port PATH (or --dry-run to play to the emulator)")
-    with _session(args, cal, emulator=args.dry_run, release=args.release_on_stop) as session:
+    check_not_latched(args.port or "the emulator")  # before the port is opened: nothing to undo
+    log_to = log_path(args.log, "play", ".npz")
+    with stop_on_signals("play") as caught, _session(args, cal, args.dry_run, args.release_on_stop) as session:
         if session.emulator is not None:
             print(f"dry run: playing to the emulator on {session.emulator.port}")
         print(f"playing {show.title!r}: {show.duration:.2f} s, {len(show.times)} samples; Ctrl-C stops safely")
@@ -162,10 +178,13 @@ def cmd_play(args) -> int:
             with TqdmBars(disable=args.quiet) as bars:
                 result = player.play(show.times, show.positions, show.joint_names, progress=bars)
         finally:  # the log is written however playback ended (even by a bug, which then surfaces)
-            if args.log and player.last_result is not None:
-                save_playback_log(player.last_result, args.log)
-                print(f"command vs measured saved to {args.log}")
-    _report(result)
+            if player.last_result is not None:
+                write = partial(save_playback_log, player.last_result)
+                save_log(write, log_to, args.log, "command vs measured")
+        session.close()  # the servos stopped before the verb reports (a later signal is ignored till it returns)
+        _report(result)
+    if result.reason == StopReason.INTERRUPTED:  # Ctrl-C, SIGTERM, SIGHUP: the shell's code for that signal
+        return exit_code(caught[0] if caught else None)
     return 0 if result.ok else 1
 
 
@@ -186,41 +205,62 @@ def _report(result: PlaybackResult) -> None:
 def cmd_jog(args) -> int:
     hand = load_hand()
     cal = load_calibration(args.calibration, hand)
-    with _session(args, cal) as session:
-        jog = Jog(session.bus, cal, home_pose=hand.rest_pose())
-        print(HELP)
-        silent = [i for i, q in zip(cal.ids, jog.target) if np.isnan(q)]
-        if silent:
-            print(f"? servos {silent} did not answer: check their cables; their angles show as ?")
-        print(jog.status())
-        try:
-            for line in sys.stdin:
-                if line.strip().lower() in ("q", "quit", "exit"):
-                    break
-                try:
-                    print(jog.execute(line))
-                except (ValueError, ServoTimeout, ProtocolError, EStopLatched) as e:  # BusError ends the verb
-                    print(f"? {e}{advice(e)}")
-        except KeyboardInterrupt:
-            halted = jog.estop()
-            print("E-STOP (Ctrl-C): servos halted" if halted else "E-STOP (Ctrl-C): the bus failed: cut the power")
-    return 0
+    started = datetime.now().astimezone().isoformat(timespec="seconds")
+    journal = [f"# shadow-studio jog on {args.port}, started {started}"]
+
+    def say(line: str, typed: bool = False) -> None:  # to the log, then to the terminal (not what was typed)
+        stamp = datetime.now().strftime("%H:%M:%S.%f")[:-3]
+        journal.extend(f"{stamp} {'>' if typed else ' '} {part}" for part in line.splitlines())
+        if not typed:
+            print(line)
+
+    log_to, code, stop, session = log_path(args.log, "jog", ".txt"), 0, None, None
+    try:
+        with stop_on_signals("jog") as caught, _session(args, cal) as session:
+            try:
+                jog = Jog(session.bus, cal, home_pose=hand.rest_pose())
+                print(HELP)
+                silent = [i for i, q in zip(cal.ids, jog.target) if np.isnan(q)]
+                if silent:
+                    say(f"? servos {silent} did not answer: check their cables; their angles show as ?")
+                if session.bus.estop_latched:
+                    say(f"? {session.bus.latch_message()} (type reset to clear it)")
+                say(jog.status())
+                for line in sys.stdin:
+                    say(line.strip(), typed=True)
+                    if line.strip().lower() in ("q", "quit", "exit"):
+                        break
+                    try:
+                        say(jog.execute(line))
+                    except (ValueError, ServoTimeout, ProtocolError, EStopLatched) as e:  # BusError ends the verb
+                        say(f"? {e}{advice(e)}")
+            except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM, SIGHUP: the session's close stops every servo
+                stop, code = e, exit_code(caught[0] if caught else e)
+            report = session.close()  # inside: a later signal is ignored until the verb has said how it ended
+            end = f"stopped by {stop or 'Ctrl-C'}: {report.message}" if stop is not None else ""
+            if end:
+                print(f"shadow-studio jog: {end}", file=sys.stderr)
+            journal.append(f"end: {end or report.message}")
+    finally:  # however jog ended once the servos were open (a lost port too): what was typed and answered
+        if session is not None:
+            save_log(lambda path: write_text(path, "\n".join(journal) + "\n"), log_to, args.log, "jog log")
+    return code
 
 
 def register(sub) -> None:
     p = sub.add_parser("emulate", help="run 21 virtual LX-15D servos on a pseudo-terminal until Ctrl-C")
-    p.add_argument("--ids", default="1-21", help="servo IDs present (default 1-21)")
+    p.add_argument("--ids", type=_ids, default="1-21", help="servo IDs present, 0..253 (default 1-21)")
     add_config_flags(p, EmulatorConfig, ("echo",))
     add_config_flags(p, Faults, ("drop_rate", "corrupt_rate"))
-    p.add_argument("--missing", default="", help="IDs that do not answer, e.g. 5,7")
-    p.add_argument("--stuck", default="", help="IDs with a locked rotor")
-    p.add_argument("--hot", default="", help="IDs that report over-temperature")
-    p.add_argument("--duplicate", default="", help="IDs that a second servo also uses")
+    p.add_argument("--missing", type=_ids, default="", help="IDs that do not answer, e.g. 5,7")
+    p.add_argument("--stuck", type=_ids, default="", help="IDs with a locked rotor")
+    p.add_argument("--hot", type=_ids, default="", help="IDs that report over-temperature")
+    p.add_argument("--duplicate", type=_ids, default="", help="IDs that a second servo also uses")
     p.set_defaults(func=cmd_emulate)
 
     p = sub.add_parser("scan", help="find the servos on a bus and flag duplicate IDs")
     _bus_args(p)
-    p.add_argument("--ids", default="0-253", help="IDs to try (default 0-253)")
+    p.add_argument("--ids", type=_ids, default="0-253", help="IDs to try (default 0-253)")
     p.add_argument("--calibration", type=Path, help="also report the calibration's servos that do not answer")
     p.set_defaults(func=cmd_scan, retries=0)
 
@@ -228,7 +268,7 @@ def register(sub) -> None:
     _bus_args(p)
     p.add_argument("--out", type=Path, required=True, help="calibration YAML to write")
     p.add_argument("--start", type=Path, help="calibration to start from (IDs, values for 'skip'); default IDs 1-21")
-    p.add_argument("--roll", type=float, default=None, metavar="DEG",
+    p.add_argument("--roll", type=ranged(float, "[-360, 360]"), default=None, metavar="DEG",
                    help="record the rig's mount roll (degrees, counter-clockwise as the audience sees it): only "
                         "shows made for that roll will play with this calibration (default: the --start file's, "
                         "else not recorded)")  # fmt: skip
@@ -240,11 +280,15 @@ def register(sub) -> None:
     p.add_argument("--calibration", type=Path, help="calibration YAML (default: assets/calibration.yaml)")
     p.add_argument("--dry-run", action="store_true", help="play to a built-in emulator instead of --port")
     p.add_argument("--release-on-stop", action="store_true", help="release torque when stopped early")
-    p.add_argument("--log", type=Path, help="save command vs measured positions to this .npz")
+    p.add_argument("--log", type=Path, help="save command vs measured positions to this .npz (default: "
+                   "<studio home>/logs/play-<time>.npz)")  # fmt: skip
+    p.add_argument("--force", action="store_true", help="play a show planned for another hand model")
     add_quiet_flag(p)
     p.set_defaults(func=cmd_play)
 
     p = sub.add_parser("jog", help="move joints one at a time from the terminal (type help)")
     _bus_args(p)
     p.add_argument("--calibration", type=Path, help="calibration YAML (default: assets/calibration.yaml)")
+    p.add_argument("--log", type=Path, help="save what was typed and answered to this text file (default: "
+                   "<studio home>/logs/jog-<time>.txt)")  # fmt: skip
     p.set_defaults(func=cmd_jog)

@@ -10,7 +10,9 @@ Scene tree under ``/meshcat/shadow_studio`` (the rig's world frame, +y up, turne
 (capsules as a cylinder and two spheres, spheres, boxes), and ``backdrop``, a thin box whose face towards the light
 is the rig's image window at ``z = backdrop_z``, its texture the shadow (row 0 at +y, column 0 at -x) rendered by
 :class:`~studio.sim.shadow.ShadowRenderer`. meshcat 0.3.2's ``Visualizer.close()`` is broken (DESIGN §6):
-:meth:`ShadowScene.close` closes the zmq socket and stops the server process itself.
+:meth:`ShadowScene.close` closes the zmq socket and stops the server process itself. The server a scene starts is
+:mod:`studio.review.meshcat_server` (meshcat's bridge with both its zmq socket and its web server on 127.0.0.1; the
+stock one serves the viewer on every interface).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import meshcat
 import meshcat.geometry as mg
 import numpy as np
 
+from studio.review.meshcat_server import start_local_server
 from studio.review.sheets import tint
 from studio.sim.hand import Geometry, Hand, load_hand
 from studio.sim.kinematics import fk_numpy
@@ -87,9 +90,19 @@ class ShadowScene:
         self.rig = rig or Rig()
         self.cfg = cfg or SceneConfig()
         self.renderer = ShadowRenderer(self.hand, self.rig.with_resolution(self.cfg.texture))
-        with contextlib.redirect_stdout(io.StringIO()):  # meshcat prints its URL; library code stays quiet
-            self.vis = meshcat.Visualizer(zmq_url=self.cfg.zmq_url)
-        self.owns_server = self.cfg.zmq_url is None
+        server, zmq_url = None, self.cfg.zmq_url
+        if zmq_url is None:  # our own server: both its listeners on 127.0.0.1 (meshcat's web server is not)
+            server, zmq_url, _ = start_local_server()
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):  # meshcat prints its URL; library code stays quiet
+                self.vis = meshcat.Visualizer(zmq_url=zmq_url)
+        except BaseException:
+            if server is not None:
+                server.kill()
+                server.wait()
+            raise
+        self.vis.window.server_proc = server  # what close() stops (meshcat's own field for the server it starts)
+        self.owns_server = server is not None
         self.closed = False
         self.theta: np.ndarray | None = None  # (21,) rad, the pose shown
         self.shadow: np.ndarray | None = None  # (R, R) uint8, the shadow on the backdrop
