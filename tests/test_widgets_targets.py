@@ -208,3 +208,40 @@ def test_the_preview_is_throttled_but_ends_on_the_latest_value(state):
     while panel.preview_level != 90.0 and time.monotonic() < deadline:
         time.sleep(0.01)
     assert panel.preview_level == 90.0
+
+
+def test_a_moved_source_is_relinked_from_the_panel_and_names_are_never_markup(tmp_path):
+    src = tmp_path / "<img src=x>.jpeg"
+    src.write_bytes(STILL.read_bytes())
+    project = Project.create(tmp_path / "m.shadow", [src], video=VideoConfig(size=48, hz=2.0))
+    moved = tmp_path / "moved.jpeg"
+    src.rename(moved)
+    s = StudioState.open(project.path)
+    try:
+        panel = TargetsPanel(s)
+        assert panel.relink.widget.layout.display == "" and "source 0 is missing" in panel.relink.line.value
+        assert "<img" not in panel.sources.value and "&lt;img src=x&gt;" in panel.sources.value
+        assert "<img" not in panel.relink.line.value
+        panel.relink.path.value = str(tmp_path / "nowhere.jpeg")
+        panel.relink.button.click()
+        assert "source not found" in panel.messages.text and s.project.missing_sources
+        panel.relink.path.value = str(moved)
+        panel.relink.button.click()
+        assert not s.project.missing_sources and panel.relink.widget.layout.display == "none"
+        assert Project.open(project.path).sources[0].absolute == str(moved) and s.project.can_undo
+    finally:
+        s.close()
+
+
+def test_an_upload_never_follows_a_planted_link_nor_overwrites_a_file(state, tmp_path):
+    panel = TargetsPanel(state)
+    uploads = state.project.path / "uploads"
+    uploads.mkdir()
+    victim = tmp_path / "victim.txt"
+    victim.write_text("mine")
+    (uploads / "o.jpeg").symlink_to(victim)
+    data = STILL.read_bytes()
+    panel.upload.value = ({"name": "o.jpeg", "type": "image/jpeg", "size": len(data), "content": memoryview(data),
+                           "last_modified": datetime.now(timezone.utc)},)  # fmt: skip
+    assert victim.read_text() == "mine" and (uploads / "o-2.jpeg").read_bytes() == STILL.read_bytes()
+    assert len(state.project.sources) == 2

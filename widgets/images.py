@@ -3,6 +3,7 @@ an error line instead of a traceback (DESIGN §5.7, §6 "ipywidgets from a threa
 
 from __future__ import annotations
 
+import html
 import logging
 import threading
 import time
@@ -100,7 +101,8 @@ class Messages:
 
     def say(self, text: str, error: bool = False) -> None:
         colour = "#b00" if error else "#555"
-        self.widget.value = f"<span style='color:{colour}'>{text}</span>" if text else ""
+        shown = html.escape(text, quote=False)  # a message may quote a shared project's names: never markup
+        self.widget.value = f"<span style='color:{colour}'>{shown}</span>" if text else ""
 
     def run(self, fn: Callable[..., Any], *args: Any, clear: bool = True, **kwargs: Any) -> Any:
         """``fn(*args, **kwargs)``; an error is shown here (and logged), never raised; returns fn's result or None.

@@ -11,6 +11,7 @@ cleanup (components, holes, lines) applies when the threshold is applied.
 
 from __future__ import annotations
 
+import html
 import logging
 from pathlib import Path
 
@@ -19,8 +20,10 @@ import ipywidgets as w
 import numpy as np
 from studio.assets import asset
 
+from studio.atomic import write_bytes
 from studio.jobs import Job
 from studio.progress import Progress
+from studio.project.containment import check_subfolders
 from studio.project.sources import locate
 from studio.project.state import ProjectError
 from studio.targets.images import shadowness
@@ -28,6 +31,7 @@ from studio.targets.source import raw_frames, source_kind
 from studio.targets.video import SegmentationNeeded, crop_square
 from widgets.first_frame import FirstFrame
 from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, png, tint, title
+from widgets.relink import RelinkControl
 from widgets.state import StudioState
 
 log = logging.getLogger(__name__)
@@ -82,13 +86,14 @@ class TargetsPanel:
         self.segment = w.Button(description="Segment", icon="scissors")
         self.cancel_segment = w.Button(description="Cancel", icon="stop", disabled=True)
         self.segment_info = w.Label()
+        self.relink = RelinkControl(state, self.messages)  # shown while a source is missing
 
         self.add_sample.on_click(lambda _: self.messages.run(self._add, self._samples[self.sample.value]))
         self.add_path.on_click(lambda _: self.messages.run(self._add, Path(self.path.value.strip()).expanduser()))
         self.upload.observe(lambda ch: self.messages.run(self._uploaded, ch["new"]), names="value")
         self.scrubber.observe(lambda ch: self.state.select(frame=ch["new"]), names="value")
         self.apply_hz.on_click(lambda _: self.messages.run(self.state.edit, "set_sampling", hz=float(self.hz.value)))
-        self._throttled = Throttle(self.refresh_preview, hz=15.0)
+        self._throttled = Throttle(lambda: self.messages.run(self.refresh_preview, clear=False), hz=15.0)
         self.threshold.observe(lambda _: self._throttled(), names="value")
         self.otsu.observe(lambda _: self._throttled(), names="value")
         self.apply_threshold.on_click(lambda _: self.messages.run(self._apply_threshold))
@@ -98,6 +103,7 @@ class TargetsPanel:
         self.widget = w.VBox([
             title("Targets"),
             self.sources,
+            self.relink.widget,
             w.HBox([self.sample, self.add_sample]),
             w.HBox([self.path, self.add_path, self.upload]),
             w.HBox([self.scrubber, self.frame_info]),
@@ -149,7 +155,7 @@ class TargetsPanel:
         src = self.state.project.sources[source]
         where = locate(src, self.state.project.path)
         if where is None:
-            raise ProjectError(f"source {source} is missing (it was at {src.absolute}): relink it")
+            raise ProjectError(f"source {source} is missing (it was at {src.absolute}): relink it above to preview it")
         return where
 
     def _square(self, grey: np.ndarray, source: int) -> np.ndarray:
@@ -174,7 +180,8 @@ class TargetsPanel:
         ]
         if self.pending is not None:
             rows.append(f"waiting for its object in the first frame: {self.pending.name} (colour footage)")
-        self.sources.value = "<br>".join(rows)
+        self.sources.value = "<br>".join(html.escape(r) for r in rows)  # a shared project's names are not markup
+        self.relink.refresh()
         n = len(p.frames)
         self.scrubber.max = max(n - 1, 0)
         self.scrubber.value = frame_in_view(self.state)
@@ -281,11 +288,16 @@ class TargetsPanel:
         name = Path(str(item["name"])).name
         if source_kind(name) not in ("still", "video"):
             raise ProjectError(f"{name} is neither a still nor a video (upload a .jpeg, .png, .gif or .mp4)")
+        data = bytes(item["content"])
+        check_subfolders(self.state.project.path)  # uploads/ is a real folder inside the project, never a link
         folder = self.state.project.path / UPLOADS
         folder.mkdir(exist_ok=True)
-        out = folder / name
-        out.write_bytes(bytes(item["content"]))
-        log.info("uploaded %s (%d bytes)", out, out.stat().st_size)
+        out, n = folder / name, 1
+        while out.is_symlink() or (out.exists() and out.read_bytes() != data):  # never over another file
+            n += 1
+            out = folder / f"{Path(name).stem}-{n}{Path(name).suffix}"
+        write_bytes(out, data)  # atomic: a link planted at that name is replaced, never followed
+        log.info("uploaded %s (%d bytes)", out, len(data))
         self._add(out)
 
     def _apply_threshold(self) -> None:

@@ -13,6 +13,9 @@
   to do); 1 a keyframe job failed or no show (a transition too fast without ``--allow-late``, listed; the
   keyframes are saved); 2 the project cannot run (a source missing or changed: nothing changed); 130 Ctrl-C (the
   keyframes finished before it are saved, nothing else changed).
+  ``--keyframe K…`` optimises those keyframes again whatever their state; ``--wait S`` waits for another writer
+  (default: refused at once, naming it: :mod:`studio.project.lock`).
+- ``project relink NAME.shadow SOURCE PATH``: source number SOURCE moved to PATH (same content keeps every result).
 - ``project export NAME.shadow --out show.json``: write the planned show (an error if none is planned yet or
   it is stale); ``--files DIR`` also writes what ``imitate-video`` writes (:mod:`studio.project.outputs`:
   ``keyframes.json``, ``show.json``, ``contact.png``, ``side_by_side.mp4``, ``review.rrd``).
@@ -29,6 +32,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from studio.cli.clip_flags import clip_from_args
+from studio.cli.flags import ranged
 from studio.cli.run_flags import add_budget_flags, add_engine_flags, add_show_flags, run_config_from_args
 from studio.cli.runs import print_run, run_with_bars
 from studio.cli.source_flags import add_source_flags, roll_arg, source_settings_from_args
@@ -52,9 +56,10 @@ def print_info(project) -> dict:
         extra = "".join([f", at {kf['time_s']:g} s" if kf["time_s"] is not None else "", ", hold" * kf["hold"],
                          ", edited" * kf["edited"]])  # fmt: skip
         loss = f" (loss {kf['loss']:.4f})" if kf["loss"] is not None else ""
+        collides = f"; COLLIDES with itself (project run {s['project']} --keyframe {kf['id']})" * kf["collides"]
         print(
             f"keyframe {kf['id']}: frame {kf['representative']} (source {f.source}, {f.time_s:.2f} s), "
-            f"{len(kf['members'])} frame(s){extra}; result {kf['result']}{loss}"
+            f"{len(kf['members'])} frame(s){extra}; result {kf['result']}{loss}{collides}"
         )
     if s["show"] is None:
         print("show: none planned yet")
@@ -88,8 +93,12 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
+    from studio.path_checks import check_outputs
+    from studio.project.outputs import FILES
     from studio.project.project import Project
 
+    check_outputs([args.out], folders=[args.name])  # nothing is written inside the project being exported
+    check_outputs([Path(args.files) / f for f in FILES] if args.files is not None else [], folders=[args.name])
     project = Project.open(Path(args.name))
     out = project.export_show(Path(args.out))
     show = project.show
@@ -117,9 +126,13 @@ def _run(args: argparse.Namespace) -> int:
         project.set_roll(args.roll)  # another roll: the keyframes are optimised again for it
     cfg = replace(run_config_from_args(args), device=args.device)
     clip = clip_from_args(args)
+    forced = None if args.keyframe is None else sorted(set(args.keyframe))
     with torch_threads(args.threads):
         report = run_with_bars(
-            lambda progress, **kw: project.run(cfg, clip=clip, model_path=args.model, **kw), args.quiet
+            lambda progress, **kw: project.run(
+                cfg, clip=clip, model_path=args.model, keyframes=forced, wait=args.wait, **kw
+            ),
+            args.quiet,
         )
     print_run(report)
     summary = report.summary() | {"clip": None if clip is None else clip.name}
@@ -140,7 +153,35 @@ def _register_run(verbs: argparse._SubParsersAction) -> None:
     p.add_argument("--roll", type=roll_arg, default=None, metavar="auto|DEG",
                    help="set the hand's mount roll first (auto: chosen again for the whole show; degrees: the "
                         "artist's); default: keep the project's")  # fmt: skip
+    p.add_argument("--keyframe", type=ranged(int, "[0, 1000000]"), nargs="+", default=None, metavar="K",
+                   help="optimise exactly these keyframe ids again, current or not (then plan the show when every "
+                        "keyframe is current)")  # fmt: skip
+    p.add_argument("--wait", type=ranged(float, "[0, 86400]"), default=0.0, metavar="S",
+                   help="when another process is writing the project, wait up to S seconds for it (default: refuse "
+                        "at once, saying who holds it)")  # fmt: skip
     p.set_defaults(func=_run)
+
+
+def _relink(args: argparse.Namespace) -> int:
+    from studio.jobs import TqdmBars
+    from studio.project.project import Project
+
+    project = Project.open(Path(args.name))
+    with TqdmBars() as bars, project.writing("project relink"):
+        project.relink_source(args.source, args.path, progress=bars)
+    src = project.sources[args.source]
+    print(f"source {args.source} is now {src.path} ({src.absolute})")
+    print_info(project)
+    return 0
+
+
+def _register_relink(verbs: argparse._SubParsersAction) -> None:
+    p = verbs.add_parser("relink", help="a moved source: tell the project where it is now (same content keeps "
+                                        "every result; other content is read again)")  # fmt: skip
+    p.add_argument("name", help="the project folder, NAME.shadow")
+    p.add_argument("source", type=ranged(int, "[0, 100000]"), help="the source's number (project info lists them)")
+    p.add_argument("path", help="where that source is now (a still, a video file or a folder of frames)")
+    p.set_defaults(func=_relink)
 
 
 def _register_new(verbs: argparse._SubParsersAction) -> None:
@@ -174,8 +215,8 @@ def _register_export(verbs: argparse._SubParsersAction) -> None:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("project", help="an artist's project folder NAME.shadow: new, info, run, export")
+    p = sub.add_parser("project", help="an artist's project folder NAME.shadow: new, info, run, relink, export")
     verbs = p.add_subparsers(title="project verbs", dest="project_verb", metavar="<project verb>")
-    for add in (_register_new, _register_info, _register_run, _register_export):
+    for add in (_register_new, _register_info, _register_run, _register_relink, _register_export):
         add(verbs)
     p.set_defaults(func=lambda args: p.print_help() or 0)

@@ -70,7 +70,11 @@ ADVICE: dict[str, str | Callable[[BaseException], str]] = {  # an engine error's
     # adds to its one line (a string, or a function of the error)
     "SegmentationNeeded": " (pass --box X,Y,W,H or --first-mask PNG)",
     "SourceChanged": " (project run --reload-sources re-reads it)",
-    "SourceMissing": " (put it back where it was; the project keeps its results)",
+    "SourceMissing": lambda e: " (put it back, or: shadow-studio project relink NAME.shadow {} NEW_PATH)".format(
+        getattr(e, "source", "SOURCE")
+    ),
+    "ProjectLocked": " (project run --wait SECONDS waits for it)",
+    "ProjectChanged": " (run the command again: it reads the project afresh)",
     "OtherProject": " (--fresh starts over, or choose another --out)",
     "ResultsNeeded": " (shadow-studio project run optimises them)",
     "ShowNeeded": " (shadow-studio project run plans it)",
@@ -81,6 +85,9 @@ ADVICE: dict[str, str | Callable[[BaseException], str]] = {  # an engine error's
     "CheckpointError": lambda e: " (shadow-studio {} --out PATH makes one)".format(
         "train-inverse" if getattr(e, "kind", None) == "inverse" else "train"
     ),
+    "ShowForAnotherHand": " (pass --force to play it anyway)",
+    "EStopResetFailed": "",
+    "EStopLatched": " (shadow-studio estop --reset clears it; in jog, type reset)",
     "ServoTimeout": " (shadow-studio scan --port PORT lists the servos that answer)",
     "ChecksumError": " (shadow-studio scan --port PORT lists the servos that answer)",
     "UnexpectedReply": " (shadow-studio scan --port PORT lists the servos that answer)",

@@ -19,11 +19,13 @@ from typing import Any
 import numpy as np
 
 from studio.imitate.config import LossConfig
+from studio.motion.bounds import MAX_SHOW_S
 from studio.motion.show import Show
 from studio.progress import ProgressFn
 from studio.project import edits
 from studio.project.sources import load_sources, locate, make_source
 from studio.project.state import Mount, PoseResult, ProjectError, ProjectState, frozen
+from studio.project.status import SourceMissing
 from studio.sim.roll import roll_deg
 from studio.targets.images import read_grey
 
@@ -51,10 +53,10 @@ class Editing:
         for i, src in enumerate(self._state.sources):
             where = locate(src, self.path)
             if where is None:
-                raise ProjectError(
-                    f"source {i} is missing (it was at {src.absolute}): put it back, or "
-                    f"Project.relink_source({i}, NEW_PATH)"
-                )
+                raise SourceMissing(
+                    f"source {i} is missing (it was at {src.absolute}): put it back, or relink source {i} to where it "
+                    "is now", i,
+                )  # fmt: skip
             paths.append(where)
         return paths
 
@@ -227,8 +229,8 @@ class Editing:
 
     def set_keyframe_time(self, k: int, time_s: float | None) -> None:
         """Keyframe ``k``'s show time, s (None: the video's clock)."""
-        if time_s is not None and not (math.isfinite(time_s) and time_s >= 0):
-            raise ProjectError(f"a keyframe time is a finite number of seconds ≥ 0, not {time_s}")
+        if time_s is not None and not (math.isfinite(time_s) and 0 <= time_s <= MAX_SHOW_S):
+            raise ProjectError(f"a keyframe time is a number of seconds in [0, {MAX_SHOW_S:g}], not {time_s:g}")
         t = None if time_s is None else float(time_s)
         self._set_keyframe(f"keyframe {k} at {t} s", k, time_s=t)
 

@@ -10,9 +10,11 @@
 Every edit makes a new :class:`~studio.project.project_format.ProjectState` (plain data, arrays read-only), saves
 it (:func:`~studio.project.project_format.save_state`: a save killed midway leaves the previous project readable)
 and records the change, so :meth:`Project.undo` and :meth:`Project.redo` walk the list of changes (results and
-shows that jobs apply are edits too). An edit that raises, or changes nothing, records nothing. The history lives
-as long as the ``Project`` object. One ``Project`` object per folder at a time; its methods may be called from
-several threads (a lock serialises them).
+shows that jobs apply are edits too; :mod:`.history`). An edit that raises, or changes nothing, records nothing.
+The history lives as long as the ``Project`` object. One process writes a project at a time (:mod:`.lock`: a second
+is refused, saying who holds it; a save never goes over another process's newer save); one ``Project`` object's
+methods may be called from several threads (a lock serialises them). A project reads and writes only its own files
+(:mod:`.containment`), and a damaged ``project.json`` is one clear error (:mod:`.project_read`).
 
 Opening never fails for a moved or deleted source: it is listed in :attr:`Project.missing_sources` with its old
 path (and a warning); edits that must re-read it ask for :meth:`Project.relink_source`. A source whose content
@@ -25,9 +27,9 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
-from datetime import datetime, timezone
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -37,9 +39,13 @@ from studio.motion.show import Show, save_show
 from studio.motion.video_timing import VideoTiming
 from studio.progress import ProgressFn
 from studio.project import edits
+from studio.project.containment import check_new_folder
 from studio.project.editing import KEEP, Editing, _mask_arg
+from studio.project.history import Change, History, now_text
 from studio.project.inputs import keyframe_inputs, show_inputs
-from studio.project.project_format import DOC, SUFFIX, load_state, save_state
+from studio.project.lock import WriterLock, stamp
+from studio.project.project_format import DOC, SUFFIX, save_state
+from studio.project.project_read import load_state
 from studio.project.run import Running
 from studio.project.show_timing import ShowLayout, project_timing
 from studio.project.sources import hash_source, load_sources, locate, make_source
@@ -53,7 +59,6 @@ from studio.project.state import (
     ShowNeeded,
     Source,
     frozen,
-    same,
 )
 from studio.project.status import MissingSource, ProjectStatus
 from studio.project.summary import summarise
@@ -65,26 +70,11 @@ __all__ = ["KEEP", "Change", "MissingSource", "Project", "ProjectError", "ShowLa
 
 log = logging.getLogger(__name__)
 
-MAX_UNDO = 200  # changes kept for undo
 
-
-@dataclass(frozen=True)
-class Change:
-    """One recorded edit: the states before and after it."""
-
-    label: str  # what the edit was ("move frame 5 to keyframe 0")
-    before: ProjectState
-    after: ProjectState
-
-
-def _now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
-
-
-class Project(Editing, Running):
+class Project(Editing, Running, History):
     """An open project folder (module doc). Make one with :meth:`create` or :meth:`open`."""
 
-    _now = staticmethod(_now)
+    _now = staticmethod(now_text)
 
     def __init__(self, path: Path, state: ProjectState):
         self.path = Path(path)
@@ -92,6 +82,8 @@ class Project(Editing, Running):
         self._undo: list[Change] = []
         self._redo: list[Change] = []
         self._lock = threading.RLock()
+        self._writer = WriterLock(self.path)  # one writing process at a time (studio.project.lock)
+        self._stamp = stamp(self.path)  # project.json as this object last read or wrote it
         self.missing_sources: list[MissingSource] = []
         self.changed_sources: list[int] = []
         self._check_sources()
@@ -121,6 +113,7 @@ class Project(Editing, Running):
             raise ProjectError(f"a project folder's name ends in {SUFFIX}: {path} (try {path.name}{SUFFIX})")
         if (path / DOC).exists():
             raise ProjectError(f"a project already exists at {path}: open it, or choose another name")
+        check_new_folder(path)
         if not sources:
             raise ProjectError("a project needs at least one source (a still, a video or a folder of frames)")
         srcs = [make_source(s) for s in sources]
@@ -132,14 +125,18 @@ class Project(Editing, Running):
         clustering, weights = clustering or KeyframeConfig(), weights or LossConfig()
         loaded, frames, targets, auto = load_sources(srcs, [Path(s.absolute) for s in srcs], video, still, progress)
         state = ProjectState(
-            title=title or path.stem, created=_now(), sources=loaded, video=video, still=still,
+            title=title or path.stem, created=now_text(), sources=loaded, video=video, still=still,
             clustering=clustering, weights=weights, frames=frames, targets=frozen(targets), auto=frozen(auto),
             additions={}, erasures={}, keyframes=(), next_id=0, results={}, mount=Mount.from_setting(roll),
         )  # fmt: skip
         keyframes, next_id = edits.cluster(frames, edits.combined_masks(state), clustering, shadows=state.targets)
         state = replace(state, keyframes=keyframes, next_id=next_id)
+        check_new_folder(path)  # still nothing there after the sources were read
         path.mkdir(parents=True, exist_ok=True)
-        save_state(path, state, state.created)
+        with WriterLock(path).hold("project new"):
+            if (path / DOC).exists():
+                raise ProjectError(f"a project was made at {path} meanwhile: open it, or choose another name")
+            save_state(path, state, state.created)
         log.info("project %s: %d sources, %d frames, %d keyframes", path, len(loaded), len(frames), len(keyframes))
         return cls(path, state)
 
@@ -147,8 +144,19 @@ class Project(Editing, Running):
     def open(cls, path: str | Path) -> Project:
         """Open the project at ``path``; a ProjectError for a damaged folder or a newer format version."""
         path = Path(path)
-        state, _ = load_state(path)
-        return cls(path, state)
+        for attempt in range(50):  # another process saving meanwhile: read again, so the stamp matches the state
+            before = stamp(path)
+            try:
+                state, _ = load_state(path)
+            except ProjectError:
+                if stamp(path) == before:  # damaged as it stands, not a save in flight
+                    raise
+                time.sleep(0.01 * attempt)
+                continue
+            project = cls(path, state)
+            if project._stamp == before:
+                return project
+        raise ProjectError(f"{path} keeps changing while it is read (another process is saving it); try again")
 
     def _check_sources(self) -> None:
         self.missing_sources, self.changed_sources = [], []
@@ -157,8 +165,8 @@ class Project(Editing, Running):
             if where is None:
                 self.missing_sources.append(MissingSource(i, src.path, src.absolute))
                 log.warning(
-                    "%s: source %d is missing: it was at %s (given as %s); results from it are kept, but "
-                    "re-reading it needs Project.relink_source(%d, NEW_PATH)", self.path, i, src.absolute, src.path, i
+                    "%s: source %d is missing: it was at %s (given as %s); its frames and results are kept, and "
+                    "re-reading it needs it relinked (source %d)", self.path, i, src.absolute, src.path, i
                 )  # fmt: skip
             elif hash_source(where) != src.sha256:
                 self.changed_sources.append(i)
@@ -256,59 +264,6 @@ class Project(Editing, Running):
         from studio.sim.hand import load_hand
 
         return project_timing(self._state, self.status(), load_hand().joint_names, layout)
-
-    # ---------------------------------------------------------------- saving and undo
-    def _commit(self, label: str, new: ProjectState) -> None:
-        old = self._state
-        if same(new, old):
-            log.debug("%s: %s changes nothing", self.path, label)
-            return
-        save_state(self.path, new, _now())
-        self._state = new
-        self._undo = (self._undo + [Change(label, old, new)])[-MAX_UNDO:]
-        self._redo = []
-        log.debug("%s: %s", self.path, label)
-
-    @property
-    def can_undo(self) -> bool:
-        return bool(self._undo)
-
-    @property
-    def can_redo(self) -> bool:
-        return bool(self._redo)
-
-    @property
-    def history(self) -> list[str]:
-        """Labels of the edits that :meth:`undo` would undo, oldest first."""
-        return [c.label for c in self._undo]
-
-    def undo(self) -> str | None:
-        """Undo the last edit (saved like an edit); its label, or None when there is nothing to undo."""
-        with self._lock:
-            if not self._undo:
-                return None
-            change = self._undo[-1]
-            save_state(self.path, change.before, _now())
-            self._undo.pop()
-            self._redo.append(change)
-            self._state = change.before
-            if change.before.sources != change.after.sources:
-                self._check_sources()
-            return change.label
-
-    def redo(self) -> str | None:
-        """Redo the last undone edit; its label, or None when there is nothing to redo."""
-        with self._lock:
-            if not self._redo:
-                return None
-            change = self._redo[-1]
-            save_state(self.path, change.after, _now())
-            self._redo.pop()
-            self._undo.append(change)
-            self._state = change.after
-            if change.before.sources != change.after.sources:
-                self._check_sources()
-            return change.label
 
     def export_show(self, out: str | Path) -> Path:
         """Write the planned show to ``out`` (a show file); a ProjectError when none is planned or it is stale."""

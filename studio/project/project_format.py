@@ -30,10 +30,10 @@ frame key ``"S:F"``); ``keyframes`` (id, representative frame, member frames, ti
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import math
 import os
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -42,25 +42,10 @@ import numpy as np
 from PIL import Image
 
 from studio.atomic import write_json, write_with
-from studio.imitate.config import LossConfig
-from studio.motion.show import Show, load_show, save_show
-from studio.project.state import (
-    Frame,
-    Keyframe,
-    Mount,
-    NotAProject,
-    PoseResult,
-    ProjectError,
-    ProjectState,
-    Source,
-    frozen,
-    mask_hash,
-    text_hash,
-)
+from studio.motion.show import Show, save_show
+from studio.project.containment import NAME, SUBFOLDERS, check_name, check_subfolders, regular_file
+from studio.project.state import Frame, ProjectState, mask_hash, text_hash
 from studio.sim.roll import file_deg
-from studio.targets.images import TargetConfig
-from studio.targets.keyframes import KeyframeConfig
-from studio.targets.video import VideoConfig
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +53,7 @@ FORMAT_NAME = "shadow-studio-project"
 FORMAT_VERSION = 1  # the version this code writes and reads
 SUFFIX = ".shadow"  # a project folder's name ends with it
 DOC = "project.json"
+TEMP = re.compile(r"\..+\.[0-9a-f]{8,}\.tmp")  # the atomic writer's temporary files (studio.atomic)
 
 
 def _mask_name(kind: str, owner: str, mask: np.ndarray) -> str:
@@ -100,7 +86,7 @@ def _config(cls: type, d: Mapping[str, Any]) -> Any:
     return cls(**{k: v for k, v in d.items() if k in known})
 
 
-def _show_hash(show: Show) -> str:
+def show_hash(show: Show) -> str:
     return text_hash(show.to_dict())
 
 
@@ -151,7 +137,7 @@ def state_doc(s: ProjectState) -> dict[str, Any]:
         "keyframes": [dataclasses.asdict(kf) | {"members": list(kf.members)} for kf in s.keyframes],
         "next_keyframe_id": s.next_id,
         "results": results,
-        "show": None if s.show is None else {"file": f"show-{_show_hash(s.show)[:16]}.json", "inputs": s.show_inputs},
+        "show": None if s.show is None else {"file": f"show-{show_hash(s.show)[:16]}.json", "inputs": s.show_inputs},
         "mount": {
             "auto": s.mount.auto,
             "roll_deg": file_deg(s.mount.roll),
@@ -185,20 +171,18 @@ def _write_png(path: Path, mask: np.ndarray) -> None:
     write_with(path, lambda f: image.save(f, format="PNG"))
 
 
-def _read_png(path: Path) -> np.ndarray:
-    with Image.open(path) as im:
-        return frozen(np.asarray(im.convert("L")) > 127)
-
-
 def save_state(folder: Path, state: ProjectState, modified: str) -> None:
     """Write ``state`` into the project ``folder``: new files first, ``project.json`` atomically last, then delete
-    the files it no longer names (module doc). A save killed anywhere leaves the previous project readable."""
+    the project files it no longer names (module doc; only files of the shapes a save makes, never another
+    file). A save killed anywhere leaves the previous project readable. The caller holds the project's write lock
+    (:mod:`studio.project.lock`), so no other writer's new files can be there."""
     folder = Path(folder)
+    check_subfolders(folder)
     doc = state_doc(state) | {"modified": modified}
     files = _files(state, doc)
     for name, content in files.items():
-        path = folder / name
-        if path.exists():  # content-addressed: the same name holds the same content
+        path = check_name(folder, name)
+        if regular_file(path):  # content-addressed: the same name holds the same content
             continue
         if isinstance(content, Show):
             save_show(content, path)
@@ -209,144 +193,19 @@ def save_state(folder: Path, state: ProjectState, modified: str) -> None:
 
 
 def remove_unnamed(folder: Path, names: set[str]) -> None:
-    """Delete the mask, shadow and show files (and left-over temporary files) in ``folder`` not in ``names``."""
-    for sub, pattern in (("masks", "*.png"), ("results", "*.png"), (".", "show-*.json")):
+    """Delete the project files (of the shapes a save makes, regular files only) not in ``names``, and the atomic
+    writer's left-over temporary files, in the project folder and its own subfolders (a save killed midway)."""
+    paths = []
+    for sub in (".", *SUBFOLDERS):
         where = folder / sub
-        if not where.is_dir():
+        if not where.is_dir() or where.is_symlink():
             continue
-        for path in list(where.glob(pattern)) + list(where.glob(".*.tmp")):
+        for path in where.iterdir():
             rel = path.relative_to(folder).as_posix()
-            if rel not in names:
-                try:
-                    os.unlink(path)
-                except OSError as e:  # another process's file or a read-only folder: harmless, try next time
-                    log.debug("could not remove %s: %s", path, e)
-
-
-def read_doc(folder: Path) -> dict[str, Any]:
-    """``project.json`` of ``folder``, its format and version checked (a newer version is refused)."""
-    path = Path(folder) / DOC
-    if not path.is_file():
-        raise NotAProject(f"not a project (no {DOC}): {folder}")
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ProjectError(f"{path} is not valid JSON ({e}); the folder is damaged") from None
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT_NAME:
-        raise ProjectError(f"{path} is not a Shadow Studio project (format {doc.get('format')!r}, not {FORMAT_NAME!r})")
-    version = doc.get("version")
-    if not isinstance(version, int) or version < 1:
-        raise ProjectError(f"{path} has no valid format version ({version!r})")
-    if version > FORMAT_VERSION:
-        raise ProjectError(
-            f"{path} is project format version {version}, newer than version {FORMAT_VERSION} that this "
-            "Shadow Studio reads; update Shadow Studio to open it"
-        )
-    return doc
-
-
-def load_state(folder: Path) -> tuple[ProjectState, str]:
-    """The state saved in ``folder`` and its ``modified`` time; every named file must exist and match its hash."""
-    folder = Path(folder)
-    doc = read_doc(folder)
-    try:
-        return _from_doc(folder, doc), doc.get("modified", "")
-    except ProjectError:
-        raise
-    except (KeyError, TypeError, ValueError) as e:
-        raise ProjectError(f"{folder / DOC} is damaged ({type(e).__name__}: {e})") from None
-
-
-def _mask(folder: Path, name: str) -> np.ndarray:
-    path = folder / name
-    if not path.is_file():
-        raise ProjectError(f"project file missing: {path}; the project folder is damaged")
-    try:
-        m = _read_png(path)
-    except OSError as e:
-        raise ProjectError(f"project file unreadable ({e}): {path}") from None
-    if not name.endswith(f"-{mask_hash(m)[:16]}.png"):
-        raise ProjectError(f"project file corrupt (its content does not match its name): {path}")
-    return m
-
-
-def _box(v: Any) -> tuple[int, int, int, int] | None:
-    return None if v is None else tuple(int(x) for x in v)  # type: ignore[return-value]
-
-
-def _from_doc(folder: Path, doc: dict[str, Any]) -> ProjectState:
-    sources = []
-    for d in doc["sources"]:
-        first = None if d.get("first_mask") is None else _mask(folder, d["first_mask"])
-        d = d | {"frame_box": _box(d.get("frame_box")), "box": _box(d.get("box")), "first_mask": first}
-        sources.append(_config(Source, d))
-    frames = tuple(Frame(int(f["source"]), int(f["source_frame"]), float(f["time_s"])) for f in doc["frames"])
-    settings = doc["settings"]
-    video = _config(VideoConfig, settings["video"])
-    if frames:
-        targets = np.stack([_mask(folder, f["target"]) for f in doc["frames"]])
-        auto = np.stack([_mask(folder, f["auto"]) for f in doc["frames"]])
-    else:
-        targets = auto = np.zeros((0, video.size, video.size), np.uint8)
-    targets.flags.writeable = auto.flags.writeable = False
-    paint = doc.get("paint", {})
-    keyframes = tuple(
-        Keyframe(int(k["id"]), int(k["representative"]), tuple(int(m) for m in k["members"]),
-                 None if k.get("time_s") is None else float(k["time_s"]), bool(k.get("hold", False)),
-                 bool(k.get("edited", False)))
-        for k in doc["keyframes"]
-    )  # fmt: skip
-    results = {}
-    for r in doc.get("results", []):
-        results[int(r["keyframe"])] = PoseResult(
-            pose={n: float(v) for n, v in r["pose"].items()},
-            loss={n: _nan(v) for n, v in r["loss"].items()},
-            shadow=_mask(folder, r["shadow"]),
-            inputs=r["inputs"],
-            evaluation={n: _nan(v) for n, v in r.get("evaluation", {}).items()},
-            collision_free=bool(r.get("collision_free", True)),
-            seconds=float(r.get("seconds", 0.0)),
-        )
-    show, show_inputs = None, None
-    if doc.get("show") is not None:
-        path = folder / doc["show"]["file"]
-        if not path.is_file():
-            raise ProjectError(f"project file missing: {path}; the project folder is damaged")
-        show, show_inputs = load_show(path), doc["show"].get("inputs")
-        if not doc["show"]["file"].endswith(f"-{_show_hash(show)[:16]}.json"):
-            raise ProjectError(f"project file corrupt (its content does not match its name): {path}")
-    return ProjectState(
-        title=doc.get("title", folder.stem),
-        created=doc.get("created", ""),
-        sources=tuple(sources),
-        video=video,
-        still=_config(TargetConfig, settings["still"]),
-        clustering=_config(KeyframeConfig, settings["keyframes"]),
-        weights=_config(LossConfig, doc["weights"]),
-        frames=frames,
-        targets=targets,
-        auto=auto,
-        additions={k: _mask(folder, n) for k, n in paint.get("additions", {}).items()},
-        erasures={k: _mask(folder, n) for k, n in paint.get("erasures", {}).items()},
-        keyframes=keyframes,
-        next_id=int(doc.get("next_keyframe_id", 1 + max((k.id for k in keyframes), default=-1))),
-        results=results,
-        show=show,
-        show_inputs=show_inputs,
-        mount=_mount(doc.get("mount")),
-    )
-
-
-def _mount(d: Any) -> Mount:
-    """The ``mount`` entry (absent in projects made before it: upright, as their keyframes were optimised)."""
-    if not isinstance(d, Mapping):
-        return Mount()
-    try:
-        roll = math.radians(float(d.get("roll_deg", 0.0)))
-        loss, upright = d.get("loss"), d.get("upright_loss")
-        return Mount(
-            auto=bool(d.get("auto", False)), roll=roll, chosen=bool(d.get("chosen", True)),
-            upright_loss=None if upright is None else float(upright), loss=None if loss is None else float(loss),
-        )  # fmt: skip
-    except (TypeError, ValueError):
-        raise ProjectError(f"project.json: the mount entry is not understood: {d!r}") from None
+            if (TEMP.fullmatch(path.name) or (NAME.fullmatch(rel) and rel not in names)) and regular_file(path):
+                paths.append(path)
+    for path in paths:
+        try:
+            os.unlink(path)
+        except OSError as e:  # a read-only folder: harmless, the file is simply kept
+            log.debug("could not remove %s: %s", path, e)

@@ -130,16 +130,23 @@ def run_project(
     on_job: Callable[[Job, str], None] | None = None,
     keyframes: list[int] | None = None,
     plan: bool = True,
+    wait: float = 0.0,
 ) -> RunReport:
     """Optimise every missing or stale keyframe of ``project`` (or exactly the ids in ``keyframes``, current or not),
     then, with ``plan``, plan its show when missing or stale (module doc) → :class:`RunReport`. ``clip``: a CLIP
     encoder for the CLIP terms (None: off); ``queue``: where the jobs run (default the project's,
     :func:`queue_for`; subscribe bars to it); ``cancel``: stops the run (within 1 s); ``on_job(job, what)``: told
     of each job as it is submitted (``what``: one line, "keyframe 3 (2 of 5)"). Raises SourceMissing or
-    SourceChanged before any work, and a ProjectError naming an id that is not a keyframe."""
-    t0 = time.perf_counter()
-    cfg = cfg or RunConfig()
+    SourceChanged before any work, and a ProjectError naming an id that is not a keyframe. The project's write lock
+    is held throughout (another writer: :class:`~studio.project.lock.ProjectLocked` before any work, or after
+    waiting up to ``wait`` s)."""
     check_sources(project)
+    with project.writing("project run", wait):
+        return _run(project, cfg or RunConfig(), clip, queue, cancel, model_path, on_job, keyframes, plan)
+
+
+def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path, on_job, keyframes, plan) -> RunReport:
+    t0 = time.perf_counter()
     queue = queue or queue_for(project)
     report = RunReport(str(project.path))
     ids = [kf.id for kf in project.keyframes]
@@ -194,6 +201,12 @@ def run_project(
         report.message = (f"optimised {len(report.optimised)} keyframe(s); the show needs every keyframe current "
                           f"(still to optimise: {list(status.pending)})")  # fmt: skip
         return _finish(report, project, cfg, t0)
+    colliding = [k for k in ids if not project.results[k].collision_free]
+    if colliding:
+        them = "it" if len(colliding) == 1 else "them"
+        report.message = (f"no show: the pose of keyframe(s) {colliding} collides with itself; optimise {them} "
+                          "again with refinement on, then plan the show")  # fmt: skip
+        return _finish(report, project, cfg, t0)
     if project.show is not None and not status.show_stale:
         report.show, report.message = "current", _nothing(report)
         report.late = _late(project.show_timing(cfg.layout), project.show)
@@ -239,10 +252,11 @@ class Running:
         on_job: Callable[[Job, str], None] | None = None,
         keyframes: list[int] | None = None,
         plan: bool = True,
+        wait: float = 0.0,
     ) -> RunReport:
         """Bring this project up to date (:func:`run_project`): optimise what is missing or stale (or ``keyframes``),
         then plan the show; the jobs run on the project's queue unless ``queue`` is given."""
-        return run_project(self, cfg, clip, queue, cancel, model_path, on_job, keyframes, plan)  # type: ignore[arg-type]
+        return run_project(self, cfg, clip, queue, cancel, model_path, on_job, keyframes, plan, wait)  # type: ignore[arg-type]
 
 
 def _late(timing, show) -> list[dict]:

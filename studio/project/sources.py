@@ -20,7 +20,8 @@ import numpy as np
 
 from studio.errors import StudioError
 from studio.progress import ProgressFn
-from studio.project.state import Frame, ProjectError, Source
+from studio.project.containment import check_source_path, is_source_path
+from studio.project.state import Frame, Source
 from studio.targets.expressive import expressive_masks
 from studio.targets.images import TargetConfig
 from studio.targets.source import open_source, source_kind
@@ -53,9 +54,7 @@ def hash_source(path: str | Path) -> str:
 
 def make_source(path: str | Path) -> Source:
     """A new :class:`Source` for ``path`` (as given), hashed; a ProjectError when it does not exist."""
-    p = Path(path).expanduser()
-    if not p.exists():
-        raise ProjectError(f"source not found: {path}")
+    p = check_source_path(Path(path).expanduser(), path)
     return Source(path=str(path), absolute=str(p.resolve()), sha256=hash_source(p), kind=source_kind(p))
 
 
@@ -66,7 +65,7 @@ def locate(src: Source, folder: Path) -> Path | None:
     candidates = [Path(src.absolute), given]
     if not given.is_absolute():
         candidates.append(Path(folder).resolve().parent / given)
-    return next((c for c in candidates if c.exists()), None)
+    return next((c for c in candidates if is_source_path(c)), None)
 
 
 def load_source(

@@ -5,6 +5,8 @@ undo and redo can do. The pure functions that read a project (its show clock, :m
 
 from __future__ import annotations
 
+import logging
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -15,6 +17,8 @@ from studio.imitate.config import LossConfig
 from studio.motion.show import Show
 from studio.motion.video_timing import VideoTiming
 from studio.project.state import Keyframe, PoseResult, ProjectError, ProjectState
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -84,6 +88,8 @@ class ProjectHandle(Protocol):
 
     def set_show(self, show: Show | None, inputs: str | None = None) -> None: ...
 
+    def writing(self, what: str, wait: float = 0.0) -> AbstractContextManager[None]: ...
+
 
 class SourceMissing(ProjectError):
     """A source of the project is not where it was read: put it back or relink it (``source`` names it)."""
@@ -102,14 +108,13 @@ class SourceChanged(ProjectError):
 
 
 def check_sources(project: ProjectHandle) -> None:
-    """A :class:`SourceMissing` or :class:`SourceChanged` error when a source is missing or changed on disk (module
-    doc); nothing is changed."""
+    """A :class:`SourceChanged` error when a source changed on disk (module doc); nothing is changed. A missing
+    source does not stop a run: every frame's mask is stored in the project (a warning says it is missing)."""
     status = project.status()
-    if status.missing_sources:
-        m = status.missing_sources[0]
-        raise SourceMissing(
-            f"{project.path}: source {m.index} is missing: it was at {m.absolute} (given as {m.path}); put it back or "
-            "relink it to where it is now, then run again. Nothing was changed", m.index,
+    for m in status.missing_sources:
+        log.warning(
+            "%s: source %d is missing (it was at %s); running from the frames stored in the project (relink it to "
+            "re-read it or to review it beside the show)", project.path, m.index, m.absolute,
         )  # fmt: skip
     if status.changed_sources:
         i = status.changed_sources[0]

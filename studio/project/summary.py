@@ -29,6 +29,7 @@ def summarise(s: ProjectState, status: ProjectStatus) -> dict:
             "id": kf.id, "representative": kf.representative, "members": list(kf.members),
             "time_s": kf.time_s, "hold": kf.hold, "edited": kf.edited, "result": state,
             "loss": _total(s.results.get(kf.id)),
+            "collides": kf.id in s.results and not s.results[kf.id].collision_free,
         })  # fmt: skip
     counts = {c: sum(k["result"] == c for k in keyframes) for c in ("current", "stale", "missing")}
     show = None
@@ -61,6 +62,7 @@ def summarise(s: ProjectState, status: ProjectStatus) -> dict:
         },
         "keyframes": keyframes,
         "results": counts,
+        "colliding": [k["id"] for k in keyframes if k["collides"]],  # results whose pose penetrates itself
         "painted_frames": sorted(set(s.additions) | set(s.erasures)),
         "show": show,
         "can_undo": status.can_undo,
