@@ -201,6 +201,14 @@ def test_a_save_keeps_files_of_other_shapes_in_the_folder(tmp_path, sources):
 DAMAGE = {
     "zero keyframes": (lambda d: d.update(keyframes=[]), "no keyframe"),
     "member out of range": (lambda d: d["keyframes"][0]["members"].append(999), "member frame 999"),
+    "frame in no keyframe": (
+        lambda d: (
+            d["keyframes"][0].update(members=[d["keyframes"][0]["representative"]])
+            if len(d["keyframes"][0]["members"]) > 1
+            else d["keyframes"].pop()
+        ),
+        "belong to no keyframe",
+    ),
     "duplicate ids": (lambda d: d["keyframes"][1].update(id=d["keyframes"][0]["id"]), "keyframe id"),
     "weights abc": (lambda d: d["weights"].update(w_iou="abc"), "weights.w_iou must be a finite"),
     "weights NaN": (lambda d: d["weights"].update(w_mae=float("nan")), "weights.w_mae must be a finite"),

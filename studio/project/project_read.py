@@ -178,6 +178,9 @@ def _keyframes(doc: dict, n_frames: int) -> tuple[Keyframe, ...]:
         out.append(Keyframe(kid, rep, tuple(sorted(members)), None if t is None else float(t), **flags))
     if n_frames and not out:
         raise Damaged(f"{DOC}: the project has {n_frames} frame(s) but no keyframe; every frame belongs to one")
+    alone = sorted(set(range(n_frames)) - seen_frames)
+    if alone:
+        raise Damaged(f"{DOC}: frame(s) {alone[:10]} belong to no keyframe; every frame belongs to exactly one")
     return tuple(out)
 
 
