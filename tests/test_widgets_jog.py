@@ -63,7 +63,7 @@ def wait_until(test, timeout: float = 5.0) -> bool:
 
 @pytest.mark.slow
 def test_a_slider_moves_its_servo_and_stops_at_the_soft_limit(panel, hand):
-    assert "Jog" in panel.title.value and all(s.disabled for s in panel.sliders)
+    assert "Jog" in panel.title.value and panel.jog is None and "shadow only" in panel.message.value
     panel.connect_button.click()
     assert panel.emulator is not None and not any(s.disabled for s in panel.sliders), panel.message.value
     j = panel.cal.joint_names.index("index_pip")
@@ -110,19 +110,23 @@ def test_estop_latches_until_reset(panel):
     assert emulator_rad(panel)[j] == pytest.approx(math.radians(-30), abs=0.01)
 
 
-def test_a_lost_port_disables_the_sliders_with_a_message(panel):
+def test_a_lost_port_leaves_the_sliders_shaping_the_shadow_only_with_a_message(panel):
     assert panel.connect()
     panel.emulator.stop()  # the adapter is pulled
     panel.sliders[0].value = 5.0
-    assert all(s.disabled for s in panel.sliders) and panel.jog is None and panel.emulator is None
-    assert "lost the servo bus" in panel.message.value and "Traceback" not in panel.message.value
+    assert panel.jog is None and panel.emulator is None and all(b.disabled for b in panel.moves)
+    assert (
+        "lost the servo bus" in panel.message.value
+        and "shadow only" in panel.message.value
+        and "Traceback" not in panel.message.value
+    )
     assert not panel.connect_button.disabled
     panel.read_button.click()  # nothing to read: still a message, never an exception
     assert panel.connect() and not panel.sliders[0].disabled  # connecting again works
     panel.auto.value = True  # the periodic read-back finds the lost port from its thread
     assert wait_until(lambda: panel.measured[0].value.startswith("measured ") and "?" not in panel.measured[0].value)
     panel.emulator.stop()
-    assert wait_until(lambda: panel.jog is None and all(s.disabled for s in panel.sliders))
+    assert wait_until(lambda: panel.jog is None and all(b.disabled for b in panel.moves))
     assert "lost the servo bus" in panel.message.value and panel.auto.value is False
 
 
@@ -193,3 +197,37 @@ def test_the_panels_estop_is_every_processs_and_a_latch_set_elsewhere_holds_here
     assert panel.bus.estop_latched and all(s.disabled for s in panel.sliders)
     panel.reset_button.click()
     assert not estop.is_latched() and not any(s.disabled for s in panel.sliders), panel.message.value
+
+
+def test_sculpting_without_servos_shows_the_shadow_and_saves_a_keyframe(panel, state, hand):
+    """Disconnected, the sliders shape the shadow alone (pixels change with a joint); the pose is kept as the
+    keyframe result of the frame in view, current, with the loss the caption showed."""
+    before = panel.sculpt.commanded_shadow.copy()
+    assert not panel.sliders[0].disabled and panel.jog is None
+    wrist = next(k for k, n in enumerate(panel.cal.joint_names) if "wrist" in n)
+    s = panel.sliders[wrist]
+    s.value = s.max
+    after = panel.sculpt.commanded_shadow
+    assert after.sum() > 50 and (before != after).sum() > 20  # a black shadow that moved with the wrist
+    assert panel.sculpt.measured_shadow is None and "loss" in panel.sculpt.caption.value
+    theta = panel.commanded_pose()
+    assert theta[hand.joint_names.index(panel.cal.joint_names[wrist])] == pytest.approx(np.radians(s.max))
+    panel.sculpt.save_button.click()
+    k = next(kf.id for kf in state.project.keyframes if kf.representative == state.selection.frame)
+    r = state.project.results[k]
+    assert not state.project.is_stale(k) and np.array_equal(r.shadow, after)
+    assert np.allclose(r.theta(hand.joint_names), np.clip(theta, hand.lower, hand.upper))
+    assert f"saved as keyframe {k}" in panel.sculpt.messages.text
+
+
+def test_connected_the_measured_shadow_follows_the_servos(panel, hand):
+    assert panel.connect()
+    assert wait_until(lambda: panel.sculpt.measured_shadow is not None)
+    panel.home()
+    settle()
+    panel.read()
+    time.sleep(0.15)  # past the read-back throttle
+    panel.read()
+    assert panel.sculpt.measured_shadow is not None and panel.sculpt.measured_shadow.any()
+    panel.disconnect()
+    assert panel.sculpt.measured_shadow is None

@@ -30,6 +30,7 @@ from hardware.session import CloseReport, ServoSession
 from studio.errors import StudioError
 from studio.sim.hand import Hand, load_hand
 from widgets.images import title
+from widgets.sculpt import SculptView
 from widgets.state import StudioState
 
 log = logging.getLogger(__name__)
@@ -68,7 +69,8 @@ class JogPanel:
         self._stop_listening = state.on_change(self._on_change)
         state.extras["jog"] = self
         self._set_enabled(False)
-        self._say("not connected: choose the emulator (virtual servos) or a serial port, then press connect")
+        self._say("not connected: the sliders shape the shadow only; choose the emulator (virtual servos) or a serial "
+                  "port, then press connect to move the hand")  # fmt: skip
 
     # ------------------------------------------------------------------ widgets
     def _build(self) -> None:
@@ -112,14 +114,15 @@ class JogPanel:
         self.keyframe_button.on_click(lambda _: self.go_keyframe())
         self.estop_button.on_click(lambda _: self.estop())
         self.reset_button.on_click(lambda _: self.reset())
-        self.moves = [*self.sliders, self.torque_on_button, self.home_button, self.keyframe_button]
+        self.moves = [self.torque_on_button, self.home_button, self.keyframe_button]
+        self.sculpt = SculptView(self.state, self.hand)  # the sliders' shadow beside the target, "save as keyframe"
         self.widget = W.VBox([
             self.title,
             W.HBox([self.source, self.port, self.connect_button, self.disconnect_button]),
             self.message,
             W.HBox([self.estop_button, W.VBox([self.reset_button, self.read_button, self.auto])]),
             W.HBox([self.torque_on_button, self.torque_off_button, self.home_button, self.keyframe_button]),
-            W.VBox(rows),
+            W.HBox([W.VBox(rows), self.sculpt.widget]),
         ])  # fmt: skip
 
     def _say(self, text: str, error: bool = False) -> None:
@@ -129,6 +132,8 @@ class JogPanel:
     def _set_enabled(self, connected: bool, latched: bool = False) -> None:
         for w in self.moves:
             w.disabled = not connected or latched
+        for s in self.sliders:  # disconnected, they shape the shadow alone; latched, nothing moves
+            s.disabled = latched
         for w in (self.read_button, self.auto, self.torque_off_button, self.reset_button, self.disconnect_button):
             w.disabled = not connected
         self.connect_button.disabled = connected
@@ -144,10 +149,21 @@ class JogPanel:
                     s.value = math.degrees(x)
         finally:
             self._quiet = False
+        self.sculpt.command(self.commanded_pose())
 
     def _show_measured(self, q: np.ndarray) -> None:
         for label, x in zip(self.measured, q):
             label.value = f"measured {_deg(x)}"
+        self.sculpt.measure(self._hand_order(q))
+
+    def commanded_pose(self) -> np.ndarray:
+        """``(21,)`` rad in the hand's joint order: what the sliders say."""
+        return self._hand_order(np.radians([s.value for s in self.sliders]))
+
+    def _hand_order(self, q: np.ndarray) -> np.ndarray:
+        """Angles in the calibration's joint order → the hand's (the shadow's) order."""
+        by_name = dict(zip(self.cal.joint_names, np.asarray(q, np.float64), strict=True))
+        return np.array([by_name.get(n, 0.0) for n in self.hand.joint_names])
 
     # ------------------------------------------------------------------ connecting
     @property
@@ -217,6 +233,7 @@ class JogPanel:
         if t is not None and t is not threading.current_thread():
             t.join(2.0)
         session, self.session, self.jog = self.session, None, None
+        self.sculpt.measure(None)
         return session.close() if session is not None else None
 
     def _lost(self, e: BusError) -> None:
@@ -224,12 +241,13 @@ class JogPanel:
         self._close_hardware()
         self._set_enabled(False)
         self.auto.value = False
-        self._say(f"lost the servo bus: {e}. The sliders are off until you connect again.", error=True)
+        self._say(f"lost the servo bus: {e}. The sliders shape the shadow only until you connect again.", error=True)
 
     def close(self) -> None:
         """Disconnect (servos stopped) and stop listening to the studio."""
         self.disconnect()
         self._stop_listening()
+        self.sculpt.close()
         if self.state.extras.get("jog") is self:
             del self.state.extras["jog"]
 
@@ -262,8 +280,11 @@ class JogPanel:
         self._say(self.jog._say(m))
 
     def _slid(self, k: int, deg: float) -> None:
-        if not self._quiet:
+        if self._quiet:
+            return
+        if self.jog is not None:
             self.move(k, deg)
+        self.sculpt.command(self.commanded_pose())  # connected or not, the shadow follows the sliders
 
     def move(self, joint: str | int, deg: float) -> JogMove | None:
         """Move one joint to ``deg`` degrees (clipped to its soft limits, said so); the move as sent."""
@@ -386,6 +407,7 @@ class JogPanel:
 
     def _on_change(self, what: str) -> None:
         if what in ("selection", "project"):
+            self.sculpt.redraw(force=True)  # the target of the frame in view
             k = self.selected_keyframe()
             self.keyframe_button.description = "go to keyframe" if k is None else f"go to keyframe {k}"
 
