@@ -56,11 +56,18 @@ def test_plan_write_validate_info_and_csv(state, tmp_path):
     assert wait_for(job) == JobState.DONE, job.error
     assert state.project.show is not None and state.project.history[-1] == "planned show"
     assert "planned a" in panel.messages.text and panel.progress.value == 1.0
-    assert "title:        export" in panel.info.value and "keyframes:" in panel.info.value
+    assert "title:        export" in panel.info.value and "keyframes:    1 keyframe, on the show" in panel.info.value
     panel.write_button.click()
     show = load_show(tmp_path / "export.show.json")
     assert "validated" in panel.messages.text and np.allclose(show.positions, state.project.show.positions)
-    assert html_lines(panel.info.value)[1:] == show_info_lines(show)  # what `shadow-studio show-info` prints
+    shown = html_lines(panel.info.value)[1:]
+    # what `shadow-studio show-info` prints, but for the lines an artist reads in the project's terms
+    artist = ("keyframes:", "media:", "made from:", "late:", "ramp-in:")
+    assert [x for x in shown if not x.startswith(artist)] == [
+        x for x in show_info_lines(show) if not x.startswith(artist)
+    ]  # fmt: skip
+    assert "made from:    asl_o.jpeg" in shown and "late:         none (every move fits the servos)" in shown
+    assert not any(x.startswith("media:") for x in shown)  # never "media: -"
     panel.csv_path.value = str(tmp_path / "out.csv")
     panel.degrees.value = True
     panel.csv_button.click()
@@ -74,11 +81,16 @@ def test_plan_write_validate_info_and_csv(state, tmp_path):
     state.edit("set_keyframe_time", state.project.keyframes[0].id, 0.05)  # from home to the pose in 50 ms
     assert "stale" in panel.info.value
     panel.allow_late.value = False
-    assert wait_for(panel.plan()) == JobState.FAILED
-    assert "too fast" in panel.messages.text and "allow late" in panel.messages.text, panel.messages.text
+    before = state.project.show
+    assert wait_for(panel.plan()) == JobState.DONE and state.project.show is before  # nothing applied
+    text = panel.messages.text
+    assert "1 transition too fast" in text and "tick 'allow late transitions'" in text.lower(), text
+    assert "home → frame 0 (home → k" in text and "given 0.05 s" in text and "--" not in text
     panel.allow_late.value = True
     assert wait_for(panel.plan()) == JobState.DONE
-    assert "1 late transition(s) stretched" in panel.messages.text and "late:         1 segment" in panel.info.value
+    assert "1 late transition stretched" in panel.messages.text
+    assert "late:         1 transition too fast for the servos, stretched" in panel.info.value
+    assert "home → frame 0 (home → k" in panel.info.value and "given 0.05 s" in panel.info.value
     state.undo()  # the stretched show, the keyframe time
     state.undo()
     state.undo()  # the show goes: CSV is refused with what to do, the info says so
@@ -158,3 +170,54 @@ def test_play_on_the_emulator_with_progress_and_stop(state):
         with ServoSession(hand_at_port.port, ids=[1]) as again:  # the port is free again
             assert again.read_back()[1] is not None
     short.close()
+
+
+@pytest.fixture
+def horse(tmp_path, hand):
+    """The bundled horse at 8 Hz: 9 frames, 3 keyframes (one reached twice), each with a pose of its own."""
+    from studio.targets.keyframes import KeyframeConfig
+    from studio.targets.video import DEFAULT_VIDEO, VideoConfig
+
+    project = Project.create(tmp_path / "horse.shadow", [DEFAULT_VIDEO], video=VideoConfig(size=48, hz=8.0),
+                             clustering=KeyframeConfig(tau=0.42), roll=0)  # fmt: skip
+    renderer = ShadowRenderer(hand, Rig(resolution=32))
+    for i, kf in enumerate(project.keyframes):
+        pose = hand.rest_pose().copy()
+        pose[hand.joint_names.index("index_pip")] = 0.6 + 0.4 * i
+        pose[hand.joint_names.index("middle_pip")] = 0.9 * (i % 2)
+        project.set_result(
+            kf.id, pose, {"total": 0.3}, renderer.render_one(pose), inputs=project.keyframe_inputs(kf.id)
+        )
+    s = StudioState(project, queue_for(project))
+    yield s
+    s.close()
+
+
+@pytest.mark.slow
+def test_the_show_is_described_in_the_projects_terms_with_its_late_moves_and_its_ramp_in(horse):
+    p = horse.project
+    assert len(p.keyframes) == 3 and len(p.frames) == 9
+    panel = ExportPanel(horse)
+    try:
+        assert wait_for(panel.plan(), 120) == JobState.DONE
+        lines = html_lines(panel.info.value)
+        assert len(p.show.keyframes) > 3  # the planner's keyframes: every run of a keyframe, not the artist's count
+        assert next(x for x in lines if x.startswith("keyframes:")).startswith("keyframes:    3 keyframes, on the")
+        media = next(x for x in lines if x.startswith("media:"))
+        assert "muybridge_horse.gif (video) plays beside it from 0.00 s" in media  # what the show was made from
+        late = [x.strip() for x in lines[lines.index(next(x for x in lines if x.startswith("late:"))) + 1 :]]
+        n = len(p.show.provenance["late_segments"])
+        assert n > 0 and f"late:         {n} transition" in panel.info.value
+        listed = [x for x in late if x.startswith("frame") and "needs" in x and "given" in x]
+        assert len(listed) == n and all("(k" in x and " → k" in x for x in listed), late
+        ramp = next(x for x in lines if x.startswith("ramp-in:"))
+        said = float(ramp.split()[1])
+        assert said > 0.3 and "before the show starts" in ramp
+        played = panel.play()
+        assert wait_for(played, 60) == JobState.DONE, played.error
+        ticks = played.result.ramp_ticks
+        rate = panel.cfg.player.rate_hz if panel.cfg.player else 40.0
+        assert said == pytest.approx(ticks / rate, abs=0.006)  # what the player did: the same ramp
+        assert "99999" not in panel.info.value and "(s)" not in panel.messages.text
+    finally:
+        panel.close()

@@ -231,3 +231,21 @@ def test_connected_the_measured_shadow_follows_the_servos(panel, hand):
     assert panel.sculpt.measured_shadow is not None and panel.sculpt.measured_shadow.any()
     panel.disconnect()
     assert panel.sculpt.measured_shadow is None
+
+
+def test_the_estop_button_looks_latched_until_reset(panel):
+    """A person sees the latch on the button itself: solid dark red, a lock and "LATCHED — reset" while it holds."""
+    from widgets.jog import ESTOP_LATCHED_COLOUR
+
+    assert panel.connect()
+    b = panel.estop_button
+    plain = (b.description, b.icon, b.style.button_color, b.button_style)
+    assert plain == ("E-STOP", "stop", None, "danger")
+    b.click()
+    assert b.description == "E-STOP LATCHED — reset" and b.icon == "lock"
+    assert b.style.button_color == ESTOP_LATCHED_COLOUR and b.button_style == "danger"
+    assert (b.description, b.icon, b.style.button_color) != plain[:3]
+    panel.home_button.click()  # refused while latched: the look stays
+    assert b.description == "E-STOP LATCHED — reset"
+    panel.reset_button.click()
+    assert (b.description, b.icon, b.style.button_color, b.button_style) == plain

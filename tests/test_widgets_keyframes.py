@@ -3,10 +3,12 @@ every keyframe edit (add, remove, move a frame, time, hold) through the project,
 
 from __future__ import annotations
 
+import io
 import shutil
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from studio.project.jobs import queue_for
 from studio.project.project import Project
@@ -113,3 +115,62 @@ def test_a_refused_edit_is_a_message(state):
     state.select(frame=lone.representative)
     panel.add.click()  # already a keyframe of its own
     assert panel.messages.text and "Traceback" not in panel.messages.text
+
+
+def test_tau_follows_the_project_after_undo_redo_and_another_panels_edit(state):
+    panel = KeyframesPanel(state)
+    p = state.project
+    assert panel.tau.value == p.state.clustering.tau == 0.42
+    panel.tau.value = 0.99
+    panel.apply_tau.click()
+    assert p.state.clustering.tau == 0.99
+    state.undo()
+    assert p.state.clustering.tau == 0.42 and panel.tau.value == 0.42  # the slider says what the project has
+    assert panel.live_count == len(p.keyframes) and f"(project: {len(p.keyframes)})" in panel.count.value
+    state.redo()
+    assert panel.tau.value == 0.99
+    state.edit("recluster", tau=0.3)  # another panel (or a job) re-clusters: the slider follows
+    assert panel.tau.value == 0.3
+    panel.tau.value = 0.5  # the artist's unapplied τ survives an edit that leaves τ alone
+    state.edit("set_hold", p.keyframes[0].id, True)
+    assert panel.tau.value == 0.5
+
+
+def card_frame(card) -> tuple[int, int, int]:
+    """The colour a person sees around a card's picture (its status frame), read from the PNG's pixels."""
+    rgb = np.asarray(Image.open(io.BytesIO(bytes(card.children[0].value))).convert("RGB"))
+    return tuple(int(v) for v in rgb[1, rgb.shape[1] // 2])
+
+
+def test_cards_show_each_keyframes_status_and_loss_counts_and_times_in_words(state):
+    from widgets.keyframes import STATUS_RGB
+
+    p = state.project
+    first, second = p.keyframes[0], p.keyframes[1]
+    shadow = np.zeros(p.state.targets.shape[1:], np.uint8)
+    p.set_result(first.id, np.zeros(21), {"total": 0.1234}, shadow, inputs=p.keyframe_inputs(first.id))
+    p.set_result(second.id, np.zeros(21), {"total": 0.5}, shadow, inputs="another project's inputs")  # stale
+    panel = KeyframesPanel(state)
+    cards = {kf.id: c for kf, c in zip(p.keyframes, panel.strip.children, strict=True)}
+    assert card_frame(cards[first.id]) == STATUS_RGB["current"]
+    assert card_frame(cards[second.id]) == STATUS_RGB["stale"]
+    assert all(card_frame(cards[kf.id]) == STATUS_RGB["missing"] for kf in p.keyframes[2:])
+    assert "current" in cards[first.id].children[2].value and "loss 0.123" in cards[first.id].children[2].value
+    assert "stale" in cards[second.id].children[2].value and "loss 0.500" in cards[second.id].children[2].value
+    assert "missing" in cards[p.keyframes[-1].id].children[2].value
+    # plurals and times, everywhere in the panel
+    text = " ".join([panel.count.value, *(c.children[2].value for c in panel.strip.children),
+                     *(label for label, _ in panel.keyframe.options)])  # fmt: skip
+    assert "1 frames" not in text and "1 keyframes" not in text
+    lone = [kf for kf in p.keyframes if len(kf.members) == 1]
+    assert all(f"k{kf.id} (1 frame)" in [lb for lb, _ in panel.keyframe.options] for kf in lone)
+    panel.tau.value = 0.0
+    panel.tau.value = 0.99
+    state.select(frame=0, keyframe=first.id)
+    panel.clock.value = False
+    panel.time.value = 0.7 + 0.1  # what a browser's spinner sends: 0.7999999999999999
+    assert panel.time.value == 0.8
+    panel.set_time.click()
+    assert p.state.keyframe(first.id).time_s == 0.8
+    card = panel.strip.children[[kf.id for kf in p.keyframes].index(first.id)]
+    assert "at 0.80 s" in card.children[2].value and "99999" not in card.children[2].value

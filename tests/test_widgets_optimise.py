@@ -11,10 +11,11 @@ import pytest
 from studio.assets import asset
 
 from studio.imitate.config import RefineConfig, SearchConfig, SequenceConfig
-from studio.jobs import JobState
+from studio.jobs import Job, JobState
 from studio.jobs.events import JobEvent
 from studio.project.jobs import queue_for
 from studio.project.project import Project
+from studio.project.run_report import RunReport
 from widgets.optimise import OptimiseConfig, mask_picture, optimise_panel
 from widgets.state import StudioState
 
@@ -186,3 +187,104 @@ def test_the_loss_shown_is_the_newest_stages_best_not_a_minimum_across_stages(st
                                                           "keyframe 2/2: refine"}  # fmt: skip
     finally:
         panel.close()
+
+
+def keyframe_job(job_id: int, k: int, n: int, of: int):
+    """A keyframe job of a run as ``project.run`` makes it: its keyframe and its place in the run on ``meta``."""
+    job = Job("imitate-video", lambda report, cancel: None, title=f"keyframe {k}", meta={"keyframes": [k],
+              "of": (n, of)})  # fmt: skip
+    job.id = job_id
+    return job
+
+
+def test_overall_progress_names_the_keyframe_of_the_run_and_bars_complete_when_a_job_is_done(state):
+    panel = optimise_panel(state, OptimiseConfig(sequence=TINY, warm_index=False))
+
+    def event(job_id, stage, step, total, done=False):
+        now = JobState.DONE if done else JobState.RUNNING
+        return JobEvent(job_id=job_id, kind="imitate-video", state=now, stage=stage, step=step, total=total,
+                        best=float("nan"), shadow=None, elapsed=1.0, seq=step)  # fmt: skip
+
+    try:
+        panel.jobs = [keyframe_job(11, 7, 3, 5)]
+        panel._draw_event(event(11, "index", 16_384, 200_000))
+        assert "keyframe 7 (3 of 5)" in panel.status.value
+        assert "building the retrieval index of 200,000 poses (first use only, cached)" in panel.status.value
+        assert "index 16384" not in panel.status.value and "1/1" not in panel.status.value
+        panel._draw_event(event(11, "search", 30, 60))  # half-way when the search stops early
+        assert panel.overall.value == pytest.approx(2 / 5) and "2 of 5 keyframes done" in panel.overall.description
+        assert panel.bars["search"].value == 0.5
+        panel._draw_event(event(11, "search", 30, 60, done=True))
+        assert all(bar.value == 1.0 for bar in panel.bars.values())  # done is 100 %, whatever was reported last
+        assert all(bar.description.endswith("done") for bar in panel.bars.values())
+        assert panel.overall.value == pytest.approx(3 / 5) and "3 of 5 keyframes done" in panel.overall.description
+        plan = Job("plan", lambda report, cancel: None, title="show")
+        plan.id = 12
+        panel.jobs.append(plan)
+        for step in (1, 2):
+            panel._draw_event(JobEvent(12, "plan", JobState.RUNNING, "timing", step, 4, float("nan"), None, 1.0, step))
+        assert panel.bars["timing"].value == 0.5 and "the show" in panel.status.value
+        panel._draw_event(JobEvent(12, "plan", JobState.DONE, "timing", 2, 4, float("nan"), None, 1.0, 3))
+        assert panel.bars["timing"].value == 1.0
+    finally:
+        panel.close()
+
+
+def test_all_stale_uses_the_allow_late_box_and_too_fast_says_what_to_tick(state, monkeypatch):
+    panel = optimise_panel(state, OptimiseConfig(sequence=TINY, warm_index=False))
+    seen = []
+
+    def run(cfg, **kwargs):
+        seen.append(cfg)
+        late = [{"from_frame": 2, "to_frame": 3, "from_keyframe": 1, "to_keyframe": 4, "t_start": 0.7999999999999999,
+                 "t_end": 1.05, "given_s": 0.25, "needed_s": 0.6180339}]  # fmt: skip
+        return RunReport(str(state.project.path), too_fast=True, late=late,
+                         message="no show: 1 transition too fast for the servos at the show's clock")  # fmt: skip
+
+    monkeypatch.setattr(state.project, "run", run)
+    try:
+        assert "allow late transitions" in panel.allow_late.description and not panel.allow_late.value
+        panel.allow_late.value = True
+        panel.start("stale")
+        assert until(lambda: panel.report is not None and not panel.busy, 30, panel.refresh)
+        assert seen[0].allow_late is True
+        assert until(lambda: "Late:" in panel.messages.text, 5, panel.refresh)
+        text = panel.messages.text
+        assert "tick 'allow late transitions'" in text.lower() and "--" not in text
+        assert "frame 2 → frame 3 (k1 → k4) at 0.80 s: needs 0.62 s, given 0.25 s" in text
+        assert "0.7999" not in text
+    finally:
+        panel.close()
+
+
+def test_the_retrieval_index_is_built_in_the_background_when_the_studio_opens(tmp_path, monkeypatch):
+    """No index cached on this machine: opening the panel starts its build as a job on the project's queue, with
+    its own progress line; once cached, another studio starts nothing."""
+    from studio.imitate.retrieval import RetrievalConfig
+
+    monkeypatch.setenv("SHADOW_STUDIO_CACHE", str(tmp_path / "cache"))
+    small = RetrievalConfig(size=300, chunk=150, seed=7)
+    project = Project.create(tmp_path / "i.shadow", sources=[asset("targets/asl_o.jpeg")], roll=0)
+    s = StudioState(project, queue_for(project))
+    heard: list[JobEvent] = []
+    s.queue.subscribe(heard.append)
+    panel = optimise_panel(s, OptimiseConfig(sequence=TINY, index=small))
+    try:
+        assert panel.warmup.checked.wait(60) and panel.warmup.job is not None
+        job = panel.warmup.job
+        assert job.kind == "index" and s.extras["index_job"] is job and job.wait(120) == JobState.DONE, job.error
+        assert job.result == 300 and list((tmp_path / "cache" / "retrieval").glob("index-*.npz"))
+        assert any(e.job_id == job.id and e.stage == "index" and e.total == 300 for e in heard)
+        assert until(lambda: "retrieval index is ready" in panel.warmup.line.value, 10, panel.refresh)
+        assert panel.jobs == [] and not panel.busy  # not an optimisation: the buttons stay usable
+    finally:
+        panel.close()
+        s.close()
+    again = StudioState(Project.open(project.path), queue_for(Project.open(project.path)))
+    other = optimise_panel(again, OptimiseConfig(sequence=TINY, index=small))
+    try:
+        assert other.warmup.checked.wait(60)
+        assert other.warmup.job is None and again.queue.jobs() == [] and "index_job" not in again.extras
+    finally:
+        other.close()
+        again.close()

@@ -7,6 +7,7 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from PIL import Image
@@ -16,7 +17,7 @@ from studio.jobs import JobState
 from studio.project.jobs import queue_for
 from studio.project.project import Project
 from studio.targets.images import TargetConfig
-from studio.targets.video import VideoConfig, crop_square
+from studio.targets.video import DEFAULT_VIDEO, VideoConfig, crop_square
 from widgets.images import ADD_RGB
 from widgets.keyframes import KeyframesPanel
 from widgets.masks import MasksPanel
@@ -245,3 +246,55 @@ def test_an_upload_never_follows_a_planted_link_nor_overwrites_a_file(state, tmp
                            "last_modified": datetime.now(timezone.utc)},)  # fmt: skip
     assert victim.read_text() == "mine" and (uploads / "o-2.jpeg").read_bytes() == STILL.read_bytes()
     assert len(state.project.sources) == 2
+
+
+def tinted(rgb: np.ndarray) -> np.ndarray:
+    """The pixels a person sees tinted with the mask colour (orange: red well above blue; a grey frame has R = B)."""
+    a = rgb.astype(int)
+    return (a[..., 0] - a[..., 2]) > 40
+
+
+def test_the_horse_preview_tints_the_horse_not_its_backdrop_and_shows_what_is_stored(tmp_path):
+    """The bundled horse is a dark shape on a light ground, framed with black bars: the preview must tint the horse
+    (where the project's saved mask is) at the project's threshold, a stricter one and Otsu's, never the backdrop;
+    the second picture is the mask the project stores after its cleanup."""
+    project = Project.create(tmp_path / "h.shadow", [DEFAULT_VIDEO], video=VideoConfig(size=48, hz=2.0))
+    s = StudioState(project, queue_for(project))
+    try:
+        panel = TargetsPanel(s)
+        panel._throttled = lambda: None  # draw only when asked: no timer thread racing the drawing below
+        side = panel.preview_rgb.shape[0]
+        for frame in range(len(project.frames)):
+            s.select(frame=frame)
+            saved = project.state.targets[frame]
+            horse = cv2.resize(saved, (side, side), interpolation=cv2.INTER_NEAREST).astype(bool)
+            for otsu, level in ((False, 128.0), (False, 160.0), (True, None)):
+                panel.otsu.value = otsu
+                if level is not None:
+                    panel.threshold.value = level
+                panel.refresh_preview()
+                seen = tinted(panel.preview_rgb)
+                assert seen.sum() > 0.02 * seen.size, (frame, otsu, level)
+                assert (seen & horse).sum() > 0.7 * seen.sum(), (frame, otsu, level)  # on the horse …
+                assert seen[~horse].mean() < 0.05, (frame, otsu, level)  # … not on the backdrop nor the bars
+            panel.otsu.value = False
+            panel.threshold.value = 128.0  # the project's threshold: the stored picture is the saved mask
+            panel.refresh_preview()
+            stored = tinted(panel.stored_rgb).astype(np.float32)
+            at_size = cv2.resize(stored, saved.shape[::-1], interpolation=cv2.INTER_AREA) >= 0.5
+            iou = (at_size & (saved > 0)).sum() / (at_size | (saved > 0)).sum()
+            assert iou > 0.95, (frame, iou)
+            assert "dark shape on a light ground" in panel.stored_info.value
+    finally:
+        s.close()
+
+
+def test_counts_and_times_read_as_a_person_writes_them(state):
+    panel = TargetsPanel(state)
+    assert "(still, still, 1 frame)" in panel.sources.value  # never "1 frames"
+    assert panel.frame_info.value.endswith("0.00 s")
+    panel.sample.value = "muybridge_horse.gif"
+    panel.add_sample.click()
+    state.select(frame=len(state.project.frames) - 1)
+    t = state.project.frames[-1].time_s
+    assert panel.frame_info.value.endswith(f"{t:.2f} s") and "99999" not in panel.frame_info.value

@@ -77,3 +77,21 @@ def test_clip_sliders_are_disabled_with_the_reason_until_weights_are_configured(
     assert not any(panel.sliders[n].disabled for n in CLIP_FIELDS) and panel.clip_reason.value == ""
     panel.sliders["w_exp_clip"].value = 0.1
     assert state.project.weights.w_exp_clip == pytest.approx(0.1)
+
+
+def test_the_clip_reason_says_what_an_artist_does_never_code_or_a_flag(state, tmp_path, monkeypatch):
+    from widgets.app import CLIP_ENV
+
+    panel = weights_panel(state)
+    if panel.clip_disabled_reason is None:
+        pytest.skip("CLIP weights are in this machine's cache: there is no reason to show")
+    shown = panel.clip_reason.value
+    assert "box below" in shown and "Use these weights" in shown and CLIP_ENV in shown
+    assert "extras" not in shown and "state." not in shown and "--" not in shown
+    state.extras["clip_weights"] = str(tmp_path / "given.safetensors")  # $SHADOW_STUDIO_CLIP_WEIGHTS, at open
+    again = weights_panel(state)
+    assert again.clip_path.value == str(tmp_path / "given.safetensors")  # the box shows what the studio was given
+    assert "box below" in again.clip_reason.value and "extras" not in again.clip_reason.value
+    again.clip_path.value = ""
+    again.clip_use.click()
+    assert "type the path of a CLIP weights file" in again.messages.text

@@ -1,10 +1,12 @@
 """The Export panel: plan the project's show, write and validate the show file, describe it, export CSV, play it.
 
-A face of the engine (DESIGN §5.7): **plan** runs :func:`studio.project.jobs.show_job` on the project's queue
-through the keyframes of :meth:`Project.show_timing` (``allow late`` stretches transitions too fast for the
-servos instead of refusing), applied by ``project.set_show``; **write** is :meth:`Project.export_show` to the path
-in the box (default next to the project) read back by :func:`studio.motion.show.load_show`, which validates it;
-**show info** is what ``shadow-studio show-info`` prints (:func:`studio.motion.show_info.show_info_lines`);
+A face of the engine (DESIGN §5.7): **plan** runs :func:`studio.project.run.plan_project_job` (the plan step of
+``project run`` and of the Optimise tab) on the project's queue through the keyframes of :meth:`Project.show_timing`
+("allow late transitions" stretches transitions too fast for the servos instead of refusing, and lists them),
+applied by ``project.set_show``; **write** is :meth:`Project.export_show` to the path in the box (default next to
+the project) read back by :func:`studio.motion.show.load_show`, which validates it; **show info** is what
+``shadow-studio show-info`` prints in the artist's terms, with the late transitions and the ramp-in before the show
+(:mod:`widgets.show_text`);
 **CSV** is :func:`studio.motion.show.export_csv`; **play** runs :func:`studio.project.jobs.play_job` on the
 built-in emulator or on the hand at a serial port (the Jog panel's bus when it is connected to that port, so its
 e-stop stops the show; else a :class:`hardware.session.ServoSession` of its own, closed fail-safe when the job
@@ -24,19 +26,25 @@ from pathlib import Path
 
 import ipywidgets as w
 
+from hardware.calibration import Calibration, load_calibration
 from hardware.player import PlayerConfig
 from hardware.session import ServoSession
+from studio.errors import StudioError
 from studio.jobs import Job, JobEvent, JobState
+from studio.motion.errors import SegmentTiming
 from studio.motion.plan import PlanConfig
 from studio.motion.show import Show, export_csv, load_show
-from studio.motion.show_info import show_info_lines
-from studio.project.jobs import show_job
+from studio.motion.video_timing import VideoTiming
 from studio.project.play import play_job
+from studio.project.run import plan_project_job
+from studio.project.run_report import TooFast
 from studio.project.show_timing import ShowLayout
 from studio.project.state import ProjectError
 from studio.sim.hand import Hand, load_hand
 from widgets.images import Messages, title
+from widgets.show_text import ProjectView, artist_lines, ramp_line
 from widgets.state import StudioState
+from widgets.words import ALLOW_LATE, count, late_lines, seconds
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +53,7 @@ log = logging.getLogger(__name__)
 class ExportConfig:
     """How the Export panel plans and plays."""
 
-    allow_late: bool = True  # the "allow late" box's start value: stretch too-fast transitions instead of no show
+    allow_late: bool = True  # the "allow late transitions" box's start value: stretch too-fast moves, not no show
     redraw_hz: float = 10.0  # progress redraws per second at most, from the queue's thread (0, 30]
     layout: ShowLayout | None = None  # how the project's sources share the show clock (None: the defaults)
     plan: PlanConfig | None = None  # the planner (None: the defaults; its allow_late comes from the box)
@@ -69,9 +77,11 @@ class ExportPanel:
         self.jobs: list[Job] = []  # the jobs this panel started, in order
         self._sessions: dict[Job, ServoSession] = {}  # servos this panel opened for a play job (closed when it ends)
         self._last_draw = 0.0
+        self._timings: dict[Job, VideoTiming] = {}  # plan job → the timing it planned (names its late transitions)
+        self._calibration: Calibration | None = None  # the shipped calibration, read once (the ramp-in line)
         self.messages = Messages()
-        self.allow_late = w.Checkbox(value=self.cfg.allow_late, description="allow late (stretch too-fast moves)",
-                                     indent=False)  # fmt: skip
+        self.allow_late = w.Checkbox(value=self.cfg.allow_late, description=ALLOW_LATE, indent=False,
+                                     tooltip="stretch moves too fast for the servos: the show runs longer")  # fmt: skip
         self.plan_button = w.Button(description="plan show", button_style="primary")
         path = default_show_path(state)
         self.path = w.Text(value=str(path), description="show file", layout=w.Layout(width="520px"))
@@ -94,6 +104,7 @@ class ExportPanel:
         self.csv_button.on_click(lambda _: self.export_csv())
         self.play_button.on_click(lambda _: self.play())
         self.stop_button.on_click(lambda _: self.stop())
+        self.target.observe(lambda _: self.show_info(), names="value")  # the ramp-in depends on where it plays
         self.widget = w.VBox([
             title("Export"),
             w.HBox([self.plan_button, self.allow_late]),
@@ -119,24 +130,56 @@ class ExportPanel:
         return p.show
 
     def show_info(self, show: Show | None = None, note: str = "") -> None:
-        """Show ``show``'s info (default: the project's show) as ``shadow-studio show-info`` prints it."""
+        """Describe ``show`` (default: the project's show) in the artist's terms (:mod:`widgets.show_text`)."""
         p = self.state.project
         show = show or p.show
         if show is None:
             self.info.value = "<i>no show planned yet</i>"
             return
-        stale = "(stale: plan it again)\n" if show is p.show and p.is_show_stale() else ""
-        text = note + ("\n" if note else "") + stale + "\n".join(show_info_lines(show))
+        mine = p.show is not None and (show is p.show or (show.created, show.title) == (p.show.created, p.show.title))
+        stale = "(stale: plan it again)\n" if mine and p.is_show_stale() else ""
+        view = ProjectView()
+        if mine:
+            names = tuple(Path(s.path).name for s in p.sources)
+            view = ProjectView(len(p.keyframes), names, None if stale else self._project_late(show))
+        lines = artist_lines(show, view, self._ramp(show))
+        text = note + ("\n" if note else "") + stale + "\n".join(lines)
         self.info.value = f"<pre style='margin:2px 0'>{html.escape(text)}</pre>"
+
+    def _project_late(self, show: Show) -> list[dict] | None:
+        """The project's show's late transitions by frame and keyframe (None when its timing cannot say)."""
+        try:
+            timing = self.state.project.show_timing(self.cfg.layout)
+            late = [SegmentTiming(**d) for d in show.provenance.get("late_segments", [])]
+            return timing.late_transitions(late, bool(show.provenance.get("home_added", False)))
+        except (ProjectError, TypeError, IndexError) as e:  # another layout or a hand-edited show: by time
+            log.debug("late transitions by time only: %s", e)
+            return None
+
+    def _ramp(self, show: Show) -> str | None:
+        """The ramp-in line for where the show would play (None when the calibration cannot be read)."""
+        try:
+            if self._calibration is None:
+                self._calibration = load_calibration(None, self.hand)
+            return ramp_line(show, self._calibration, self.target.value == "emulator", self.cfg.player)
+        except (StudioError, ValueError) as e:
+            log.debug("no ramp-in line: %s", e)
+            return None
 
     def plan(self) -> Job | None:
         """Plan the show as a job on the project's queue (applied by ``set_show`` when it completes)."""
 
         def go() -> Job:
-            keyframes = self.state.project.show_timing(self.cfg.layout).keyframes
+            timing = self.state.project.show_timing(self.cfg.layout)
             base = self.cfg.plan or PlanConfig()
             cfg = replace(base, timing=replace(base.timing, allow_late=bool(self.allow_late.value)))
-            return self._submit(show_job(self.state.project, keyframes, cfg=cfg))
+            job = plan_project_job(self.state.project, timing.keyframes, cfg)
+            self._timings[job] = timing
+            try:
+                return self._submit(job)
+            except BaseException:
+                self._timings.pop(job, None)
+                raise
 
         return self.messages.run(go)
 
@@ -159,7 +202,7 @@ class ExportPanel:
             path = Path(self.path.value).expanduser()
             show = load_show(path, self.hand)
             self.show_info(show, f"{path}: valid show, version {show.format_version}")
-            self.messages.say(f"{path}: valid, {len(show.times)} samples, {show.duration:.3f} s")
+            self.messages.say(f"{path}: valid, {count(len(show.times), 'sample')}, {seconds(show.duration, 3)}")
             return show
 
         return self.messages.run(go)
@@ -256,21 +299,32 @@ class ExportPanel:
         self.progress.description = e.state.value
         if e.state == JobState.DONE:
             self.progress.value = 1.0
-        self.status.value = f"{job.title}: {e.state.value} after {e.elapsed:.1f} s"
+        self.status.value = f"{job.title}: {e.state.value} after {seconds(e.elapsed, 1)}"
+        timing = self._timings.pop(job, None)
         if e.state == JobState.FAILED:
-            hint = " (tick 'allow late' to stretch them)" if e.error and e.error.type == "SegmentTooFastError" else ""
+            too_fast = e.error is not None and e.error.type == "SegmentTooFastError"
+            hint = f" (tick '{ALLOW_LATE}' to stretch them)" if too_fast else ""
             self.messages.say(f"{job.title} failed: {e.error.message if e.error else 'unknown error'}{hint}", True)
         elif e.state == JobState.CANCELLED:
             self.messages.say(f"{job.title} stopped")
+        elif job.kind == "plan" and isinstance(job.result, TooFast):
+            self.progress.description = "no show"
+            late = [] if timing is None else timing.late_transitions(job.result.segments, job.result.home_added)
+            listed = f": {'; '.join(late_lines(late))}" if late else ""
+            n = len(late) or len(job.result.segments)
+            self.messages.say(
+                f"no show: {count(n, 'transition')} too fast for the servos{listed}. Tick '{ALLOW_LATE}' to stretch "
+                "them (the show then runs longer), or give those keyframes more time", error=True,
+            )  # fmt: skip
         elif job.kind == "plan":
             late = job.result.show.provenance.get("late_segments") or []
-            stretched = f", {len(late)} late transition(s) stretched" if late else ""
-            self.messages.say(f"planned a {job.result.show.duration:.2f} s show{stretched}; write it or play it")
+            stretched = f", {count(len(late), 'late transition')} stretched" if late else ""
+            self.messages.say(f"planned a {seconds(job.result.show.duration)} show{stretched}; write it or play it")
             self.show_info()
             self.state.changed("project")  # other panels see the new show
         elif job.kind == "play":
             r = job.result
-            self.messages.say(f"played: {r.message} (torque {r.torque}, {r.commands} move packets)")
+            self.messages.say(f"played: {r.message} (torque {r.torque}, {count(r.commands, 'move packet')})")
 
     def _on_change(self, what: str) -> None:
         if what == "project":

@@ -34,6 +34,7 @@ from widgets.sculpt import SculptView
 from widgets.state import StudioState
 
 log = logging.getLogger(__name__)
+ESTOP_LATCHED_COLOUR = "#7a0010"  # the E-STOP button while the latch holds: solid dark red (unlatched: 'danger' red)
 
 
 @dataclass
@@ -137,6 +138,17 @@ class JogPanel:
         for w in (self.read_button, self.auto, self.torque_off_button, self.reset_button, self.disconnect_button):
             w.disabled = not connected
         self.connect_button.disabled = connected
+        self._estop_look(connected and latched)
+
+    def _estop_look(self, latched: bool) -> None:
+        """The E-STOP button says at a glance whether the latch holds: solid dark red, a lock and "LATCHED — reset"
+        while it does; the plain red stop button while it does not."""
+        b = self.estop_button
+        b.description = "E-STOP LATCHED — reset" if latched else "E-STOP"
+        b.icon = "lock" if latched else "stop"
+        b.tooltip = "latched: nothing moves until you press reset e-stop" if latched else "halt every servo now"
+        b.style.button_color = ESTOP_LATCHED_COLOUR if latched else None  # None: the 'danger' red
+        b.style.font_size = "16px" if latched else "24px"
 
     def _show_target(self) -> None:
         """Sliders to the pose last commanded (unknown angles left where they are); sends nothing."""

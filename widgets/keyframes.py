@@ -1,5 +1,7 @@
 """The Keyframes panel: a τ slider whose cluster count updates live (computed, the project untouched until "Apply τ"
-re-clusters it), a strip of the clusters (representative, member count, time range), and the keyframe edits: add
+re-clusters it; it follows the project after an undo, a redo or another panel's edit), a strip of the clusters
+(representative framed in the colour of its result's status, member count, time range, status and loss), and the
+keyframe edits: add
 one at the scrubber's frame, remove one, move the frame to another cluster, a keyframe's show time and hold flag,
 undo and redo. Every edit goes through :meth:`StudioState.edit` (saved, undoable).
 
@@ -15,13 +17,18 @@ import ipywidgets as w
 import numpy as np
 
 from studio.project.state import Keyframe
+from studio.project.status import ProjectStatus
 from studio.targets.keyframes import cluster_keyframes
 from widgets.images import MASK_RGB, Messages, frame_in_view, grey_rgb, png, tint, title, upscale
 from widgets.state import StudioState
+from widgets.words import count, loss, seconds, span
 
 log = logging.getLogger(__name__)
 
 CARD_PX = 96  # side of a cluster's picture in the strip, px
+FRAME_PX = 5  # width of the status frame drawn around a card's picture, px
+STATUS_RGB = {"current": (40, 160, 70), "stale": (235, 150, 0), "missing": (200, 40, 40)}  # a result's status
+TIME_STEP_S = 0.001  # keyframe times are kept to the millisecond (a browser's spinner adds 0.1 in binary)
 
 
 class KeyframesPanel:
@@ -35,6 +42,7 @@ class KeyframesPanel:
         self._counts: dict[float, int] = {}  # τ → keyframe count, for the cached masks (the slider goes back and forth)
         self._drawing = False  # True while redraw() sets values (their observers must not edit)
         self.live_count = 0  # keyframes at the slider's τ (computed; the project is not edited)
+        self._tau_seen: float | None = None  # the project's τ the slider last followed
 
         self.tau = w.FloatSlider(min=0.0, max=1.0, step=0.005, readout_format=".3f", description="τ",
                                  continuous_update=True)  # fmt: skip
@@ -62,6 +70,7 @@ class KeyframesPanel:
         self.move.on_click(lambda _: self.messages.run(self._move))
         self.set_time.on_click(lambda _: self.messages.run(self._set_time))
         self.clock.observe(lambda ch: setattr(self.time, "disabled", ch["new"]), names="value")
+        self.time.observe(self._round_time, names="value")
         self.hold.observe(self._held, names="value")
         self.undo.on_click(lambda _: self.messages.run(self.state.undo))
         self.redo.on_click(lambda _: self.messages.run(self.state.redo))
@@ -77,7 +86,6 @@ class KeyframesPanel:
             w.HBox([self.undo, self.redo]),
             self.messages.widget,
         ])  # fmt: skip
-        self.tau.value = state.project.state.clustering.tau
         self._stops = [state.on_change(self._changed)]
         self.redraw()
 
@@ -133,22 +141,28 @@ class KeyframesPanel:
         """The live count at the slider's τ (the project is not edited)."""
         self.live_count = self.count_at(self.tau.value)
         now = len(self.state.project.keyframes)
-        self.count.value = f"{self.live_count} keyframes at τ {self.tau.value:.3f} (project: {now})"
+        self.count.value = f"{count(self.live_count, 'keyframe')} at τ {self.tau.value:.3f} (project: {now})"
 
-    def _card(self, kf: Keyframe, chosen: bool) -> w.Widget:
+    def _card(self, kf: Keyframe, chosen: bool, status: ProjectStatus) -> w.Widget:
         p = self.state.project
         rep = kf.representative
-        pic = tint(grey_rgb(p.state.targets[rep]), self.masks()[rep], MASK_RGB, 0.6)
-        t0, t1 = self._time_range(kf)
-        when = f"{t0:.2f} s" if t0 == t1 else f"{t0:.2f}–{t1:.2f} s"
-        extra = (" · hold" if kf.hold else "") + (f" · at {kf.time_s:g} s" if kf.time_s is not None else "")
+        pic = upscale(tint(grey_rgb(p.state.targets[rep]), self.masks()[rep], MASK_RGB, 0.6), CARD_PX)
+        state = status.result_state(kf.id)
+        colour = STATUS_RGB[state]
+        pic[:FRAME_PX], pic[-FRAME_PX:], pic[:, :FRAME_PX], pic[:, -FRAME_PX:] = colour, colour, colour, colour
+        when = span(*self._time_range(kf))
+        extra = (" · hold" if kf.hold else "") + (f" · at {seconds(kf.time_s)}" if kf.time_s is not None else "")
+        result = p.results.get(kf.id)
+        scored = f" · loss {loss(result.loss.get('total'))}" if result is not None else ""
         button = w.Button(description=f"k{kf.id}", button_style="info" if chosen else "",
                           layout=w.Layout(width=f"{CARD_PX}px"))  # fmt: skip
         button.on_click(lambda _, k=kf.id, r=rep: self.state.select(frame=r, keyframe=k))
+        hex_colour = "#{:02x}{:02x}{:02x}".format(*colour)
         return w.VBox([
-            w.Image(value=png(upscale(pic, CARD_PX)), format="png", width=CARD_PX, height=CARD_PX),
+            w.Image(value=png(pic), format="png", width=CARD_PX, height=CARD_PX),
             button,
-            w.HTML(f"<small>{len(kf.members)} frames<br>{when}{extra}</small>"),
+            w.HTML(f"<small>{count(len(kf.members), 'frame')}<br>{when}{extra}<br>"
+                   f"<b style='color:{hex_colour}'>{state}</b>{scored}</small>"),
         ])  # fmt: skip
 
     def redraw(self) -> None:
@@ -157,7 +171,7 @@ class KeyframesPanel:
         self._drawing = True
         try:
             k = self.selected() if p.keyframes else None
-            options = [(f"k{kf.id} ({len(kf.members)} frames)", kf.id) for kf in p.keyframes]
+            options = [(f"k{kf.id} ({count(len(kf.members), 'frame')})", kf.id) for kf in p.keyframes]
             self.keyframe.options = options
             self.move_to.options = options
             self.keyframe.value = k
@@ -165,14 +179,18 @@ class KeyframesPanel:
             if kf is not None:
                 self.hold.value = kf.hold
                 self.clock.value = kf.time_s is None
-                self.time.value = kf.time_s if kf.time_s is not None else self._time_range(kf)[0]
+                self.time.value = self._rounded(kf.time_s if kf.time_s is not None else self._time_range(kf)[0])
                 self.time.disabled = kf.time_s is None
             if p.frames:
                 frame = frame_in_view(self.state)
                 owner = self.owner(frame)
                 self.frame_info.value = f"frame {frame} plays keyframe k{owner}"
                 self.move_to.value = owner
-            self.strip.children = [self._card(x, x.id == k) for x in p.keyframes]
+            status = p.status()
+            self.strip.children = [self._card(x, x.id == k, status) for x in p.keyframes]
+            tau = p.state.clustering.tau
+            if tau != self._tau_seen:  # the project's τ changed (applied, undone, redone, another panel): follow it
+                self._tau_seen, self.tau.value = tau, tau
             self.undo.disabled, self.redo.disabled = not p.can_undo, not p.can_redo
         finally:
             self._drawing = False
@@ -186,6 +204,16 @@ class KeyframesPanel:
     def _held(self, change) -> None:
         if not self._drawing:
             self.messages.run(self.state.edit, "set_hold", self.selected(), bool(change["new"]))
+
+    @staticmethod
+    def _rounded(t: float) -> float:
+        return round(round(float(t) / TIME_STEP_S) * TIME_STEP_S, 6)
+
+    def _round_time(self, change) -> None:
+        """Keep the time box to the millisecond (a spinner's 0.7 + 0.1 is 0.7999999999999999 in binary)."""
+        t = self._rounded(change["new"])
+        if t != change["new"]:
+            self.time.value = t
 
     def _add(self) -> int:
         frame = frame_in_view(self.state)

@@ -1,5 +1,11 @@
 """The Optimise panel: start an optimisation (this keyframe, every missing or stale keyframe, or the whole video),
-cancel it, a progress bar per stage, the live best shadow beside the target, the loss so far, and the job list.
+cancel it, the overall progress ("keyframe 3 (3 of 5)") and a bar per stage, the live best shadow beside the target,
+the loss so far, and the job list. "All stale" plans the show too, stretching transitions too fast for the servos
+when "allow late transitions" is ticked (as in Export).
+
+When the panel opens on a machine that has not built the retrieval index yet (the searches' first answers, once
+per machine, then cached), it builds it in the background as a job on the project's queue, with its own progress
+line (:mod:`widgets.index_warmup`), so the first optimisation does not wait.
 
     panel = OptimisePanel(state, OptimiseConfig(sequence=...))   # panel.widget goes in the notebook
     panel.start("keyframe")          # or "stale" (what `project run` does) / "video"; panel.cancel()
@@ -23,6 +29,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
+from typing import Any
 
 import ipywidgets as w
 import numpy as np
@@ -31,8 +38,10 @@ from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
 from studio.jobs import Job, JobEvent, JobState
 from studio.project.run import RunConfig, RunReport, source_keyframes
 from widgets.images import Messages, grey_rgb, png, title, upscale
+from widgets.index_warmup import IndexWarmup
 from widgets.mount import MountControl, mount_line
 from widgets.state import StudioState
+from widgets.words import ALLOW_LATE, count, late_lines, stage
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +53,9 @@ class OptimiseConfig:
     """What the panel's jobs run and how it draws."""
 
     sequence: SequenceConfig = CPU_SEQUENCE  # search/refine budgets of every job (the studio preset)
-    allow_late: bool = False  # "All stale" plans the show stretching transitions too fast for the servos
+    allow_late: bool = False  # the "allow late transitions" box's start value: "All stale" then stretches moves
+    warm_index: bool = True  # build the retrieval index in the background when it is not cached yet (module doc)
+    index: Any = None  # the RetrievalConfig of that index (None: the searches' own; tests give a small one)
     redraw_hz: float = 10.0  # the most redraws a second while a job reports (DESIGN §6: 10–30 Hz)
     image_px: int = 192  # side of the target and shadow images, px
 
@@ -93,6 +104,8 @@ class OptimisePanel:
         self._report_shown = False
         self._target_k: int | None = None  # the keyframe whose target is shown
         self._run_floor: int | None = None  # while a "stale" run goes: jobs numbered above this are its
+        self.warmup = IndexWarmup(state, self.cfg.index, on_known=self._notify)  # the index's background build
+        self._bar_labels: dict[str, str] = {}  # stage → what its bar says before the count
 
         px = self.cfg.image_px
         self.buttons = {
@@ -104,7 +117,11 @@ class OptimisePanel:
             b.on_click(lambda _, kind=kind: self.start(kind))
         self.cancel_button = w.Button(description="Cancel", icon="stop", button_style="danger", disabled=True)
         self.cancel_button.on_click(lambda _: self.cancel())
+        self.allow_late = w.Checkbox(value=self.cfg.allow_late, description=ALLOW_LATE, indent=False,
+                                     tooltip="stretch moves too fast for the servos: the show runs longer")  # fmt: skip
         self.status = w.HTML("idle")
+        self.overall = w.FloatProgress(min=0.0, max=1.0, description="overall", style={"description_width": "240px"},
+                                       layout=w.Layout(width="560px", display="none"))  # fmt: skip
         self.loss = w.HTML("")
         self.bar_box = w.VBox([])
         self.target_image = w.Image(format="png", width=px, height=px)
@@ -114,8 +131,8 @@ class OptimisePanel:
                            w.VBox([w.HTML("best shadow"), self.shadow_image])])  # fmt: skip
         self.mount = MountControl(state, self.messages.say)
         self.widget = w.VBox([
-            title("Optimise"), self.mount.widget, w.HBox([*self.buttons.values(), self.cancel_button]), self.status,
-            self.bar_box,
+            title("Optimise"), self.mount.widget, w.HBox([*self.buttons.values(), self.cancel_button]),
+            self.allow_late, self.warmup.line, self.status, self.overall, self.bar_box,
             self.loss, pictures, w.HTML("<b>jobs</b>"), self.job_list, self.messages.widget,
         ])  # fmt: skip
         self._unsubscribe = state.queue.subscribe(self._on_event)
@@ -123,6 +140,8 @@ class OptimisePanel:
         self._writer = threading.Thread(target=self._write, name="optimise-panel", daemon=True)
         self._writer.start()
         self.show_selection()
+        if self.cfg.warm_index:
+            self.warmup.start()
 
     # ---------------------------------------------------------------- what is in view
     def keyframe_in_view(self) -> int:
@@ -182,13 +201,15 @@ class OptimisePanel:
             keyframes = [k] if kind == "keyframe" else source_keyframes(p, k)
         self._run_cancel = threading.Event()
         self.report, self._report_shown = None, False
+        self.overall.value, self.overall.layout.display = 0.0, "none"
         self._run_floor = len(self.state.queue.jobs())
         self._run = threading.Thread(target=self._run_jobs, args=(use_clip, keyframes), name="optimise-run",
                                      daemon=True)  # fmt: skip
         self._run.start()
         what = {"keyframe": "the keyframe in view", "video": "the keyframes of this source",
                 "stale": "every missing or stale keyframe, then the show"}[kind]  # fmt: skip
-        self.status.value = f"optimising {what}"
+        later = " (after the retrieval index, first use only)" if self.warmup.building else ""
+        self.status.value = f"optimising {what}{later}"
 
     def keyframes_of(self, job_id: int) -> list[int]:
         """The keyframe ids a job of this panel optimises (empty for another's)."""
@@ -196,7 +217,7 @@ class OptimisePanel:
 
     def _run_jobs(self, use_clip: bool, keyframes: list[int] | None) -> None:
         """The project's run in its own thread (it waits for each job); the panel draws its jobs' events as any."""
-        cfg = RunConfig(sequence=self.cfg.sequence, allow_late=self.cfg.allow_late)
+        cfg = RunConfig(sequence=self.cfg.sequence, allow_late=bool(self.allow_late.value))
         try:
             clip = clip_encoder(self.state) if use_clip else None
             self.report = self.state.project.run(cfg, clip=clip, queue=self.state.queue, cancel=self._run_cancel,
@@ -240,14 +261,17 @@ class OptimisePanel:
             last = time.monotonic()
             try:
                 self.refresh()
-            except Exception:  # a redraw must never kill the writer
-                log.exception("the Optimise panel failed to redraw")
+            except Exception as e:  # a redraw must never kill the writer, nor print a traceback into the notebook
+                log.debug("the Optimise panel failed to redraw", exc_info=True)
+                self.messages.say(f"the panel could not redraw ({type(e).__name__}: {e})", error=True)
 
     def _run_done(self) -> bool:
         return self.report is not None and not self._report_shown
 
     def _mine(self, job_id: int) -> bool:
         running = self._run is not None and (self._run.is_alive() or not self._report_shown)
+        if self.warmup.owns(job_id):
+            return False  # drawn on its own line
         return any(j.id == job_id for j in list(self.jobs)) or (
             running and self._run_floor is not None and job_id > self._run_floor
         )
@@ -260,35 +284,51 @@ class OptimisePanel:
                 self._pending.clear()
             applied = False
             for e in events:
-                if self._mine(e.job_id):
+                if self.warmup.owns(e.job_id):
+                    self.warmup.draw(e)
+                elif self._mine(e.job_id):
                     applied |= self._draw_event(e)
             if self.report is not None and not self._report_shown:
                 self._report_shown = True
-                self.messages.say(self.report.message, error=self.report.error is not None)
+                self.messages.say(self._report_text(self.report), error=self.report.error is not None)
             self.job_list.value = self._table()
             self._set_running(self.busy)
             if applied or self._report_shown:
                 self.mount.line.value = mount_line(self.state.project)  # a run may have chosen the roll
             if not self.busy and self.last is not None and self.last.final:
-                self.status.value = f"job #{self.last.job_id} {self.last.state.value}"
+                self.status.value = f"{html.escape(self.job_line(self.last.job_id))}: {self.last.state.value}"
         if applied:
             self.state.changed("project")  # other panels show the new results
+
+    def job_line(self, job_id: int) -> str:
+        """What a job of this panel does, in the artist's words: ``keyframe 3 (3 of 5)``, ``the show``."""
+        job = next((j for j in list(self.jobs) if j.id == job_id), None)
+        if job is None:
+            return f"job #{job_id}"
+        if job.kind == "plan":
+            return "the show"
+        if job.kind == "choose-roll":
+            return "the mount roll"
+        ids = ", ".join(str(k) for k in job.meta.get("keyframes", []))
+        of = job.meta.get("of")
+        return f"keyframe {ids}" + (f" ({of[0]} of {of[1]})" if of else "")
 
     def _draw_event(self, e: JobEvent) -> bool:
         """One event drawn; True when it is a job's completion (its result was applied)."""
         if e.job_id != self._following and not e.final and e.stage not in ("", "start"):
-            self._following, self.bars, self.best = e.job_id, {}, math.nan
+            self._following, self.bars, self.best, self._bar_labels = e.job_id, {}, math.nan, {}
             self.bar_box.children = ()
         self.last, self.step = e, e.step
         if e.total > 0:
             bar = self.bars.get(e.stage)
             if bar is None:
-                bar = self.bars[e.stage] = w.FloatProgress(min=0.0, max=1.0, description=e.stage,
-                                                           style={"description_width": "240px"},
+                bar = self.bars[e.stage] = w.FloatProgress(min=0.0, max=1.0, style={"description_width": "240px"},
                                                            layout=w.Layout(width="560px"))  # fmt: skip
+                self._bar_labels[e.stage] = "retrieval index (first use)" if stage(e.stage) != e.stage else e.stage
                 self.bar_box.children = (*self.bar_box.children, bar)
             bar.value = min(1.0, e.step / e.total)
-            bar.description = f"{e.stage} {e.step}/{e.total}"
+            bar.description = f"{self._bar_labels[e.stage]} {e.step:,}/{e.total:,}"
+        self._draw_overall(e)
         if not math.isnan(e.best):  # the rendered loss of the pose on show (studio.imitate.live_best), which only
             self.best = e.best  # falls within a target; a later keyframe has another target, so it is not a minimum
             self.loss.value = f"best loss so far: <b>{self.best:.4f}</b> ({html.escape(e.stage)})"
@@ -296,15 +336,44 @@ class OptimisePanel:
             self.shown_shadow = np.asarray(e.shadow)
             self.shadow_image.value = mask_picture(self.shown_shadow, self.cfg.image_px)
             self._show_target(e)
+        what = html.escape(self.job_line(e.job_id))
         if not e.final:
-            self.status.value = f"job #{e.job_id} {html.escape(e.kind)}: {html.escape(e.stage)} ({e.elapsed:.1f} s)"
+            self.status.value = f"{what}: {html.escape(stage(e.stage, e.total))} ({e.elapsed:.1f} s)"
             return False
         if e.error is not None:
             self.messages.say(str(e.error), error=True)
         done = e.state == JobState.DONE
         if done:
+            if e.job_id == self._following:  # every stage of a finished job is complete, whatever it last reported
+                for name, bar in self.bars.items():
+                    bar.value, bar.description = 1.0, f"{self._bar_labels[name]}: done"
             self._show_result(e.job_id)
         return done
+
+    def _draw_overall(self, e: JobEvent) -> None:
+        """The run's overall bar: keyframes finished of those it optimises (``job.meta["of"]``)."""
+        job = next((j for j in list(self.jobs) if j.id == e.job_id), None)
+        of = None if job is None else job.meta.get("of")
+        if of is None:
+            if job is not None and job.kind == "plan" and e.final and e.state == JobState.DONE:
+                self.overall.value, self.overall.description = 1.0, "show planned"
+            return
+        n, total = of
+        finished = n if e.final and e.state == JobState.DONE else n - 1
+        self.overall.layout.display = None
+        self.overall.value = finished / total
+        self.overall.description = f"{finished} of {count(total, 'keyframe')} done"
+
+    def _report_text(self, report: RunReport) -> str:
+        """A run's message in the notebook's words (what to tick, not a flag), with its late transitions."""
+        text = report.message
+        if report.too_fast:
+            text += f". Tick '{ALLOW_LATE}' above (or in Export) to stretch them"
+        if report.late:
+            lines = late_lines(report.late)
+            more = f"; and {len(lines) - 5} more" if len(lines) > 5 else ""
+            text += f". Late: {'; '.join(lines[:5])}{more}"
+        return text
 
     def _show_target(self, e: JobEvent) -> None:
         ids = self.keyframes_of(e.job_id)
@@ -336,7 +405,7 @@ class OptimisePanel:
         head = "<tr><th>#</th><th>job</th><th>state</th><th>stage</th><th>best</th><th>s</th></tr>"
         body = "".join(
             f"<tr><td>{r['id']}</td><td>{html.escape(r['kind'])} {html.escape(r['title'])}</td>"
-            f"<td>{r['state']}</td><td>{html.escape(r['stage'])} {r['step']}/{r['total']}</td>"
+            f"<td>{r['state']}</td><td>{html.escape(stage(r['stage'], r['total']))} {r['step']:,}/{r['total']:,}</td>"
             f"<td>{_loss(r['best'])}</td><td>{r['elapsed']:.1f}</td></tr>"
             for r in rows[-12:]
         )  # fmt: skip

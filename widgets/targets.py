@@ -1,12 +1,14 @@
 """The Targets panel: sources (a bundled sample, a file path or an upload), a frame scrubber, the sampling rate, the
-threshold (or Otsu) with a live preview of the binary mask over the frame, and segmentation of raw colour footage
-from a first-frame box or a mask painted on the first frame (:mod:`widgets.first_frame`), run as a job on the
-project's queue.
+threshold (or Otsu) with a live preview of the binary mask over the frame beside the mask the project would store
+after its cleanup, and segmentation of raw colour footage from a first-frame box or a mask painted on the first frame
+(:mod:`widgets.first_frame`), run as a job on the project's queue.
 
     panel = TargetsPanel(state)      # panel.widget goes in the notebook; tests set values and .click() buttons
 
-The preview is the threshold alone on the frame's shadowness (inside the project's square frame); the project's
-cleanup (components, holes, lines) applies when the threshold is applied.
+The left picture is the threshold alone on the frame's shadowness, the right one what the project stores at that
+threshold after its cleanup (ruled lines, specks, pieces, holes), both inside the project's square frame and both
+decided in source pixels with the source's polarity as the project finds it (:mod:`widgets.target_preview`); the
+project changes when the threshold is applied.
 """
 
 from __future__ import annotations
@@ -26,18 +28,20 @@ from studio.progress import Progress
 from studio.project.containment import check_subfolders
 from studio.project.sources import locate
 from studio.project.state import ProjectError
-from studio.targets.images import shadowness
 from studio.targets.source import raw_frames, source_kind
-from studio.targets.video import SegmentationNeeded, crop_square
+from studio.targets.video import SegmentationNeeded
 from widgets.first_frame import FirstFrame
 from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, png, tint, title
 from widgets.relink import RelinkControl
 from widgets.state import StudioState
+from widgets.target_preview import frame_preview, source_polarity
+from widgets.words import count, seconds
 
 log = logging.getLogger(__name__)
 
 PREVIEW_PX = 256  # side of the preview image, px
 UPLOADS = "uploads"  # folder inside the project where uploaded files are written
+POLARITY_WORDS = {"dark": "a dark shape on a light ground", "bright": "a bright shape on a dark ground"}
 
 
 def bundled_samples() -> dict[str, Path]:
@@ -61,6 +65,9 @@ class TargetsPanel:
         self.pending: Path | None = None  # raw colour footage waiting for its object in the first frame
         self.preview_level = float("nan")  # the threshold the preview used (Otsu's when Otsu is on)
         self.preview_mask: np.ndarray | None = None  # (PREVIEW_PX, PREVIEW_PX) uint8 {0, 1}: the previewed mask
+        self.stored_mask: np.ndarray | None = None  # (PREVIEW_PX, PREVIEW_PX) uint8 {0, 1}: … after the cleanup
+        self.stored_rgb: np.ndarray | None = None  # (PREVIEW_PX, PREVIEW_PX, 3) uint8: what the stored picture shows
+        self._polarity: dict[int, str] = {}  # source → its polarity, as the project finds it (module doc)
         self.segment_job: Job | None = None  # the last segmentation job
         self.preview_rgb: np.ndarray | None = None  # (PREVIEW_PX, PREVIEW_PX, 3) uint8: what the preview shows
         self._first_source: tuple | None = None  # (source, path, box) whose first frame the first-frame picture has
@@ -76,6 +83,8 @@ class TargetsPanel:
         self.scrubber = w.IntSlider(min=0, max=0, description="frame", continuous_update=True)
         self.frame_info = w.Label()
         self.preview = w.Image(format="png", width=PREVIEW_PX, height=PREVIEW_PX)
+        self.stored = w.Image(format="png", width=PREVIEW_PX, height=PREVIEW_PX)  # after the project's cleanup
+        self.stored_info = w.HTML()
         self.hz = w.BoundedFloatText(min=0.1, max=60.0, step=0.5, description="sampling Hz")
         self.apply_hz = w.Button(description="Apply sampling")
         self.threshold = w.FloatSlider(min=0.0, max=254.0, step=1.0, description="threshold", continuous_update=True)
@@ -100,6 +109,11 @@ class TargetsPanel:
         self.segment.on_click(lambda _: self.messages.run(self._segment))
         self.cancel_segment.on_click(lambda _: self.segment_job is not None and self.segment_job.cancel())
 
+        self.pictures = w.HBox([
+            w.VBox([w.HTML("threshold alone"), self.preview]),
+            w.VBox([w.HTML("stored (after cleanup)"), self.stored, self.stored_info],
+                   layout=w.Layout(width=f"{PREVIEW_PX + 20}px")),
+        ])  # fmt: skip
         self.widget = w.VBox([
             title("Targets"),
             self.sources,
@@ -107,7 +121,7 @@ class TargetsPanel:
             w.HBox([self.sample, self.add_sample]),
             w.HBox([self.path, self.add_path, self.upload]),
             w.HBox([self.scrubber, self.frame_info]),
-            self.preview,
+            self.pictures,
             w.HBox([self.threshold, self.otsu, self.apply_threshold]),
             w.HBox([self.hz, self.apply_hz]),
             self.first.widget,
@@ -140,7 +154,7 @@ class TargetsPanel:
         s = self.state.project.state
         key = (s.sources, s.video.hz, s.video.fps)
         if key != self._raw_key:
-            self._raw, self._raw_key = {}, key
+            self._raw, self._raw_key, self._polarity = {}, key, {}
         f = s.frames[frame]
         if f.source not in self._raw:
             footage = raw_frames(self._where(f.source), s.video)  # as the project samples them (a still: one)
@@ -158,13 +172,21 @@ class TargetsPanel:
             raise ProjectError(f"source {source} is missing (it was at {src.absolute}): relink it above to preview it")
         return where
 
-    def _square(self, grey: np.ndarray, source: int) -> np.ndarray:
+    def _box(self, grey: np.ndarray, source: int) -> tuple[int, int, int, int]:
+        """The preview's square in source pixels: the project's frame (a still: the whole image, centred)."""
         box = self.state.project.sources[source].frame_box
-        if box is None:  # a still: the whole image, centred in a square
+        if box is None:
             h, wd = grey.shape
             side = max(h, wd)
             box = ((wd - side) // 2, (h - side) // 2, side, side)
-        return np.clip(crop_square(grey, box, PREVIEW_PX), 0, 255).astype(np.uint8)
+        return box
+
+    def polarity(self, source: int) -> str:
+        """Source ``source``'s polarity as the project finds it: on all its sampled frames in source pixels."""
+        if source not in self._polarity:
+            cfg = self.state.project.state.still if self._is_still(source) else self.state.project.state.video
+            self._polarity[source] = source_polarity(self._raw[source][0], cfg.polarity)
+        return self._polarity[source]
 
     # ---------------------------------------------------------------- drawing
     def _changed(self, what: str) -> None:
@@ -174,8 +196,9 @@ class TargetsPanel:
     def redraw(self) -> None:
         """Show the project as it is now: sources, scrubber range, settings of the selected frame's source."""
         p = self.state.project
+        n_of = [sum(f.source == i for f in p.frames) for i in range(len(p.sources))]
         rows = [
-            f"{i}: {Path(s.path).name} ({s.kind}, {s.footage or '?'}, {sum(f.source == i for f in p.frames)} frames)"
+            f"{i}: {Path(s.path).name} ({s.kind}, {s.footage or '?'}, {count(n_of[i], 'frame')})"
             for i, s in enumerate(p.sources)
         ]
         if self.pending is not None:
@@ -188,7 +211,7 @@ class TargetsPanel:
         self.hz.value = p.state.video.hz
         if n:
             f = p.frames[frame_in_view(self.state)]
-            self.frame_info.value = f"source {f.source}, source frame {f.source_frame}, {f.time_s:.2f} s"
+            self.frame_info.value = f"source {f.source}, source frame {f.source_frame}, {seconds(f.time_s)}"
             cfg = p.state.still if self._is_still(f.source) else p.state.video
             with self.threshold.hold_trait_notifications(), self.otsu.hold_trait_notifications():
                 self.otsu.value = cfg.threshold is None
@@ -240,16 +263,24 @@ class TargetsPanel:
             return
         frame = frame_in_view(self.state)
         source = self._source_index()
-        grey = self._square(self._raw_grey(frame), source)
-        cfg = self.state.project.state.still if self._is_still(source) else self.state.project.state.video
-        shade = shadowness(grey, cfg.polarity)
-        if self.otsu.value:
-            level, _ = cv2.threshold(shade, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-        else:
-            level = float(self.threshold.value)
-        mask = (shade > level).astype(np.uint8)
-        self.preview_level, self.preview_mask = float(level), mask
-        self._show(tint(grey_rgb(grey), mask, MASK_RGB, 0.55))
+        grey = self._raw_grey(frame)  # source pixels: the polarity and the levels are decided there (module doc)
+        p = self.state.project
+        cfg = p.state.still if self._is_still(source) else p.state.video
+        src = p.sources[source]
+        shown = frame_preview(
+            grey, self._box(grey, source), PREVIEW_PX, self.polarity(source),
+            None if self.otsu.value else float(self.threshold.value), src.footage or "shadow", p.state.video,
+            p.state.still, stored=p.state.targets[frame] if src.footage == "segmented" else None,
+        )  # fmt: skip
+        self.preview_level, self.preview_mask, self.stored_mask = shown.level, shown.mask, shown.stored
+        self._show(tint(grey_rgb(shown.grey), shown.mask, MASK_RGB, 0.55))
+        empty = np.zeros_like(shown.mask)
+        self.stored_rgb = tint(grey_rgb(shown.grey), shown.stored if shown.stored is not None else empty, MASK_RGB,
+                               0.55)  # fmt: skip
+        self.stored.value = png(self.stored_rgb)
+        level = f"at Otsu's level {shown.level:.0f}" if self.otsu.value else f"at level {shown.level:.0f}"
+        reading = POLARITY_WORDS[self.polarity(source)] + (" (found)" if cfg.polarity == "auto" else "")
+        self.stored_info.value = f"<small>{html.escape(shown.note or level)}; {reading}</small>"
 
     def _job_event(self, event) -> None:
         job = self.segment_job

@@ -21,6 +21,7 @@ from pathlib import Path
 import ipywidgets as w
 
 from studio.imitate.config import LossConfig
+from widgets.app import CLIP_ENV
 from widgets.images import Messages, title
 from widgets.state import StudioState
 
@@ -63,7 +64,7 @@ def clip_unavailable(state: StudioState) -> str | None:
     given = state.extras.get("clip_weights")
     if given:
         path = Path(given).expanduser()
-        return None if path.is_file() else f"the CLIP weights file {path} does not exist"
+        return None if path.is_file() else f"the CLIP weights file {path} does not exist: give another in the box below"
     try:
         from studio.imitate.clip_loss import cache_candidates
 
@@ -73,7 +74,8 @@ def clip_unavailable(state: StudioState) -> str | None:
         log.debug("cannot look for cached CLIP weights: %s", e)
     return (
         "no local CLIP weights on this machine (they are never downloaded): type the path of an open_clip "
-        f"{CLIP_MODEL} checkpoint file in the box below; until then the CLIP terms are left out"
+        f"{CLIP_MODEL} checkpoint file in the box below and press 'Use these weights' (or start the studio with "
+        f"{CLIP_ENV} set to it); until then the CLIP terms are left out"
     )
 
 
@@ -99,6 +101,7 @@ class WeightsPanel:
                                 style={"description_width": "120px"}, layout=w.Layout(width="520px"))  # fmt: skip
         self.clip_use = w.Button(description="Use these weights", icon="check", layout=w.Layout(width="180px"))
         self.clip_use.on_click(lambda _: self.use_clip_weights(self.clip_path.value))
+        self.clip_path.value = str(state.extras.get("clip_weights") or "")  # given when the studio opened
         self.sync()
         self._stop = state.on_change(self._on_change)
         defaults = ", ".join(f"{s.label} {v:g}" for s, v in zip(SLIDERS, paper_weights().values(), strict=True))

@@ -240,6 +240,19 @@ def index_key(hand: Hand, renderer: ShadowRenderer, cfg: RetrievalConfig) -> str
 _MEMO: dict[str, RetrievalIndex] = {}  # one index per key per process (the studio, evaluate and jobs share it)
 
 
+def index_path(renderer: ShadowRenderer, cfg: RetrievalConfig | None = None, folder: Path | None = None) -> Path:
+    """Where :func:`cached_index` keeps the index for ``renderer``'s hand and rig: ``folder`` (default
+    ``cache_dir()/retrieval``) / ``index-<key>.npz``."""
+    key = index_key(renderer.hand, renderer, cfg or RetrievalConfig())
+    return Path(folder or cache_dir() / "retrieval") / f"index-{key}.npz"
+
+
+def is_cached(renderer: ShadowRenderer, cfg: RetrievalConfig | None = None, folder: Path | None = None) -> bool:
+    """Whether :func:`cached_index` would find the index without building it (in this process, or its file)."""
+    cfg = cfg or RetrievalConfig()
+    return index_key(renderer.hand, renderer, cfg) in _MEMO or index_path(renderer, cfg, folder).is_file()
+
+
 def cached_index(
     renderer: ShadowRenderer,
     cfg: RetrievalConfig | None = None,
@@ -254,7 +267,7 @@ def cached_index(
     key = index_key(renderer.hand, renderer, cfg)
     if key in _MEMO:
         return _MEMO[key]
-    path = Path(folder or cache_dir() / "retrieval") / f"index-{key}.npz"
+    path = index_path(renderer, cfg, folder)
     index = RetrievalIndex.load(path, key)
     if index is None:
         log.info("building the retrieval index once: %d collision-free poses → %s", cfg.size, path)

@@ -14,6 +14,7 @@ undo list). A result is one edit (one undo step) per keyframe.
 
 from __future__ import annotations
 
+import functools
 import weakref
 from dataclasses import replace
 from pathlib import Path
@@ -137,6 +138,44 @@ def roll_job(project: ProjectHandle, *, model_path: Path | None = None) -> Job:
     )  # fmt: skip
     job.meta["keyframes"] = [kf.id for kf in project.keyframes]
     return job
+
+
+def search_renderer(model_path: Path | None = None) -> Any:
+    """The renderer a keyframe job's search ranks the retrieval index with: the self-model's hand at its resolution
+    (as :class:`~studio.imitate.still.Imitator` makes it; ``model_path`` None: the shipped self-model)."""
+    from studio.imitate.still import DEFAULT_MODEL
+    from studio.learn.checkpoint import read_checkpoint
+    from studio.learn.selfmodel import SelfModel
+    from studio.sim.hand import load_hand
+    from studio.sim.shadow import Rig, ShadowRenderer
+
+    hand = load_hand()
+    ckpt = read_checkpoint(Path(model_path or DEFAULT_MODEL), SelfModel.kind, hand.hash)
+    return ShadowRenderer(hand, Rig(resolution=SelfModel.config_from_dict(ckpt.config).resolution))
+
+
+def index_needed(model_path: Path | None = None, retrieval: Any = None) -> bool:
+    """Whether the first search on this machine would build the retrieval index (its cache missing): seconds of
+    imports and a checkpoint read, so call it off the kernel's thread. ``retrieval``: a RetrievalConfig (None: the
+    searches' default)."""
+    from studio.imitate.retrieval import is_cached
+
+    return not is_cached(search_renderer(model_path), retrieval)
+
+
+def index_job(*, model_path: Path | None = None, retrieval: Any = None) -> Job:
+    """Build (or load) the retrieval index the keyframe jobs search from (:func:`~studio.imitate.retrieval.
+    cached_index`, stage "index": poses packed of its size) into this machine's cache, so that the first
+    optimisation does not wait for it; cancelled, it saves nothing. Its result: the index's size (0: cancelled)."""
+    run = functools.partial(_build_index, model_path=model_path, retrieval=retrieval)
+    return Job("index", run, title="retrieval index (first use only)")
+
+
+def _build_index(report, cancel, *, model_path: Path | None, retrieval: Any) -> int:
+    from studio.imitate.retrieval import cached_index
+
+    index = cached_index(search_renderer(model_path), retrieval, progress=report, cancel=cancel)
+    return 0 if index is None else len(index)
 
 
 def show_job(project: ProjectHandle, keyframes: Keyframes, *, cfg: PlanConfig | None = None) -> Job:

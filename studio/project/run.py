@@ -160,7 +160,7 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
     if project.mount.auto and not project.mount.chosen and (pending or project.results):
         job = queue.submit(roll_job(project, model_path=model_path))
         if on_job is not None:
-            on_job(job, f"the mount roll for {len(ids)} keyframe(s)")
+            on_job(job, f"the mount roll for {_count(len(ids), 'keyframe')}")
         state = _wait(job, cancel)
         if state != JobState.DONE or not project.mount.chosen:
             report.cancelled, report.error = state == JobState.CANCELLED, job.error
@@ -191,21 +191,26 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
             continue
         report.cancelled, report.error = state == JobState.CANCELLED, job.error
         what = "cancelled" if report.cancelled else f"failed ({job.error})"
-        report.message = f"keyframe {k} {what}; {len(report.optimised)} keyframe(s) finished and saved before it"
+        report.message = (
+            f"keyframe {k} {what}; {_count(len(report.optimised), 'keyframe')} finished and saved before it"
+        )
         return _finish(report, project, cfg, t0)
     if not plan:
-        report.message = f"optimised {len(report.optimised)} keyframe(s)"
+        report.message = f"optimised {_count(len(report.optimised), 'keyframe')}"
         return _finish(report, project, cfg, t0)
     status = project.status()
     if status.missing or status.stale:
-        report.message = (f"optimised {len(report.optimised)} keyframe(s); the show needs every keyframe current "
-                          f"(still to optimise: {list(status.pending)})")  # fmt: skip
+        done = _count(len(report.optimised), "keyframe")
+        report.message = (
+            f"optimised {done}; the show needs every keyframe current (still to optimise: {list(status.pending)})"
+        )
         return _finish(report, project, cfg, t0)
     colliding = [k for k in ids if not project.results[k].collision_free]
     if colliding:
-        them = "it" if len(colliding) == 1 else "them"
-        report.message = (f"no show: the pose of keyframe(s) {colliding} collides with itself; optimise {them} "
-                          "again with refinement on, then plan the show")  # fmt: skip
+        n = len(colliding)
+        them = "it" if n == 1 else "them"
+        report.message = (f"no show: the pose of {_plural('keyframe', n)} {colliding} {_plural('collides', n)} with "
+                          f"itself; optimise {them} again with refinement on, then plan the show")  # fmt: skip
         return _finish(report, project, cfg, t0)
     if project.show is not None and not status.show_stale:
         report.show, report.message = "current", _nothing(report)
@@ -225,15 +230,15 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
         report.late = timing.late_transitions(job.result.segments, job.result.home_added)
         report.too_fast = True
         report.message = (
-            f"no show: {len(report.late)} transition(s) too fast for the servos at the show's clock; allow late "
-            "transitions to stretch them (the show then runs longer), or give those keyframes more time"
+            f"no show: {_count(len(report.late), 'transition')} too fast for the servos at the show's clock; allow "
+            "late transitions to stretch them (the show then runs longer), or give those keyframes more time"
         )
         return _finish(report, project, cfg, t0)
     planned = job.result
     report.late = _late(timing, planned.show)
     report.show = "planned"
-    stretched = f", {len(report.late)} late transition(s) stretched" if report.late else ""
-    report.message = (f"optimised {len(report.optimised)} keyframe(s), skipped {len(report.skipped)} current; "
+    stretched = f", {_count(len(report.late), 'late transition')} stretched" if report.late else ""
+    report.message = (f"optimised {_count(len(report.optimised), 'keyframe')}, skipped {len(report.skipped)} current; "
                       f"planned a {planned.show.duration:.2f} s show{stretched}")  # fmt: skip
     return _finish(report, project, cfg, t0)
 
@@ -269,8 +274,21 @@ def _late(timing, show) -> list[dict]:
 
 def _nothing(report: RunReport) -> str:
     if report.optimised:
-        return f"optimised {len(report.optimised)} keyframe(s); the show is current"
-    return f"nothing to do: all {len(report.skipped)} keyframe(s) and the show are current"
+        return f"optimised {_count(len(report.optimised), 'keyframe')}; the show is current"
+    every = "all " if len(report.skipped) > 1 else ""
+    return f"nothing to do: {every}{_count(len(report.skipped), 'keyframe')} and the show are current"
+
+
+def _plural(word: str, n: int) -> str:
+    """``word`` agreeing with a count of ``n`` (``keyframe`` / ``keyframes``; a verb: ``collides`` / ``collide``)."""
+    if n == 1:
+        return word
+    return word[:-1] if word.endswith("des") else word + "s"
+
+
+def _count(n: int, word: str) -> str:
+    """``1 keyframe``, ``3 keyframes``: every message of a run counts in words that agree with the number."""
+    return f"{n} {_plural(word, n)}"
 
 
 def _joint_names() -> list[str]:

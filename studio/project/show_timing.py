@@ -63,10 +63,12 @@ def _poses(s: ProjectState, status: ProjectStatus, joint_names: list[str]) -> di
     """Keyframe id → its result's pose ``(21,)`` rad; a ProjectError naming missing or stale results."""
     missing, stale = list(status.missing), list(status.stale)
     if missing or stale:
-        parts = ([f"no result for keyframe(s) {missing}"] if missing else []) + (
-            [f"stale result(s) for keyframe(s) {stale}"] if stale else []
+        kf = lambda ids: "keyframe" if len(ids) == 1 else "keyframes"  # noqa: E731
+        parts = ([f"no result for {kf(missing)} {missing}"] if missing else []) + (
+            [f"{'a stale result' if len(stale) == 1 else 'stale results'} for {kf(stale)} {stale}"] if stale else []
         )
-        raise ResultsNeeded(f"{status.path}: cannot time a show: {' and '.join(parts)}; optimise them first")
+        them = "it" if len(missing) + len(stale) == 1 else "them"
+        raise ResultsNeeded(f"{status.path}: cannot time a show: {' and '.join(parts)}; optimise {them} first")
     return {k: r.theta(joint_names) for k, r in s.results.items()}
 
 

@@ -155,6 +155,15 @@ def shadow_mask(grey: np.ndarray, polarity: str, cfg: VideoConfig, source: str =
     return mask_from_grey(shade, cleaned_cfg, source)
 
 
+def frame_mask(grey: np.ndarray, kind: str, polarity: str, cfg: VideoConfig, source: str = "<frame>") -> np.ndarray:
+    """One sampled grey frame ``(H, W)`` → the mask ``(H, W)`` uint8 that :func:`load_video` keeps for it (step 2,
+    the sequence's ``polarity`` found beforehand): a ``"mask"`` frame as it is, shadow footage by
+    :func:`shadow_mask` (a TargetError when no shadow is left). What the studio's Targets panel previews as stored."""
+    if kind == "mask":
+        return (shadowness(grey, polarity) > 127).astype(np.uint8)
+    return shadow_mask(grey, polarity, cfg, source)
+
+
 def square_box(boxes: list[tuple[int, int, int, int]], margin: float) -> tuple[int, int, int, int]:
     """The square frame ``(x, y, w, h)`` around the union of shadow boxes ``(row0, row1, col0, col1)``: grown by
     ``margin`` × its longer side on each side and squared about its centre (as ``square_frame`` frames a still)."""
@@ -282,13 +291,10 @@ def load_video(
     polarity = detect_polarity(grey) if cfg.polarity == "auto" else cfg.polarity
     masks, skipped = np.zeros(grey.shape, np.uint8), []
     for k in range(len(grey)):
-        if kind == "mask":
-            masks[k] = shadowness(grey[k], polarity) > 127
-        else:
-            try:
-                masks[k] = shadow_mask(grey[k], polarity, cfg, source=f"frame {footage.frame_index[k]}")
-            except TargetError as e:
-                skipped.append((int(footage.frame_index[k]), str(e)))
+        try:
+            masks[k] = frame_mask(grey[k], kind, polarity, cfg, source=f"frame {footage.frame_index[k]}")
+        except TargetError as e:
+            skipped.append((int(footage.frame_index[k]), str(e)))
         report(progress, "binarise", k + 1, len(grey))
     video = video_from_masks(footage, masks, cfg, skipped, kind, polarity, progress)
     log.info(

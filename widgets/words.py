@@ -1,0 +1,71 @@
+"""How the panels write numbers for the artist: times, counts with their plural, losses and shares.
+
+One place, so every panel writes a time as ``0.80 s`` (never ``0.7999999999999999``) and a count as ``1 keyframe`` /
+``5 keyframes`` (never ``1 keyframes`` nor ``keyframe(s)``).
+"""
+
+from __future__ import annotations
+
+import math
+
+IRREGULAR = {"was": "were", "is": "are", "it": "them"}  # words whose plural is not the word + "s"
+ALLOW_LATE = "allow late transitions"  # the box that stretches moves too fast for the servos (Optimise, Export)
+
+
+def seconds(t: float | None, places: int = 2) -> str:
+    """A time as the artist reads it: ``0.80 s`` (``places`` decimals); ``-`` for None or not a number."""
+    if t is None or not math.isfinite(float(t)):
+        return "-"
+    return f"{float(t):.{places}f} s"
+
+
+def span(t0: float, t1: float) -> str:
+    """A time range: ``0.40–0.80 s``, or one time when both ends are the same to the hundredth."""
+    a, b = seconds(t0), seconds(t1)
+    return a if a == b else f"{a[:-2]}–{b}"
+
+
+def plural(word: str, n: int) -> str:
+    """``word`` for one, its plural for any other count (``keyframe`` → ``keyframes``, ``was`` → ``were``)."""
+    if n == 1:
+        return word
+    if word in IRREGULAR:
+        return IRREGULAR[word]
+    return word + ("es" if word.endswith(("s", "x", "ch", "sh")) else "s")
+
+
+def count(n: int, word: str) -> str:
+    """``1 keyframe``, ``0 keyframes``, ``200,000 poses``: the number and the word that agrees with it."""
+    return f"{n:,} {plural(word, n)}"
+
+
+def loss(value: float | None) -> str:
+    """A loss to three decimals (``-`` when there is none)."""
+    if value is None or not math.isfinite(float(value)):
+        return "-"
+    return f"{float(value):.3f}"
+
+
+def stage(name: str, total: int = 0) -> str:
+    """A job's stage as the artist reads it: ``index`` (its total: poses) is the retrieval index being built, once
+    per machine; a prefix (``keyframe 2/5: index``) is kept."""
+    head, _, last = name.rpartition(": ")
+    if last == "index":
+        size = count(total, "pose") if total else "poses"
+        last = f"building the retrieval index of {size} (first use only, cached)"
+    return f"{head}: {last}" if head else last
+
+
+def late_lines(late: list[dict]) -> list[str]:
+    """The late transitions of a show (``RunReport.late`` / ``VideoTiming.late_transitions``: frames, keyframes,
+    needed versus given seconds), one line each: ``frame 3 → frame 4 (k1 → k2) at 0.50 s: needs 0.62 s, given
+    0.25 s``."""
+    out = []
+    for t in late:
+        a = "home" if t.get("from_frame") is None else f"frame {t['from_frame']}"
+        ka = "home" if t.get("from_keyframe") is None else f"k{t['from_keyframe']}"
+        out.append(
+            f"{a} → frame {t['to_frame']} ({ka} → k{t['to_keyframe']}) at {seconds(t['t_start'])}: "
+            f"needs {seconds(t['needed_s'])}, given {seconds(t['given_s'])}"
+        )
+    return out
