@@ -22,6 +22,14 @@ def estop_file(tmp_path_factory, monkeypatch) -> Path:
     return path
 
 
+@pytest.fixture(autouse=True)
+def no_index_warmup(monkeypatch) -> None:
+    """Studios opened by tests build no retrieval index in the background (widgets.index_warmup: each test's
+    studio would start a build its close cancels); the searches build it when they need it, and one test turns
+    the warm-up back on."""
+    monkeypatch.setenv("SHADOW_STUDIO_NO_INDEX_WARMUP", "1")
+
+
 @pytest.fixture(scope="session")
 def hand():
     from studio.sim.hand import load_hand

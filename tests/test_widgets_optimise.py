@@ -263,6 +263,7 @@ def test_the_retrieval_index_is_built_in_the_background_when_the_studio_opens(tm
     from studio.imitate.retrieval import RetrievalConfig
 
     monkeypatch.setenv("SHADOW_STUDIO_CACHE", str(tmp_path / "cache"))
+    monkeypatch.delenv("SHADOW_STUDIO_NO_INDEX_WARMUP", raising=False)  # the suite turns it off (conftest)
     small = RetrievalConfig(size=300, chunk=150, seed=7)
     project = Project.create(tmp_path / "i.shadow", sources=[asset("targets/asl_o.jpeg")], roll=0)
     s = StudioState(project, queue_for(project))
