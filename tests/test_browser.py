@@ -1,8 +1,19 @@
-"""The one end-to-end browser test (DESIGN §6 "JupyterLab in headless Chromium"): ``shadow-studio lab`` serves
-``studio.ipynb`` on a free local port, headless Chromium (Debian's ``chromium``, driven by Playwright) opens it, waits
-for the kernel, runs every cell, finds each panel's label in the output area, starts an optimisation from the
-Optimise panel and sees its progress advance, connects the Jog panel to the emulator and presses the e-stop; a
-screenshot is saved in the test's folder. Ctrl-C (SIGINT) then stops the verb and its server."""
+"""The one end-to-end browser test (DESIGN §6 "JupyterLab in headless Chromium"), checking what a person sees by its
+pixels (DESIGN §5.15): ``shadow-studio lab`` serves ``studio.ipynb`` on a free local port, headless Chromium (Debian's
+``chromium``, driven by Playwright) opens it, waits for the kernel and runs every cell. Then, tab by tab, with a
+screenshot of each kept in the test's folder (``tab_<name>.png``; copied into ``$SHADOW_STUDIO_SCREENSHOT``, a
+folder, when set):
+
+- every panel shows its label, none is "unavailable";
+- **Targets**: the preview tints the shape, not the backdrop: its tinted pixels match the mask the project stored;
+- **Review**: the embedded Rerun viewer fills the output area's width and its canvas draws the recording (the target
+  image's white backdrop and black shape in the canvas's pixels, not a blank canvas or Rerun's dark welcome page);
+  the show player plays (two pictures of it 300 ms apart differ);
+- **Optimise**: a job started from the panel shows its progress advancing;
+- **Jog**: after connecting to the emulator and pressing the E-STOP, the button looks latched (its computed
+  background is red);
+- no traceback in any output, no error in the page, and no request to anywhere but this machine (the studio works
+  offline). Ctrl-C (SIGINT) then stops the verb and its server."""
 
 from __future__ import annotations
 
@@ -15,7 +26,10 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from urllib.parse import urlparse
 
+import cv2
+import numpy as np
 import pytest
 from studio.assets import asset
 
@@ -25,14 +39,27 @@ from studio.project.project import Project
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--disable-background-networking",
                   "--disable-component-update", "--disable-sync", "--no-first-run"]  # fmt: skip
+VIEWPORT = {"width": 1600, "height": 2300}  # the tester's 1,600 px wide window, tall enough for a whole tab
 PANELS = ["Targets", "Keyframes", "Masks", "Weights", "Optimise", "Review", "Jog", "Export"]
-SCREENSHOT_COPY = os.environ.get("SHADOW_STUDIO_SCREENSHOT")  # also copy the screenshot here when set
+SCREENSHOT_COPY = os.environ.get("SHADOW_STUDIO_SCREENSHOT")  # a folder: the tab screenshots are copied there too
+STUDIO = ".jp-OutputArea-output .shadow-studio"
+LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
 
 KERNEL_IDLE = """() => {
   const w = window.jupyterapp && window.jupyterapp.shell.currentWidget;
   const k = w && w.sessionContext && w.sessionContext.session && w.sessionContext.session.kernel;
   return !!k && k.connectionStatus === 'connected' && k.status === 'idle';
 }"""
+SHOWN_TAB = """() => {  // the studio tab on show (ipywidgets 8 hides the others with lm-mod-hidden)
+  const tab = document.querySelector('.jp-OutputArea-output .shadow-studio .jupyter-widget-tab, '
+                                     + '.jp-OutputArea-output .shadow-studio .widget-tab');
+  const kids = Array.from(tab.querySelectorAll(':scope > .widget-tab-contents > *, :scope > .lm-StackedPanel > *'));
+  const shown = kids.filter(k => !k.classList.contains('lm-mod-hidden') && k.offsetParent !== null);
+  shown.forEach(k => k.setAttribute('data-shown-tab', '1'));
+  kids.filter(k => !shown.includes(k)).forEach(k => k.removeAttribute('data-shown-tab'));
+  return shown.map(k => k.innerText).join('\\n');
+}"""
+TAB = f"{STUDIO} [data-shown-tab='1']"  # the tab on show, once SHOWN_TAB marked it
 
 
 def playwright_api():
@@ -47,8 +74,8 @@ def playwright_api():
 
 @pytest.fixture
 def lab(tmp_path):
-    """``shadow-studio lab PROJECT`` on a free port, fresh Jupyter dirs → (url, process, start time); stopped with
-    SIGINT."""
+    """``shadow-studio lab PROJECT`` on a free port, fresh Jupyter dirs → (url, process, project, start time); stopped
+    with SIGINT. As root the verb passes JupyterLab ``--allow-root`` itself."""
     playwright_api()  # skip before starting anything
     project = Project.create(tmp_path / "browser.shadow", sources=[asset("targets/asl_o.jpeg")])
     config = tmp_path / "jupyter_config"
@@ -58,9 +85,8 @@ def lab(tmp_path):
     env = os.environ | {"JUPYTER_CONFIG_DIR": str(config), "JUPYTER_RUNTIME_DIR": str(tmp_path / "runtime"),
                         "JUPYTERLAB_WORKSPACES_DIR": str(tmp_path / "workspaces"),
                         "SHADOW_STUDIO_HOME": str(tmp_path / "home")}  # fmt: skip
-    lab_args = ["--jupyter-arg=--allow-root", "--jupyter-arg=--LabApp.expose_app_in_browser=True"]
     cmd = [sys.executable, "-m", "studio.cli.main", "lab", str(project.path), "--port", str(free_port(18888)),
-           "--no-browser", *lab_args]  # fmt: skip
+           "--no-browser", "--jupyter-arg=--LabApp.expose_app_in_browser=True"]  # fmt: skip
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     url, t0 = None, time.perf_counter()
     try:
@@ -69,7 +95,7 @@ def lab(tmp_path):
                 url = m.group(1)
                 break
         assert url, f"shadow-studio lab printed no URL (exit code {proc.poll()})"
-        yield url, proc, t0
+        yield url, proc, project, t0
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)  # Ctrl-C
@@ -79,58 +105,175 @@ def lab(tmp_path):
                 proc.kill()
 
 
-def visible_tab_text(page) -> str:
-    """The text of the studio tab on show (ipywidgets 8 hides the others with lm-mod-hidden)."""
-    return page.evaluate("""() => {
-      const tab = document.querySelector('.jp-OutputArea-output .shadow-studio .jupyter-widget-tab, '
-                                         + '.jp-OutputArea-output .shadow-studio .widget-tab');
-      const kids = Array.from(tab.querySelectorAll(':scope > .widget-tab-contents > *, :scope > .lm-StackedPanel > *'));
-      const shown = kids.filter(k => !k.classList.contains('lm-mod-hidden') && k.offsetParent !== null);
-      return shown.map(k => k.innerText).join('\\n');
-    }""")
-
-
+# ---------------------------------------------------------------- the page
 def open_tab(page, name: str) -> str:
-    page.locator(".jp-OutputArea-output .shadow-studio .lm-TabBar-tab", has_text=name).first.click()
+    """Show the studio tab ``name`` → its text (and mark it: :data:`TAB`)."""
+    page.locator(f"{STUDIO} .lm-TabBar-tab", has_text=name).first.click()
     page.wait_for_function(
         """(name) => {
           const t = document.querySelector('.jp-OutputArea-output .shadow-studio .lm-TabBar-tab.lm-mod-current');
           return t && t.innerText.trim() === name; }""",
         arg=name,
     )
-    return visible_tab_text(page)
+    return page.evaluate(SHOWN_TAB)
+
+
+def picture(locator) -> np.ndarray:
+    """A screenshot of one element as ``(H, W, 3)`` uint8 RGB."""
+    png = np.frombuffer(locator.screenshot(), np.uint8)
+    return cv2.cvtColor(cv2.imdecode(png, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
+def shoot_tab(page, name: str, folder: Path) -> Path:
+    """The studio (tab ``name`` on show) as a person sees it → ``folder/tab_<name>.png``."""
+    path = folder / f"tab_{name.lower()}.png"
+    studio = page.locator(STUDIO).first
+    studio.scroll_into_view_if_needed()
+    studio.screenshot(path=str(path))
+    return path
 
 
 def progress_widths(page) -> list[float]:
+    """Widths (%) of the progress bars in the tab on show."""
     return page.evaluate("""() => Array.from(document.querySelectorAll(
-        '.jp-OutputArea-output .shadow-studio .progress-bar')).map(b => parseFloat(b.style.width) || 0)""")
+        ".jp-OutputArea-output .shadow-studio [data-shown-tab='1'] .progress-bar"))
+        .map(b => parseFloat(b.style.width) || 0)""")
+
+
+def tracebacks(page) -> list[str]:
+    """The text of every output that shows a traceback (the kernel's, or a panel's logged exception)."""
+    return page.evaluate("""() => Array.from(document.querySelectorAll('.jp-OutputArea-output'))
+        .map(e => e.innerText).filter(t => t.includes('Traceback (most recent call last)'))""")
+
+
+# ---------------------------------------------------------------- what the pixels must show
+def tinted(rgb: np.ndarray) -> np.ndarray:
+    """Pixels of a grey picture tinted with the mask colour (``widgets.images.MASK_RGB``, orange): ``(H, W)`` bool."""
+    r, g, b = (rgb[..., i].astype(int) for i in range(3))
+    return (r - b > 60) & (g - b > 25)
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max(1, (a | b).sum()))
+
+
+def in_its_box(mask: np.ndarray, side: int = 64) -> np.ndarray:
+    """``mask (H, W)`` bool cropped to its bounding box and resized to ``side × side``: a shape compared whatever
+    its framing (the preview shows the source's square, the project stores the shape's own crop)."""
+    ys, xs = np.nonzero(mask)
+    if not len(ys):
+        return np.zeros((side, side), bool)
+    crop = mask[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1].astype(np.uint8)
+    return cv2.resize(crop, (side, side), interpolation=cv2.INTER_AREA) > 0
+
+
+def drawn_recording(rgb: np.ndarray) -> tuple[bool, dict]:
+    """Whether a Rerun canvas draws the project's recording: varied pixels, and the target view's image, a black
+    shape on a white backdrop (a large black blob ringed by white), which neither a blank canvas nor Rerun's welcome
+    page (text, a few small pictures) has, in its light theme or its dark one. → (ok, the measurements)."""
+    grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    h, w = grey.shape
+    n, _, stats, _ = cv2.connectedComponentsWithStats((grey < 40).astype(np.uint8), connectivity=4)
+    shapes = 0
+    for x, y, bw, bh, area in stats[1:]:
+        if area < 0.003 * h * w or bw > w / 2 or bh > h / 2 or bw < 20 or bh < 20:
+            continue  # a glyph, a line, or the dark theme's background
+        x0, y0, x1, y1 = max(0, x - 8), max(0, y - 8), min(w, x + bw + 8), min(h, y + bh + 8)
+        ring = np.ones((y1 - y0, x1 - x0), bool)
+        ring[y - y0 : y - y0 + bh, x - x0 : x - x0 + bw] = False
+        shapes += bool((grey[y0:y1, x0:x1][ring] > 225).mean() > 0.6)
+    facts = {"std": round(float(grey.std()), 1), "shapes_on_white": shapes}
+    return facts["std"] > 20 and shapes >= 1, facts
 
 
 @pytest.mark.slow
 def test_the_studio_in_jupyterlab(lab, tmp_path):
     sync_playwright = playwright_api()  # the fixture skipped already when it is absent
-    url, proc, t0 = lab
+    url, proc, project, t0 = lab
+    shots: list[Path] = []
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_FLAGS)
-        page = browser.new_page(viewport={"width": 1400, "height": 1000})
+        page = browser.new_page(viewport=VIEWPORT)
         errors: list[str] = []
+        outside: list[str] = []  # requests to anywhere but this machine
         page.on("pageerror", lambda e: errors.append(str(e)))
+        page.on("request", lambda r: None if urlparse(r.url).scheme not in ("http", "https", "ws", "wss")
+                or urlparse(r.url).hostname in LOCAL_HOSTS else outside.append(r.url))  # fmt: skip
         page.goto(url)
         marks = {"lab up": time.perf_counter() - t0}
         page.wait_for_function(KERNEL_IDLE, timeout=90_000)
         page.evaluate("() => window.jupyterapp.commands.execute('notebook:run-all-cells')")
-        page.locator(".jp-OutputArea-output .shadow-studio").first.wait_for(timeout=90_000)
+        page.locator(STUDIO).first.wait_for(timeout=90_000)
         page.wait_for_function(KERNEL_IDLE, timeout=90_000)
         marks["studio shown"] = time.perf_counter() - t0
-        assert not page.locator(".jp-OutputArea-output[data-mime-type='application/vnd.jupyter.stderr']").count()
-        assert not page.locator(".jp-OutputArea-output .ansi-red-fg").count()  # no traceback anywhere
-        texts = {name: open_tab(page, name) for name in PANELS}
-        for name, text in texts.items():
-            assert name in text, f"the {name} tab shows no {name!r} label: {text[:200]!r}"
-            assert "unavailable" not in text, text[:300]
+        assert not tracebacks(page)
+
+        texts = {}
+        for name in PANELS:
+            texts[name] = open_tab(page, name)
+            assert name in texts[name], f"the {name} tab shows no {name!r} label: {texts[name][:200]!r}"
+            assert "unavailable" not in texts[name], texts[name][:300]
+            if name in ("Keyframes", "Masks", "Weights", "Export"):
+                shots.append(shoot_tab(page, name, tmp_path))
+
+        # Targets: the preview tints the shape the project stored, not the backdrop around it
+        open_tab(page, "Targets")
+        preview = page.locator(f"{TAB} .widget-vbox:has(> .widget-html:has-text('threshold alone')) > img").first
+        preview.scroll_into_view_if_needed()
+        shown = picture(preview)
+        cv2.imwrite(str(tmp_path / "targets_preview.png"), cv2.cvtColor(shown, cv2.COLOR_RGB2BGR))
+        tint, stored = in_its_box(tinted(shown)), in_its_box(project.state.targets[0] > 0)
+        assert tinted(shown).mean() > 0.02, "the Targets preview tints nothing"
+        right, backdrop = iou(tint, stored), iou(in_its_box(~tinted(shown)), stored)
+        assert right > 0.85 and right > backdrop + 0.3, (
+            f"the Targets preview does not tint the stored shape: IoU {right:.2f} with it, {backdrop:.2f} when its "
+            "untinted pixels are taken for the shape"
+        )
+        shots.append(shoot_tab(page, "Targets", tmp_path))
+
+        # Review: the Rerun viewer, as wide as the output area, draws the recording; the show player plays
+        open_tab(page, "Review")
+        canvas = page.locator(f"{TAB} .rerun_notebook canvas").first
+        canvas.wait_for(timeout=60_000)
+        canvas.scroll_into_view_if_needed()
+        area = page.locator(STUDIO).first.bounding_box()
+        box = canvas.bounding_box()
+        assert box["width"] >= 0.9 * area["width"] and box["height"] >= 400, (box, area)
+        facts: dict = {}
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            drawn = picture(canvas)
+            cv2.imwrite(str(tmp_path / "rerun_canvas.png"), cv2.cvtColor(drawn, cv2.COLOR_RGB2BGR))
+            ok, facts = drawn_recording(drawn)
+            if ok:
+                break
+            page.wait_for_timeout(1000)
+        if not ok:
+            shoot_tab(page, "Review", tmp_path)
+        assert ok, f"the Rerun viewer does not draw the recording (blank or its welcome page): {facts}"
+        marks["rerun drawn"] = time.perf_counter() - t0
+        player = page.locator(f"{TAB} .show-player")
+        if player.count():  # the show player (widgets.show_player): plays frames in the browser
+            scrub = "document.querySelector(\"[data-shown-tab='1'] .show-player input[type=range]\")"
+            page.wait_for_function(f"() => Number(({scrub} || {{}}).max) > 0", timeout=90_000)  # it has frames
+            player.locator("input[type=checkbox]").first.check()  # loop
+            player.locator("button", has_text="Play").first.click()
+            screen = player.locator("canvas").first
+            differ = False
+            for _ in range(8):
+                a = picture(screen)
+                page.wait_for_timeout(300)
+                if not np.array_equal(a, picture(screen)):
+                    differ = True
+                    break
+            assert differ, "the show player shows the same picture 300 ms apart while playing"
+            player.locator("button", has_text="Pause").first.click()
+            marks["player plays"] = time.perf_counter() - t0
+        shots.append(shoot_tab(page, "Review", tmp_path))
+
         # Optimise: start this keyframe and see a progress bar advance
         open_tab(page, "Optimise")
-        page.locator(".jp-OutputArea-output .shadow-studio button", has_text="This keyframe").first.click()
+        page.locator(f"{TAB} button", has_text="This keyframe").first.click()
         seen: list[tuple[float, ...]] = []  # the widths of the job's bars (retrieve, search, refine) over time
 
         def advanced() -> bool:  # some bar was drawn at two different non-zero widths
@@ -146,25 +289,36 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
             page.wait_for_timeout(250)
         assert advanced(), f"no progress seen advancing: {seen}"
         marks["progress seen"] = time.perf_counter() - t0
-        page.screenshot(path=str(tmp_path / "studio.png"), full_page=False)
-        cancel = page.locator(".jp-OutputArea-output .shadow-studio button", has_text="Cancel").first
+        shots.append(shoot_tab(page, "Optimise", tmp_path))
+        cancel = page.locator(f"{TAB} button", has_text="Cancel").first
         if cancel.is_enabled():  # spare the CPU for the rest (the panel's own tests check cancelling)
             cancel.click()
-        # Jog: connect to the emulator, press the e-stop, see it latched
+
+        # Jog: connect to the emulator, press the e-stop, see it latched: the button turns red and says so
         open_tab(page, "Jog")
-        page.locator(".jp-OutputArea-output .shadow-studio button", has_text="connect").first.click()
+        page.locator(f"{TAB} button", has_text="connect").first.click()
+        estop = page.locator(f"{TAB} button", has_text="E-STOP").first
         page.wait_for_function(
             "() => !document.evaluate(\"//button[contains(., 'E-STOP')]\", document).iterateNext().disabled",
             timeout=30_000,
         )
-        page.locator(".jp-OutputArea-output .shadow-studio button", has_text="E-STOP").first.click()
-        page.locator(".jp-OutputArea-output .shadow-studio", has_text="latched").first.wait_for(timeout=15_000)
+        estop.click()
+        page.locator(f"{TAB} button", has_text="LATCHED").first.wait_for(timeout=15_000)
+        colour = estop.evaluate("b => getComputedStyle(b).backgroundColor")
+        r, g, b = (int(v) for v in re.findall(r"\d+", colour)[:3])
+        assert r >= 100 and r > 2 * g and r > 2 * b, f"the latched E-STOP is not red: {colour}"
+        shots.append(shoot_tab(page, "Jog", tmp_path))
+        found = tracebacks(page)
         browser.close()
     seconds = time.perf_counter() - t0
-    assert (tmp_path / "studio.png").stat().st_size > 10_000
+    assert not found, found
+    assert not errors, errors
+    assert not outside, f"the studio reached outside this machine: {outside}"
+    assert len(shots) == len(PANELS) and all(s.stat().st_size > 10_000 for s in shots)
     if SCREENSHOT_COPY:
-        shutil.copyfile(tmp_path / "studio.png", SCREENSHOT_COPY)
-    assert not [e for e in errors if "Failed to fetch" not in e], errors
-    print(f"browser part took {seconds:.1f} s:", {k: round(v, 1) for k, v in marks.items()})
+        Path(SCREENSHOT_COPY).mkdir(parents=True, exist_ok=True)
+        for s in [*shots, tmp_path / "rerun_canvas.png"]:
+            shutil.copyfile(s, Path(SCREENSHOT_COPY) / s.name)
+    print(f"browser part took {seconds:.1f} s:", {k: round(v, 1) for k, v in marks.items()}, "Rerun canvas:", facts)
     proc.send_signal(signal.SIGINT)  # Ctrl-C stops the verb and its server
     assert proc.wait(30) == 0

@@ -102,6 +102,42 @@ def test_set_pose_moves_the_links_to_their_fk_poses_and_retextures_the_backdrop(
         scene.set_pose(HAND.upper + 1.0)
 
 
+def project_ndc(eye: np.ndarray, target: np.ndarray, points: np.ndarray, aspect: float, fov_deg: float = 75.0):
+    """``points (P, 3)`` (rig frame, +y up) in normalised device coordinates of a three.js perspective camera at
+    ``eye`` looking at ``target`` (x, y in [-1, 1] on screen) → ``(P, 2)``, and their depths ``(P,)``."""
+    f = (target - eye) / np.linalg.norm(target - eye)
+    r = np.cross(f, [0.0, 1.0, 0.0])
+    r /= np.linalg.norm(r)
+    u = np.cross(r, f)
+    d = points - eye
+    z = d @ f
+    t = np.tan(np.radians(fov_deg) / 2)
+    return np.stack([(d @ r) / z / (t * aspect), (d @ u) / z / t], axis=1), z
+
+
+def test_the_camera_frames_the_light_the_hand_and_the_backdrop(scene):
+    """From where the snapshot's camera looks, in a view 1.8 to 3 times as wide as tall (meshcat's 75° vertical
+    field of view), the light, every link of the hand and the backdrop's corners are in view, the hand at least
+    8 % of the view's height (the whole-rig view it replaces made it about 2 %), the backdrop's lit face towards
+    the camera; meshcat's axes (on the wrist) are hidden."""
+    held = commands(scene.static_html())
+    orbit = matrix(held[("set_transform", "Cameras/default")])[:3, 3]  # meshcat's world, +z up
+    offset = np.asarray(held[("set_property", "Cameras/default/rotated/<object>")]["value"], float)
+    target = np.array([orbit[0], orbit[2], -orbit[1]])  # the rig's frame (+y up)
+    eye = target + offset  # the camera's own axes (three.js, +y up) are the rig's
+    np.testing.assert_allclose((tuple(eye), tuple(target)), (CFG.camera_eye, CFG.camera_target), atol=1e-12)
+    assert held[("set_property", "Axes")]["value"] is False
+    h, z = RIG.window / 2, RIG.backdrop_z
+    corners = np.array([[-h, h, z], [h, h, z], [h, -h, z], [-h, -h, z]])
+    links = fk_numpy(HAND, scene.theta)[0][:, :3, 3]
+    points = np.vstack([np.asarray(RIG.light)[None], corners, links])
+    for aspect in (1.8, 3.0):
+        ndc, depth = project_ndc(eye, target, points, aspect)
+        assert (depth > 0.1).all() and (np.abs(ndc) < 0.95).all(), (aspect, ndc.round(2))
+        assert np.ptp(ndc[5:, 1]) / 2 >= 0.08, np.ptp(ndc[5:, 1]) / 2  # the hand's share of the view's height
+    assert eye[2] > RIG.backdrop_z  # on the light's side of the backdrop: its shadow faces the camera
+
+
 def test_snapshots_are_self_contained(scene):
     html = scene.static_html()
     assert not re.findall(r"<script[^>]+src=", html) and not re.findall(r"<link[^>]+href=", html)

@@ -7,11 +7,14 @@ from __future__ import annotations
 
 import os
 import sys
+from types import SimpleNamespace
 
 import ipywidgets as w
 import numpy as np
 import pytest
 
+from studio.jobs.events import JobState
+from studio.jobs.queue import Job
 from studio.project.jobs import queue_for
 from studio.project.project import Project
 from studio.review.blueprint import RENDERED, TARGET
@@ -46,8 +49,10 @@ def test_review_panel_follows_the_selection_and_results_and_closes_its_scene(sta
         assert os.environ["RERUN_NOTEBOOK_ASSET"] == "inline"  # the viewer never fetches its JavaScript online
         assert panel.rrd == p.path.with_suffix(".rrd") and panel.rrd.exists()
         if notebook_viewer_missing() is None:  # rerun-notebook installed: the live viewer is embedded
-            assert panel.viewer is not None and panel.viewer_box.children == (panel.viewer,)
+            box = panel.viewer_controls
+            assert panel.viewer_box.children == (box.widget,) and box.viewer is panel.viewer
             assert isinstance(panel.viewer, w.DOMWidget) and panel.viewer._url == panel.recording.server_url
+            assert (panel.viewer._width, panel.viewer._height) == ("auto", panel.cfg.viewer_height)  # 100 % wide
         else:
             text = panel.viewer_box.children[0].value
             assert "pip install rerun-notebook" in text and f"rerun {panel.rrd}" in text
@@ -95,3 +100,53 @@ def test_without_rerun_notebook_the_panel_says_how_to_get_it(state, monkeypatch)
         assert panel.recording.server_url is None  # nothing served that no viewer would read
     finally:
         panel.close()
+
+
+def test_the_viewer_follows_the_studio(state, hand):
+    """The selection moves the viewer to that frame, a running optimisation to its newest step, a finished play's
+    angles are logged and played, the show player moves the viewer and the meshcat scene to its time; the height
+    control resizes the viewer, and with follow off nothing moves it."""
+    if notebook_viewer_missing() is not None:
+        pytest.skip("the notebook viewer needs the rerun-notebook package")
+    panel = review_panel(state, ReviewConfig(follow_interval_s=0.0))
+    box, q = panel.viewer_controls, state.queue
+    try:
+        box.height.value = 800
+        assert panel.viewer._height == 800
+        state.select(frame=2)
+        assert box.where == ("frame", 2.0)
+        box.follow.value = False
+        state.select(frame=3)
+        assert box.where == ("frame", 2.0)  # not following: the viewer stays where the artist put it
+        box.follow.value = True
+
+        def optimise(report, cancel):
+            for i in range(1, 5):
+                report("search", i, 4, 1.0 / i, None)
+
+        assert q.run(Job("imitate-keyframe", optimise), timeout=60).state == JobState.DONE
+        assert box.where[0] == "opt_step" and box.where[1] >= 4  # where it last drew its best loss
+
+        names = list(hand.joint_names)
+        t = np.arange(12) / 40
+        played = SimpleNamespace(joint_names=names, t=t, sent=np.zeros((12, len(names))), ramp_ticks=4,
+                                 measured_t=t[::2], measured_joint=np.zeros(6, int), measured_rad=np.zeros(6),
+                                 reason=SimpleNamespace(value="completed"), message="played")  # fmt: skip
+        assert q.run(Job("play", lambda report, cancel: played), timeout=60).state == JobState.DONE
+        assert box.where == ("play_time", 0.0)  # its commanded vs measured angles, played from the start
+
+        q.wait(timeout=300)  # the show preview the player plays is rendered
+        shown = panel.preview.preview
+        assert shown is not None and len(shown.clock.times) > 3
+        panel.preview.player.index = 3
+        clock = shown.clock
+        expect = ("show_time", float(clock.times[3])) if clock.planned else ("frame", float(clock.frame[3]))
+        assert box.where[0] == expect[0] and box.where[1] == pytest.approx(expect[1])
+        if np.isfinite(clock.theta[3]).all():
+            np.testing.assert_allclose(panel.scene_pose, clock.theta[3])
+    finally:
+        panel.close()
+    recording = read_recording(panel.rrd)
+    commanded = [e for e in recording if e.startswith("/servo/") and e.endswith("/commanded")]
+    assert len(commanded) == len(names) and "/servo/wrist/measured" in recording  # the play's angles
+    assert any(e.startswith("/loss/job") for e in recording)  # the optimisation's best loss on opt_step

@@ -5,11 +5,16 @@ shadow for the frame in view, and the meshcat scene of light, hand and backdrop.
 
 The recording is a :class:`studio.review.recording.ProjectRecording`: written to ``NAME.rrd`` beside the project
 folder ``NAME.shadow`` (open it in the standalone viewer with ``rerun NAME.rrd``) and, when the ``rerun-notebook``
-package is installed, served to the viewer embedded here (offline: ``studio.review`` sets
-``RERUN_NOTEBOOK_ASSET=inline``). The project is logged again after every edit and job progress is logged as it
-comes (the queue's events on ``opt_step``). Without ``rerun-notebook`` the panel says how to install it and how to
-open the file instead. The meshcat scene (:class:`studio.review.scene.ShadowScene`) shows the pose of the frame's
-keyframe (the rest pose before it has a result) as an offline snapshot, redrawn when the selection changes.
+package is installed, streamed live to the viewer embedded here (:class:`widgets.review_viewer.ViewerBox`: as wide as
+the output area, a height control, offline, and a "follow" switch that moves its time with the selection, a running
+job, the show player and a finished play). The project is logged again after every edit, job progress as it comes
+(the queue's events on ``opt_step``) and a finished play's commanded vs measured angles when it ends. Without
+``rerun-notebook`` the panel says how to install it and how to open the file instead. The meshcat scene
+(:class:`studio.review.scene.ShadowScene`, framed on the light, the hand and the backdrop) shows the pose of the
+frame's keyframe (the rest pose before it has a result) as an offline snapshot, redrawn when the selection changes,
+and the pose the show player plays (:meth:`ReviewPanel.follow_player`). The show
+preview (:mod:`widgets.show_player`: source | target | the show's shadow played in the browser, and the strip of
+every frame) and a frame picker select the frame in view in every tab.
 """
 
 from __future__ import annotations
@@ -18,7 +23,9 @@ import html
 import importlib.util
 import logging
 import threading
+import time
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import ipywidgets as w
@@ -29,6 +36,8 @@ from studio.review.recording import ProjectRecording
 from studio.review.scene import ShadowScene
 from widgets.images import Messages, title
 from widgets.optimise import mask_picture
+from widgets.review_viewer import ViewerBox, log_finished_play
+from widgets.show_player import ShowPreviewPanel
 from widgets.state import StudioState
 
 log = logging.getLogger(__name__)
@@ -40,9 +49,11 @@ class ReviewConfig:
 
     rrd: Path | None = None  # where the recording is written (None: NAME.rrd beside the project folder NAME.shadow)
     viewer: bool = True  # embed the Rerun viewer (when rerun-notebook is installed)
-    viewer_height: int = 480  # px of the embedded Rerun viewer
+    viewer_height: int = 560  # px of the embedded Rerun viewer (its width is the output area's; a control resizes it)
     scene: bool = True  # show the meshcat scene (starts a local meshcat server, stopped by close())
-    scene_height: int = 360  # px of the meshcat snapshot
+    scene_height: int = 420  # px of the meshcat snapshot (as wide as the output area)
+    follow_interval_s: float = 0.5  # s, the least time between two moves of the viewer or the scene while a job runs
+    # or the show player plays
     image_px: int = 192  # side of the target and shadow images, px
 
 
@@ -67,7 +78,8 @@ class ReviewPanel:
         self.missing = notebook_viewer_missing() if self.cfg.viewer else "the embedded viewer is off"
         self.recording: ProjectRecording | None = None
         self.scene: ShadowScene | None = None
-        self.viewer: w.Widget | None = None
+        self.viewer: w.Widget | None = None  # the Rerun viewer widget (inside viewer_controls.widget)
+        self.viewer_controls: ViewerBox | None = None  # the viewer with its height control and "follow" switch
         self._unsubscribe = lambda: None
         self.viewer_box = w.VBox([])
         self.target_image = w.Image(format="png", width=self.cfg.image_px, height=self.cfg.image_px)
@@ -77,14 +89,19 @@ class ReviewPanel:
         self.shown_frame: int | None = None  # the frame whose target and shadow are shown
         self.shown_shadow: np.ndarray | None = None  # that frame's keyframe's result shadow (None: no result yet)
         self.scene_pose: np.ndarray | None = None  # (21,) rad shown in the meshcat scene
+        self._scene_drawn = 0.0  # monotonic time of the last snapshot drawn
         self._open_recording()
         if self.cfg.scene:
             self.scene = self.messages.run(ShadowScene)
         pictures = w.HBox([w.VBox([w.HTML("target"), self.target_image]),
                            w.VBox([w.HTML("shadow"), self.shadow_image])])  # fmt: skip
+        self.frame_picker = w.IntSlider(min=0, max=max(0, len(project.frames) - 1), description="frame")
+        self.frame_picker.observe(self._picked, names="value")
+        self.preview = ShowPreviewPanel(state)  # the show preview player and the frame strip (widgets.show_player)
+        self.follow_player(self.preview.player)
         self.widget = w.VBox([
-            title("Review"), self.viewer_box, self.caption, pictures, w.HTML("<b>the rig</b>"), self.scene_html,
-            self.messages.widget,
+            title("Review"), self.viewer_box, self.preview.widget, self.frame_picker, self.caption, pictures,
+            w.HTML("<b>the rig</b>"), self.scene_html, self.messages.widget,
         ])  # fmt: skip
         self._stop = state.on_change(self._on_change)
         self.show_frame()
@@ -96,15 +113,23 @@ class ReviewPanel:
             self.recording = ProjectRecording(path=self.rrd, notebook=serve)
             self.recording.log_project(self.state.project)
             self.recording.flush()
-            if self.state.queue is not None:
-                self._unsubscribe = self.state.queue.subscribe(self.recording.job_progress())
+            queue = self.state.queue
             if serve:
-                self.viewer = self.recording.notebook_widget(height=self.cfg.viewer_height)
+                self.viewer_controls = ViewerBox(self.recording, queue, self.cfg.viewer_height,
+                                                 self.cfg.follow_interval_s)  # fmt: skip
+                self.viewer = self.viewer_controls.viewer
+            if queue is not None:  # job progress on opt_step, and a finished play's servo angles, as they come
+                box = self.viewer_controls
+                stops = [
+                    queue.subscribe(self.recording.job_progress(on_step=box and box.on_step)),
+                    queue.subscribe(box.job_event if box else partial(log_finished_play, self.recording, queue)),
+                ]
+                self._unsubscribe = lambda: [stop() for stop in stops]
         except (StudioError, OSError, RuntimeError) as e:
             self.missing = self.missing or str(e)
             log.warning("review: %s", e)
-        if self.viewer is not None:
-            self.viewer_box.children = (self.viewer,)
+        if self.viewer_controls is not None:
+            self.viewer_box.children = (self.viewer_controls.widget,)
             return
         where = html.escape(str(self.rrd))
         self.viewer_box.children = (w.HTML(
@@ -129,19 +154,60 @@ class ReviewPanel:
         k = p.keyframes[int(p.assignment()[i])].id if p.keyframes else None
         result = None if k is None else p.results.get(k)
         self.shown_frame = i
+        with self.frame_picker.hold_trait_notifications():  # no clamped value in between
+            self.frame_picker.max, self.frame_picker.value = len(p.frames) - 1, i
         self.target_image.value = mask_picture(p.state.targets[i], px)
         self.shown_shadow = None if result is None else np.asarray(result.shadow)
         self.shadow_image.value = mask_picture(self.shown_shadow, px)
         f = p.frames[i]
         state = "no result yet" if result is None else ("stale result" if p.is_stale(k) else f"loss {_total(result)}")
         self.caption.value = f"frame {i} (source {f.source}, {f.time_s:.2f} s), keyframe {k}: {state}"
-        if self.scene is not None and not self.scene.closed:
-            self.scene.set_roll(self.state.project.mount.roll)  # the hand as the show mounts it
+        if self.scene is not None:
             names = self.scene.hand.joint_names
-            theta = self.scene.hand.rest_pose() if result is None else result.theta(names)
-            if self.messages.run(self.scene.set_pose, theta) is not None:
-                self.scene_pose = np.asarray(theta)
-                self.scene_html.value = self.scene.render_static(height=self.cfg.scene_height).data
+            self.show_pose(self.scene.hand.rest_pose() if result is None else result.theta(names))
+
+    # ---------------------------------------------------------------- the rig in meshcat
+    def show_pose(self, theta: np.ndarray) -> bool:
+        """Show ``theta (21,) rad`` in the meshcat scene (the hand as the show mounts it, its shadow on the
+        backdrop) and redraw the snapshot; False when there is no scene or the pose is invalid (the panel says
+        why)."""
+        if self.scene is None or self.scene.closed:
+            return False
+        self.scene.set_roll(self.state.project.mount.roll)
+        if self.messages.run(self.scene.set_pose, theta) is None:
+            return False
+        self.scene_pose = np.asarray(theta)
+        self.scene_html.value = self.scene.render_static(height=self.cfg.scene_height).data
+        self._scene_drawn = time.monotonic()
+        return True
+
+    def follow_player(self, player: w.Widget) -> None:
+        """Follow the show player ``player`` (``self.preview.player``: ``index``, the preview frame in view, and
+        ``playing``; the clock of ``self.preview.preview`` says the show time, project frame and pose of each): the
+        viewer moves to its time on ``show_time`` (on ``frame``, when paused, before a show is planned) and the scene
+        shows the pose played then, at most every ``follow_interval_s`` while it plays and at once when it stops."""
+        player.observe(self._player_moved, names=["index", "playing"])
+
+    def _player_moved(self, _change: dict) -> None:
+        shown, player = self.preview.preview, self.preview.player  # the ShowPreview it plays (None: none yet)
+        if shown is None or self.closed or not len(shown.clock.times):
+            return
+        clock, playing = shown.clock, bool(player.playing)
+        k = max(0, min(int(player.index), len(clock.times) - 1))
+        with self._lock:
+            if self.viewer_controls is not None:
+                if clock.planned:
+                    self.viewer_controls.at_show_time(float(clock.times[k]), playing=playing)
+                elif not playing:
+                    self.viewer_controls.at_frame(int(clock.frame[k]))
+            theta = np.asarray(clock.theta[k], dtype=float)
+            soon = playing and time.monotonic() - self._scene_drawn < self.cfg.follow_interval_s
+            if np.isfinite(theta).all() and not soon:
+                self.show_pose(theta)
+
+    def _picked(self, change: dict) -> None:
+        if change["new"] != self.state.selection.frame:
+            self.state.select(frame=change["new"])
 
     def _on_change(self, what: str) -> None:
         with self._lock:
@@ -151,6 +217,8 @@ class ReviewPanel:
                 self.relog()
             if what in ("project", "selection"):
                 self.show_frame()
+            if what == "selection" and self.viewer_controls is not None and self.shown_frame is not None:
+                self.viewer_controls.at_frame(self.shown_frame)  # the viewer shows the frame selected
 
     def close(self) -> None:
         """Stop following the project, finish the recording and stop the meshcat server (idempotent)."""
@@ -160,6 +228,7 @@ class ReviewPanel:
             self.closed = True
         self._stop()
         self._unsubscribe()
+        self.preview.close()
         if self.recording is not None:
             self.recording.close()
         if self.scene is not None:

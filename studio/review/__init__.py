@@ -6,6 +6,7 @@
   :mod:`.blueprint` (entity paths, the layout), :mod:`.frames` (frames and keyframes on ``frame``, job progress on
   ``opt_step``), :mod:`.rig3d` (the hand from the URDF, light and backdrop in 3D, the show on ``show_time``),
   :mod:`.playback` (commanded vs measured servo angles).
+- :mod:`.notebook_viewer`: the Rerun viewer widget for notebooks (offline, full width, on a recording's live stream).
 - :mod:`.scene`: the rig in meshcat (light, hand, backdrop textured with the shadow), offline snapshots.
 - :mod:`.sheets`, :mod:`.video_review`: contact sheets and side-by-side videos (numpy + OpenCV).
 - :mod:`.readback`: reading a recording back (``read_recording``, ``scalar_series``) for tests and tools.

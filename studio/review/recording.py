@@ -10,8 +10,8 @@ Sinks, chosen when it is made (each gets everything logged after): ``path`` writ
 standalone viewer (``rerun review.rrd``); ``url`` streams to a running viewer (``rerun`` listens on
 :data:`DEFAULT_VIEWER_URL`); ``serve`` hosts a gRPC server on this machine that viewers connect to
 (:attr:`ProjectRecording.server_url`, ``rerun --connect URL``), and ``notebook`` does the same for
-:meth:`ProjectRecording.show_notebook`, the viewer in a notebook cell (offline: ``studio.review`` sets
-``RERUN_NOTEBOOK_ASSET=inline`` before rerun is imported). The layout is :func:`~studio.review.blueprint
+:meth:`ProjectRecording.show_notebook`, the viewer in a notebook cell (:mod:`studio.review.notebook_viewer`: offline,
+100 % wide, reading the live stream). The layout is :func:`~studio.review.blueprint
 .project_blueprint`. Everything here takes plain data (arrays, a Show, results); :meth:`ProjectRecording.log_project`
 reads a ``studio.project.Project`` by its public attributes (review never imports the project layer).
 """
@@ -19,6 +19,7 @@ reads a ``studio.project.Project`` by its public attributes (review never import
 from __future__ import annotations
 
 import logging
+import math
 import socket
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -32,6 +33,7 @@ from studio.errors import StudioError
 from studio.motion.show import Show
 from studio.review.blueprint import FRAME, project_blueprint
 from studio.review.frames import JobProgressLog, KeyframeReview, log_frames
+from studio.review.notebook_viewer import DEFAULT_HEIGHT, NotebookViewerError, notebook_viewer
 from studio.review.playback import PlaybackSampleLog, log_playback
 from studio.review.rig3d import RigReview, log_mount, log_rig, log_show, urdf_tree
 from studio.sim.hand import Hand, load_hand
@@ -64,6 +66,23 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+class _SteppedJobProgress(JobProgressLog):
+    """:class:`JobProgressLog` telling ``on_step(event, opt_step)`` where it drew a running event's progress (and
+    where a job's final event left it)."""
+
+    def __init__(self, rec: rr.RecordingStream, names: Mapping[int, str] | None, on_step):
+        super().__init__(rec, names)
+        self.on_step = on_step
+
+    def __call__(self, event: Any) -> None:
+        super().__call__(event)
+        running = getattr(event.state, "value", event.state) == "running"
+        drawn = running and (math.isfinite(event.best) or event.shadow is not None)
+        if self.on_step is not None and (drawn or event.final):
+            _, offset, step = self._at[event.job_id]  # (stage, its offset, its last step), as just logged
+            self.on_step(event, offset + step)
 
 
 class ProjectRecording:
@@ -142,9 +161,13 @@ class ProjectRecording:
         column order (its calibration's joint names; default the hand's)."""
         return PlaybackSampleLog(self.rec, joint_names or self.hand.joint_names)
 
-    def job_progress(self, names: Mapping[int, str] | None = None) -> JobProgressLog:
-        """A job-queue subscriber drawing each job's progress on ``opt_step`` (``queue.subscribe(...)``)."""
-        return JobProgressLog(self.rec, names)
+    def job_progress(
+        self, names: Mapping[int, str] | None = None, on_step: Callable[[Any, int], None] | None = None
+    ) -> JobProgressLog:
+        """A job-queue subscriber drawing each job's progress on ``opt_step`` (``queue.subscribe(...)``);
+        ``on_step(event, step)`` is told the ``opt_step`` where a running event's loss or shadow was drawn, and where
+        a job's final event left it (a viewer following the job moves there)."""
+        return _SteppedJobProgress(self.rec, names, on_step)
 
     def log_project(
         self, project: Any, self_model: SelfModel | None = None, sources: Sequence[np.ndarray | None] | None = None
@@ -181,36 +204,24 @@ class ProjectRecording:
         return which
 
     # ---------------------------------------------------------------- viewers and the end
-    def show_notebook(self, width: int | None = None, height: int | None = None):
-        """Show the live viewer in this notebook cell (made with ``notebook=True``) and return its widget."""
-        if self.server_url is None:
-            raise ReviewError("this recording serves no viewer: make it with ProjectRecording(..., notebook=True)")
-        try:
-            from rerun.notebook import Viewer
-        except ImportError as e:  # pragma: no cover - depends on the environment
-            raise ReviewError(f"the notebook viewer needs the rerun-notebook package ({e}): "
-                              "pip install 'rerun-sdk[notebook]'") from None  # fmt: skip
-        try:
-            viewer = Viewer(width=width, height=height, url=self.server_url)
-        except Exception as e:  # rerun raises its own missing-dependency error when rerun-notebook is absent
-            raise ReviewError(f"cannot open the notebook viewer ({e}): pip install 'rerun-sdk[notebook]'") from None
-        viewer.display()
-        return viewer
-
-    def notebook_widget(self, width: int | None = None, height: int | None = None):
+    def notebook_widget(self, height: int = DEFAULT_HEIGHT, panels: Mapping[str, str] | None = None):
         """The live viewer as a widget to place in a notebook layout (made with ``notebook=True``; not displayed):
-        the ``rerun_notebook.Viewer`` that :meth:`show_notebook` shows. A ReviewError saying what to install when
-        the rerun-notebook package is missing."""
+        :func:`studio.review.notebook_viewer.notebook_viewer` on this recording's stream, 100 % wide and ``height``
+        px tall, offline. A ReviewError saying what to install when the rerun-notebook package is missing."""
         if self.server_url is None:
             raise ReviewError("this recording serves no viewer: make it with ProjectRecording(..., notebook=True)")
         try:
-            from rerun.notebook import Viewer
+            return notebook_viewer(self.server_url, height=height, panels=panels)
+        except NotebookViewerError as e:
+            raise ReviewError(str(e)) from None
 
-            viewer = Viewer(width=width, height=height, url=self.server_url)
-        except Exception as e:  # ImportError, or rerun's own missing-dependency error
-            raise ReviewError(f"the notebook viewer needs the rerun-notebook package ({e}): "
-                              "pip install rerun-notebook") from None  # fmt: skip
-        return viewer._viewer  # rerun 0.41: the widget inside the wrapper, what Viewer.display() shows
+    def show_notebook(self, height: int = DEFAULT_HEIGHT):
+        """Show the live viewer in this notebook cell (made with ``notebook=True``) and return its widget."""
+        from IPython.display import display
+
+        viewer = self.notebook_widget(height)
+        display(viewer)
+        return viewer
 
     def flush(self) -> bool:
         """Send everything logged so far to every sink, waiting at most ``flush_timeout_s``; False (and a warning)

@@ -9,8 +9,10 @@ Scene tree under ``/meshcat/shadow_studio`` (the rig's world frame, +y up, turne
 ``T_world_link`` by :meth:`ShadowScene.set_pose`) holding ``hand/<link>/<k>`` pieces of the URDF's visual shell
 (capsules as a cylinder and two spheres, spheres, boxes), and ``backdrop``, a thin box whose face towards the light
 is the rig's image window at ``z = backdrop_z``, its texture the shadow (row 0 at +y, column 0 at -x) rendered by
-:class:`~studio.sim.shadow.ShadowRenderer`. meshcat 0.3.2's ``Visualizer.close()`` is broken (DESIGN §6):
-:meth:`ShadowScene.close` closes the zmq socket and stops the server process itself. The server a scene starts is
+:class:`~studio.sim.shadow.ShadowRenderer`. The camera (:meth:`ShadowScene.set_camera`; by default
+:class:`SceneConfig`'s) frames the light, the hand and the backdrop with its shadow. meshcat 0.3.2's
+``Visualizer.close()`` is broken (DESIGN §6): :meth:`ShadowScene.close` closes the zmq socket and stops the server
+process itself. The server a scene starts is
 :mod:`studio.review.meshcat_server` (meshcat's bridge with both its zmq socket and its web server on 127.0.0.1; the
 stock one serves the viewer on every interface).
 """
@@ -20,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import io
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -52,6 +55,13 @@ class SceneConfig:
     shell_color: int = 0x3A3A3A  # RGB hex of the hand's foam shell
     light_color: int = 0xFFD23C  # RGB hex of the light and its rays
     zmq_url: str | None = None  # a running meshcat server to draw in (None: start one, stopped by close())
+    # where the camera looks from and at (rig frame, m, +y up; meshcat's 75° vertical field of view): beside and
+    # above the hand, nearer the backdrop than the light, looking at the hand, so that the light, the hand and the
+    # whole backdrop window with its shadow are all in a view 1.8 to 3 times as wide as it is tall, the hand about
+    # as large as that allows (a tenth of the view's height and more, not the 2 % speck a view of the whole rig makes)
+    camera_eye: tuple[float, float, float] = (1.1, 0.75, -0.4)
+    camera_target: tuple[float, float, float] = (0.0, 0.1, 0.0)
+    axes: bool = False  # show meshcat's axes at the world origin (they sit on the hand's wrist)
 
 
 def _translate(p) -> np.ndarray:
@@ -106,6 +116,7 @@ class ShadowScene:
         self.closed = False
         self.theta: np.ndarray | None = None  # (21,) rad, the pose shown
         self.shadow: np.ndarray | None = None  # (R, R) uint8, the shadow on the backdrop
+        self.camera: tuple[tuple[float, ...], tuple[float, ...]] | None = None  # (eye, target), rig frame, m
         try:
             self._build()
             self.set_pose(self.hand.rest_pose())
@@ -148,9 +159,18 @@ class ShadowScene:
                     k += 1
         box = _translate([0.0, 0.0, rig.backdrop_z - cfg.backdrop_thickness / 2])
         root["backdrop"].set_transform(box)
+        self.set_camera(cfg.camera_eye, cfg.camera_target)
+        self.vis["/Axes"].set_property("visible", cfg.axes)
+
+    def set_camera(self, eye: Sequence[float], target: Sequence[float]) -> None:
+        """Look from ``eye`` at ``target`` (both in the rig's frame, m; +y up): the viewer's camera orbits
+        ``target``. meshcat puts the orbit centre at the origin of ``/Cameras/default`` and the camera at
+        ``/Cameras/default/rotated/<object>``'s ``position``, in three.js axes (+y up), which are the rig's."""
+        t, e = np.asarray(target, dtype=float), np.asarray(eye, dtype=float)
         camera = self.vis["/Cameras/default"]
-        camera.set_transform(_translate([0.0, -(rig.light[2] + rig.backdrop_z) / 2, 0.0]))  # the rig's middle
-        camera["rotated/<object>"].set_property("position", [3.0, 1.0, 2.5])  # three.js frame, +y up
+        camera.set_transform(_translate(RX90[:3, :3] @ t))  # the orbit centre, in meshcat's world
+        camera["rotated/<object>"].set_property("position", (e - t).tolist())
+        self.camera = (tuple(e), tuple(t))
 
     def set_pose(self, theta: np.ndarray) -> np.ndarray:
         """Show joint angles ``theta (21,) rad``: every link moved to its FK pose, the backdrop textured with the
