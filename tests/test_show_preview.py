@@ -123,6 +123,35 @@ def test_preview_frames_show_source_target_and_the_shows_shadow_as_mounted(plann
     assert iou(first, dark(column(frames[1], "shadow"))) > 0.8  # … smoothly
 
 
+def test_the_side_by_side_video_plays_the_previews_frames(planned, tmp_path):
+    """One way to say what plays when: side_by_side.mp4 shows, frame by frame, the preview clock's frame (late
+    transitions stretched as planned) beside the show's shadow as mounted, at the source's rate."""
+    import cv2
+
+    from studio.project.outputs import write_outputs
+    from studio.review.preview import preview_shadows
+    from studio.review.video_review import side_by_side_frame
+
+    project, _ = planned
+    s = project.state
+    path = write_outputs(project, tmp_path / "out")["side_by_side.mp4"]
+    fps = next(src.fps for src in s.sources if src.kind != "still")
+    clock = preview_clock(preview_inputs(project), fps)
+    cap = cv2.VideoCapture(str(path))
+    rate, frames = cap.get(cv2.CAP_PROP_FPS), []
+    while (got := cap.read())[0]:
+        frames.append(got[1][..., ::-1])
+    cap.release()
+    assert len(frames) == len(clock.times) > 2 and rate == pytest.approx(fps, rel=0.05)
+    sources = framed_frames(s.sources, s.frames, project.path, s.video)
+    shadows = preview_shadows(clock.theta, s.targets.shape[-1], project.mount.roll)
+    masks = project.combined_masks()
+    for m in (0, len(frames) // 2, len(frames) - 1):
+        i = int(clock.frame[m])
+        want = side_by_side_frame(sources[i], s.targets[i], masks[i], shadows[m], f"{clock.times[m]:.2f}s #{i}", TILE)
+        assert frames[m].shape == want.shape and np.abs(frames[m].astype(float) - want).mean() < 10
+
+
 def test_timeline_marks_keyframes_and_late_transitions(planned):
     project, preview = planned
     clock = preview.clock

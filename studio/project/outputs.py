@@ -167,21 +167,18 @@ def write_outputs(
 
 
 def _side_by_side(project: ProjectHandle, show, sources: list, path: Path, progress: ProgressFn | None) -> Path:
-    """``side_by_side.mp4``: at output time ``m / fps`` the frame playing then beside the show's shadow then."""
-    from studio.review.video_review import video_times, write_side_by_side
-    from studio.sim.hand import load_hand
-    from studio.sim.shadow import Rig, ShadowRenderer
+    """``side_by_side.mp4``: the frames of the studio's show preview (:func:`~.preview_clock.preview_clock`: the
+    frame played at each show time, late transitions stretched as planned, beside the show's shadow then, as
+    mounted) at the source's rate."""
+    from studio.project.preview_clock import preview_clock, preview_inputs
+    from studio.review.preview import preview_shadows
+    from studio.review.video_review import write_side_by_side
 
     s = project.state
     fps = next((src.fps for src in s.sources if src.kind != "still" and src.fps > 0), DEFAULT_FPS)
-    timing = project.show_timing()
-    t = video_times(show.duration, fps)
-    renderer = ShadowRenderer(load_hand(), Rig(resolution=s.targets.shape[-1], roll=show.roll))  # as mounted
-    shadows = renderer.render(show.sample(t), check=False)
-    order = np.argsort(timing.frame_times, kind="stable")
-    frames = [sources[i] for i in order]
-    rgb = None if all(f is None for f in frames) else frames
+    clock = preview_clock(preview_inputs(project), fps)
+    shadows = preview_shadows(clock.theta, s.targets.shape[-1], show.roll)
+    rgb = None if all(f is None for f in sources) else sources
     return write_side_by_side(
-        path, rgb, s.targets[order], project.combined_masks()[order], timing.frame_times[order], shadows, fps,
-        progress=progress,
-    )  # fmt: skip
+        path, rgb, s.targets, project.combined_masks(), clock.frame, clock.times, shadows, fps, progress=progress
+    )

@@ -6,10 +6,9 @@ rest of the studio's display convention (dark shadow on a light backdrop, expres
 
 - :func:`contact_sheet`: one ``target | shadow`` cell per sampled frame, labelled with its frame number, source
   time and keyframe; the shadow is that keyframe's pose, the pose the frame plays.
-- :func:`write_side_by_side`: ``source frame | target mask | shadow`` at the source's rate. Output frame ``m`` is at
-  video time ``m / fps`` and shows the sampled frame being played then (the last one at or before that time) and
-  the shadow the caller gives for that time: the planned show's shadow when there is a show (what the audience
-  sees, moving between keyframes), else the frame's keyframe shadow.
+- :func:`write_side_by_side`: ``source frame | target mask | shadow`` at the source's rate: output frame ``m`` shows
+  the sampled frame the caller says is played then beside the shadow it gives for that time (the project's show
+  preview clock, :func:`studio.project.preview_clock.preview_clock`: the frames of the preview in the studio).
 """
 
 from __future__ import annotations
@@ -67,20 +66,19 @@ def write_side_by_side(
     frames: Sequence[np.ndarray | None] | None,
     masks: np.ndarray,
     expressive: np.ndarray,
+    played: np.ndarray,
     times: np.ndarray,
     shadows: np.ndarray,
     fps: float,
     tile: int = 160,
     progress: ProgressFn | None = None,
 ) -> Path:
-    """Write ``side_by_side.mp4``: at output time ``m / fps`` the sampled frame played then (``frames``: one
-    ``(S, S, 3)`` RGB image or None per frame, or None: the masks are shown; ``masks``/``expressive`` ``(N, S, S)``,
-    ``times (N,)`` s) beside ``shadows[m]`` (``(M, R, R)``, one per output frame, :func:`video_times`). Progress
-    events "video" m of M. Returns the path."""
-    out_t = np.arange(len(shadows)) / fps
-    k = frame_at(times, out_t)
+    """Write ``side_by_side.mp4`` at ``fps``: output frame ``m`` (show time ``times[m]`` s) shows the sampled frame
+    ``played[m]`` (``frames``: one ``(S, S, 3)`` RGB image or None per sampled frame, or None: the masks are shown;
+    ``masks``/``expressive`` ``(N, S, S)``) beside ``shadows[m]`` (``(M, R, R)``). Progress events "video" m of M.
+    Returns the path."""
     rows = []
-    for m, (t, i) in enumerate(zip(out_t, k)):
+    for m, (t, i) in enumerate(zip(np.asarray(times, float), np.asarray(played, int))):
         source = None if frames is None else frames[i]
         rows.append(side_by_side_frame(source, masks[i], expressive[i], shadows[m], f"{t:.2f}s #{i}", tile))
         report(progress, "video", m + 1, len(shadows))
