@@ -16,7 +16,8 @@ from studio.jobs.events import JobEvent
 from studio.project.jobs import queue_for
 from studio.project.project import Project
 from studio.project.run_report import RunReport
-from widgets.optimise import OptimiseConfig, mask_picture, optimise_panel
+from widgets.images import mask_picture
+from widgets.optimise import OptimiseConfig, optimise_panel
 from widgets.state import StudioState
 
 TINY = SequenceConfig(first=SearchConfig(batch=8, iterations=20), next=SearchConfig(batch=8, iterations=10, lr=0.08),

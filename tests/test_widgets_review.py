@@ -20,7 +20,7 @@ from studio.project.project import Project
 from studio.review.blueprint import RENDERED, TARGET
 from studio.review.readback import read_recording
 from studio.targets.video import DEFAULT_VIDEO
-from widgets.optimise import mask_picture
+from widgets.images import mask_picture
 from widgets.review import ReviewConfig, notebook_viewer_missing, review_panel
 from widgets.state import StudioState
 

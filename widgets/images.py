@@ -152,3 +152,10 @@ class Throttle:
             self.fn()
         except Exception:
             log.debug("throttled redraw failed", exc_info=True)
+
+
+def mask_picture(mask: np.ndarray | None, side: int) -> bytes:
+    """PNG of a ``(H, W)`` {0, 1} mask as a black shape on white, ``side`` px (an empty white square for None)."""
+    if mask is None:
+        return png(np.full((side, side, 3), 255, np.uint8))
+    return png(upscale(grey_rgb(np.asarray(mask, np.uint8)), side))

@@ -34,8 +34,7 @@ import numpy as np
 from studio.errors import StudioError
 from studio.review.recording import ProjectRecording
 from studio.review.scene import ShadowScene
-from widgets.images import Messages, title
-from widgets.optimise import mask_picture
+from widgets.images import Messages, mask_picture, title
 from widgets.review_viewer import ViewerBox, log_finished_play
 from widgets.show_player import ShowPreviewPanel
 from widgets.state import StudioState

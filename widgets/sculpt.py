@@ -20,8 +20,7 @@ import numpy as np
 from studio.errors import StudioError
 from studio.project.sculpt import Sculptor, keep_pose, keyframe_at
 from studio.sim.hand import Hand
-from widgets.images import Messages, frame_in_view
-from widgets.optimise import mask_picture
+from widgets.images import Messages, frame_in_view, mask_picture
 from widgets.state import StudioState
 
 log = logging.getLogger(__name__)
