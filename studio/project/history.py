@@ -83,28 +83,22 @@ class History:
 
     def undo(self) -> str | None:
         """Undo the last edit (saved like an edit); its label, or None when there is nothing to undo."""
-        with self._lock:
-            if not self._undo:
-                return None
-            change = self._undo[-1]
-            self._save(change.before)
-            self._undo.pop()
-            self._redo.append(change)
-            self._state = change.before
-            if change.before.sources != change.after.sources:
-                self._check_sources()
-            return change.label
+        return self._walk(self._undo, self._redo, back=True)
 
     def redo(self) -> str | None:
         """Redo the last undone edit; its label, or None when there is nothing to redo."""
+        return self._walk(self._redo, self._undo, back=False)
+
+    def _walk(self, source: list[Change], target: list[Change], back: bool) -> str | None:
+        """Move the last change of ``source`` to ``target``, saving the state before it (``back``) or after it."""
         with self._lock:
-            if not self._redo:
+            if not source:
                 return None
-            change = self._redo[-1]
-            self._save(change.after)
-            self._redo.pop()
-            self._undo.append(change)
-            self._state = change.after
+            change = source[-1]
+            state = change.before if back else change.after
+            self._save(state)
+            target.append(source.pop())
+            self._state = state
             if change.before.sources != change.after.sources:
                 self._check_sources()
             return change.label
