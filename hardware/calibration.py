@@ -6,6 +6,8 @@ File format (YAML, ``assets/calibration.yaml`` for the shipped hand)::
     version: 1
     hand_hash: 1a2b3c...        # optional: the URDF this was made for (a mismatch is only a warning)
     rig: {roll_deg: 30.0}       # optional: how the hand is mounted on this rig (DESIGN §1); absent: not recorded
+                                # calibrate-rig adds the measured rig: light_distance_m, backdrop_distance_m,
+                                # hand_offset_m, foam_mm (studio.sim.rig_file)
     joints:
       wrist: {id: 1, direction: 1, zero: 500, lower: -1.52, upper: 1.52}
       ...
@@ -32,7 +34,9 @@ from hardware import constants as C
 from hardware.errors import CalibrationError, CalibrationMissing, MountMismatch, ShowForAnotherHand
 from studio.atomic import write_text
 from studio.sim.hand import Hand
+from studio.sim.rig_file import RigFileError, rig_from_mapping
 from studio.sim.roll import file_deg, mount_text, wrap_deg
+from studio.sim.shadow import Rig
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +64,12 @@ class Calibration:
     joints: tuple[JointCalibration, ...]  # one per joint, hand order
     hand_hash: str | None = None  # URDF hash it was made for
     roll: float | None = None  # the rig's mount roll, rad, as recorded (None: the file does not say)
+    measured: dict | None = None  # the rest of the rig as calibrate-rig measured it (rig-file keys); None: nominal
+
+    def rig(self, base: Rig | None = None) -> Rig:
+        """The rig this calibration records: ``base`` (default nominal) with the measured geometry and the roll."""
+        rig = rig_from_mapping(self.measured or {}, base)
+        return rig if self.roll is None else rig.with_roll(self.roll)
 
     @property
     def joint_names(self) -> list[str]:
@@ -149,7 +159,7 @@ def validate(cal: Calibration, hand: Hand, path: str | Path | None = None) -> Ca
     if cal.hand_hash and cal.hand_hash != hand.hash:
         log.warning("calibration was made for hand %s, this hand is %s", cal.hand_hash, hand.hash)
     order = {n: k for k, n in enumerate(hand.joint_names)}
-    return Calibration(tuple(sorted(cal.joints, key=lambda j: order[j.name])), cal.hand_hash, cal.roll)
+    return Calibration(tuple(sorted(cal.joints, key=lambda j: order[j.name])), cal.hand_hash, cal.roll, cal.measured)
 
 
 MOUNT_TOL_DEG = 0.5  # a show's roll and the calibration's may differ by this much, degrees
@@ -236,13 +246,19 @@ def load_calibration(path: str | Path | None, hand: Hand) -> Calibration:
     if not isinstance(joints, dict) or not joints:
         raise CalibrationError(f"{where}'joints' must map each joint name to its servo")
     rig = doc.get("rig")
-    roll = None
+    roll, measured = None, None
     if rig is not None:
         deg = rig.get("roll_deg") if isinstance(rig, dict) else None
         if isinstance(deg, bool) or not isinstance(deg, (int, float)) or not math.isfinite(deg):
             raise CalibrationError(f"{where}'rig' must be a mapping with roll_deg: the mount roll in degrees")
         roll = math.radians(float(deg))
-    cal = Calibration(tuple(_joint_from_yaml(n, d, where) for n, d in joints.items()), doc.get("hand_hash"), roll)
+        measured = {k: v for k, v in rig.items() if k != "roll_deg"} or None
+        try:
+            rig_from_mapping(measured or {}, where=f"{where}rig: ")
+        except RigFileError as e:
+            raise CalibrationError(str(e)) from None
+    joint_list = tuple(_joint_from_yaml(n, d, where) for n, d in joints.items())
+    cal = Calibration(joint_list, doc.get("hand_hash"), roll, measured)
     return validate(cal, hand, p)
 
 
@@ -252,7 +268,7 @@ def save_calibration(cal: Calibration, path: str | Path) -> None:
         "format": FORMAT_NAME,
         "version": 1,
         "hand_hash": cal.hand_hash,
-        **({} if cal.roll is None else {"rig": {"roll_deg": file_deg(cal.roll)}}),
+        **({} if cal.roll is None else {"rig": {"roll_deg": file_deg(cal.roll), **(cal.measured or {})}}),
         "joints": {
             j.name: {
                 "id": j.servo_id,

@@ -72,3 +72,20 @@ class OverTemperature(ServoFault):
 
 class MountMismatch(CalibrationError):
     """A show made for one mount roll, and a calibration that records the rig at another."""
+
+
+class CameraError(HardwareError):
+    """A camera (a device, a video file played as one, a frame folder) cannot be opened or read."""
+
+
+class CameraAbsent(CameraError):
+    """No camera where one was asked for: no device at that index, no such video file or frame folder, or a
+    source OpenCV cannot open."""
+
+
+class CameraStalled(CameraError):
+    """A camera that was open delivered no new frame in time (a cable pulled, a driver hung, a source that froze)."""
+
+
+class CameraEnded(CameraError):
+    """A video file or frame folder played as a camera (without looping) reached its end: no newer frame will come."""

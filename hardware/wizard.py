@@ -132,4 +132,6 @@ class CalibrationWizard:
         """The new calibration (validated against the hand)."""
         if not self.finished:
             raise ValueError(f"{len(self.start.joints) - len(self.done)} joints still to calibrate")
-        return validate(Calibration(tuple(self.done), self.hand.hash, self.start.roll), self.hand)  # the rig kept
+        return validate(
+            Calibration(tuple(self.done), self.hand.hash, self.start.roll, self.start.measured), self.hand
+        )  # the rig kept

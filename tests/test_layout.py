@@ -101,7 +101,14 @@ def test_io_libraries_stay_at_their_edges():
         "serial": ("hardware",),
         "ipywidgets": ("widgets",),
         "ipycanvas": ("widgets",),
-        "hardware": ("hardware", "studio.cli", "studio.project.play", "widgets"),
+        "hardware": (
+            "hardware",
+            "studio.cli",
+            "studio.project.play",
+            "studio.project.capture",
+            "studio.project.rig_calibration",
+            "widgets",
+        ),  # DESIGN §3: project's play and capture steps
         "widgets": ("widgets",),
         "ray": (),
     }

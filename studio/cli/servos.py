@@ -64,14 +64,14 @@ def _ids(text: str) -> list[int]:
         raise argparse.ArgumentTypeError(str(e)) from None
 
 
-def _bus_args(p: argparse.ArgumentParser, port_required: bool = True) -> None:
+def bus_args(p: argparse.ArgumentParser, port_required: bool = True) -> None:
     p.add_argument("--port", required=port_required, help="serial device (or the path `emulate` prints)")
     add_config_flags(
         p, BusConfig, ("echo", "timeout_s", "retries"), base=BusConfig(""), aliases={"timeout_s": "timeout"}
     )
 
 
-def _session(
+def session_for(
     args, calibration: Calibration | None = None, emulator: bool = False, release: bool = False
 ) -> ServoSession:
     """The :class:`ServoSession` a verb opens: ``--port`` (or the emulator) with the link flags (``--echo``,
@@ -100,7 +100,7 @@ def cmd_emulate(args) -> int:
 
 def cmd_scan(args) -> int:
     expected = load_calibration(args.calibration, load_hand()).ids if args.calibration else []
-    with _session(args) as session:
+    with session_for(args) as session:
         report = scan(session.bus, args.ids, expected)
     print(f"present: {report.present or 'none'}")
     if report.duplicates:
@@ -124,7 +124,7 @@ def cmd_calibrate(args) -> int:
     check_writable(args.out)  # before the bus: a session is not lost to a typo in --out
     hand = load_hand()
     start = load_calibration(args.start, hand) if args.start else default_calibration(hand)
-    with stop_on_signals("calibrate"), _session(args, start) as session:
+    with stop_on_signals("calibrate"), session_for(args, start) as session:
         wiz = CalibrationWizard(session.bus, hand, start)
         print("commands: + - 'step N' free hold set skip   (empty line = set)")
         print(wiz.prompt())
@@ -168,7 +168,7 @@ def cmd_play(args) -> int:
         raise ValueError("give --port PATH (or --dry-run to play to the emulator)")
     check_not_latched(args.port or "the emulator")  # before the port is opened: nothing to undo
     log_to = log_path(args.log, "play", ".npz")
-    with stop_on_signals("play") as caught, _session(args, cal, args.dry_run, args.release_on_stop) as session:
+    with stop_on_signals("play") as caught, session_for(args, cal, args.dry_run, args.release_on_stop) as session:
         if session.emulator is not None:
             print(f"dry run: playing to the emulator on {session.emulator.port}")
         print(f"playing {show.title!r}: {show.duration:.2f} s, {len(show.times)} samples; Ctrl-C stops safely")
@@ -216,7 +216,7 @@ def cmd_jog(args) -> int:
 
     log_to, code, stop, session = log_path(args.log, "jog", ".txt"), 0, None, None
     try:
-        with stop_on_signals("jog") as caught, _session(args, cal) as session:
+        with stop_on_signals("jog") as caught, session_for(args, cal) as session:
             try:
                 jog = Jog(session.bus, cal, home_pose=hand.rest_pose())
                 print(HELP)
@@ -259,13 +259,13 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_emulate)
 
     p = sub.add_parser("scan", help="find the servos on a bus and flag duplicate IDs")
-    _bus_args(p)
+    bus_args(p)
     p.add_argument("--ids", type=_ids, default="0-253", help="IDs to try (default 0-253)")
     p.add_argument("--calibration", type=Path, help="also report the calibration's servos that do not answer")
     p.set_defaults(func=cmd_scan, retries=0)
 
     p = sub.add_parser("calibrate", help="set each joint's zero and limits by jogging (reads commands on stdin)")
-    _bus_args(p)
+    bus_args(p)
     p.add_argument("--out", type=Path, required=True, help="calibration YAML to write")
     p.add_argument("--start", type=Path, help="calibration to start from (IDs, values for 'skip'); default IDs 1-21")
     p.add_argument("--roll", type=ranged(float, "[-360, 360]"), default=None, metavar="DEG",
@@ -276,7 +276,7 @@ def register(sub) -> None:
 
     p = sub.add_parser("play", help="play a show file on the servos at 40 Hz with safety stops")
     p.add_argument("show", type=Path, help="show file (.json)")
-    _bus_args(p, port_required=False)
+    bus_args(p, port_required=False)
     p.add_argument("--calibration", type=Path, help="calibration YAML (default: assets/calibration.yaml)")
     p.add_argument("--dry-run", action="store_true", help="play to a built-in emulator instead of --port")
     p.add_argument("--release-on-stop", action="store_true", help="release torque when stopped early")
@@ -287,7 +287,7 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_play)
 
     p = sub.add_parser("jog", help="move joints one at a time from the terminal (type help)")
-    _bus_args(p)
+    bus_args(p)
     p.add_argument("--calibration", type=Path, help="calibration YAML (default: assets/calibration.yaml)")
     p.add_argument("--log", type=Path, help="save what was typed and answered to this text file (default: "
                    "<studio home>/logs/jog-<time>.txt)")  # fmt: skip

@@ -15,7 +15,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -108,11 +108,12 @@ class Pairs:
 class Task:
     """What the trainer trains: how to build the network, its loss, its held-out metric and its data."""
 
-    build: Callable[[], nn.Module]  # makes the network (called after seeding): has .kind, .cfg, .hand
+    build: Callable[[], nn.Module]  # makes the network (after seeding; a fine-tune loads its start): .kind, .cfg, .hand
     loss: Callable[[nn.Module, torch.Tensor, torch.Tensor], torch.Tensor]  # (model, theta, shadows) on its device
     evaluate: Callable[[nn.Module, list[Batch]], float]  # held-out metric over batches (lower is better)
     metric: str  # the metric's name in the results: "mae" → val_mae, test_mae, train_mae...
-    pairs: Callable[[], Pairs]  # makes the data source
+    pairs: Callable[[], Pairs]  # makes the data source (anything with .rig, .train_batches(step), .held_out(split))
+    record: dict = field(default_factory=dict)  # kept in the checkpoint's extra (a fine-tune's capture set)
 
 
 def fit(
@@ -162,7 +163,8 @@ def fit(
         metrics[f"initial_val_{m}"] = task.evaluate(model, val)
 
     def checkpoint(resumable: bool) -> None:
-        extra = {"step": step, "elapsed_s": elapsed} | ({"optimizer": opt.state_dict()} if resumable else {})
+        extra = task.record | {"step": step, "elapsed_s": elapsed}
+        extra |= {"optimizer": opt.state_dict()} if resumable else {}
         save_model(out, model, data.rig, metrics, asdict(cfg), extra)
 
     model.train()

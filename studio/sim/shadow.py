@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -27,12 +27,18 @@ class Rig:
     window: float = 0.6  # side of the square backdrop window imaged, centred on the light axis (0, 100]
     resolution: int = 256  # pixels per side of shadow images (8192² is 64 MB; 100000² would be 10 GB) [8, 8192]
     roll: float = 0.0  # mount roll about the light axis, rad, counter-clockwise as the audience sees the backdrop
+    hand_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the mount moved from the origin, m (a calibrated rig)
+    foam: float = 0.0  # foam shell thicker than the URDF's by this much, m (a calibrated rig; negative: thinner)
 
     def __post_init__(self) -> None:
         if not self.light[2] > self.backdrop_z:
             raise ValueError("the light must be in front of the backdrop (light z > backdrop_z)")
         if self.window <= 0 or self.resolution < 8:
             raise ValueError("window must be positive and resolution at least 8 pixels")
+        if len(self.hand_offset) != 3 or not self.light[2] > self.hand_offset[2] > self.backdrop_z:
+            raise ValueError("the hand must sit between the light and the backdrop (hand_offset is [x, y, z] m)")
+        if not -0.005 <= self.foam <= 0.05:
+            raise ValueError(f"foam must be within -5 mm and 50 mm of the URDF's shell, got {self.foam * 1000:g} mm")
 
     @property
     def pixel_size(self) -> float:
@@ -40,19 +46,37 @@ class Rig:
         return self.window / self.resolution
 
     def with_resolution(self, resolution: int) -> Rig:
-        return Rig(self.light, self.backdrop_z, self.window, resolution, self.roll)
+        return replace(self, resolution=int(resolution))
 
     def with_roll(self, roll: float) -> Rig:
         """This rig with the mount rolled by ``roll`` rad about the light axis."""
-        return Rig(self.light, self.backdrop_z, self.window, self.resolution, float(roll))
+        return replace(self, roll=float(roll))
 
     def to_dict(self) -> dict:
-        """The rig's fields; ``roll`` only when the mount is rolled (so roll 0 reads, and hashes, as the paper rig
-        always did: caches keyed by the rig stay valid)."""
+        """The rig's fields; ``roll``, ``hand_offset`` and ``foam`` only where they differ from the paper rig (so
+        the paper rig reads, and hashes, as it always did: caches keyed by the rig stay valid)."""
         d = asdict(self)
-        if not d["roll"]:
-            del d["roll"]
+        d["light"], d["hand_offset"] = list(d["light"]), list(d["hand_offset"])
+        for key, nominal in (("roll", 0.0), ("hand_offset", [0.0, 0.0, 0.0]), ("foam", 0.0)):
+            if d[key] == nominal:
+                del d[key]
         return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Rig:
+        """A rig from :meth:`to_dict`'s fields (a checkpoint's or a cache's record); missing fields are nominal."""
+        known = {f: d[f] for f in cls.__dataclass_fields__ if f in d}
+        for key in ("light", "hand_offset"):
+            if key in known:
+                known[key] = tuple(float(v) for v in known[key])
+        return cls(**known)
+
+    @property
+    def T_world_mount(self) -> np.ndarray:
+        """``(4, 4)``: the hand's root in the world, the mount moved by ``hand_offset`` and rolled by ``roll``."""
+        T = roll_matrix(self.roll)
+        T[:3, 3] = self.hand_offset
+        return T
 
     @property
     def hash(self) -> str:
@@ -91,8 +115,9 @@ class PieceTable:
     radius: np.ndarray  # (P,) float64 sphere radius (0 for boxes)
 
 
-def piece_table(hand: Hand, which: str = "visual") -> PieceTable:
-    """Flatten the hand's ``visual`` (shell) or ``collision`` (skeleton) geometry into a :class:`PieceTable`."""
+def piece_table(hand: Hand, which: str = "visual", grow: float = 0.0) -> PieceTable:
+    """Flatten the hand's ``visual`` (shell) or ``collision`` (skeleton) geometry into a :class:`PieceTable`, every
+    piece grown by ``grow`` m (capsules and spheres in radius, boxes on each face: a thicker or thinner foam)."""
     geoms = hand.visuals if which == "visual" else hand.collisions
     links, pts, counts, radii = [], [], [], []
     for li, name in enumerate(hand.link_names):
@@ -100,11 +125,11 @@ def piece_table(hand: Hand, which: str = "visual") -> PieceTable:
             local = np.zeros((8, 3))
             if g.kind == "capsule":
                 c = np.array([[0, 0, -g.length / 2], [0, 0, g.length / 2]])
-                n, r = 2, g.radius
+                n, r = 2, max(g.radius + grow, 0.0)
             elif g.kind == "sphere":
-                c, n, r = np.zeros((1, 3)), 1, g.radius
+                c, n, r = np.zeros((1, 3)), 1, max(g.radius + grow, 0.0)
             else:  # box
-                sx, sy, sz = (v / 2 for v in g.size)
+                sx, sy, sz = (max(v / 2 + grow, 0.0) for v in g.size)
                 c = np.array([[x, y, z] for x in (-sx, sx) for y in (-sy, sy) for z in (-sz, sz)])
                 n, r = 8, 0.0
             local[:n] = c @ g.T_link_geom[:3, :3].T + g.T_link_geom[:3, 3]
@@ -141,23 +166,25 @@ def roll_matrix(roll: float) -> np.ndarray:
     return T
 
 
-def rolled_joints(table: JointTable, roll: float) -> JointTable:
-    """``table`` with the root link turned by ``roll`` rad about z: joints hung on the root get ``R_z @ T_origin``."""
-    if not roll:
+def mounted_joints(table: JointTable, T_world_mount: np.ndarray) -> JointTable:
+    """``table`` with the root link placed at ``T_world_mount (4, 4)``: joints hung on the root get
+    ``T_world_mount @ T_origin``."""
+    if np.array_equal(T_world_mount, np.eye(4)):
         return table
     T = table.T_origin.copy()
     on_root = table.parent == 0
-    T[on_root] = roll_matrix(roll) @ T[on_root]
+    T[on_root] = T_world_mount @ T[on_root]
     return JointTable(table.parent, T, table.axis)
 
 
-def rolled_pieces(table: PieceTable, roll: float) -> PieceTable:
-    """``table`` with the root link's own pieces turned by ``roll`` rad about z (the others ride on the joints)."""
-    if not roll:
+def mounted_pieces(table: PieceTable, T_world_mount: np.ndarray) -> PieceTable:
+    """``table`` with the root link's own pieces placed at ``T_world_mount (4, 4)`` (the others ride on the
+    joints)."""
+    if np.array_equal(T_world_mount, np.eye(4)):
         return table
     pts = table.points.copy()
     on_root = table.link == 0
-    pts[on_root] = pts[on_root] @ roll_matrix(roll)[:3, :3].T
+    pts[on_root] = pts[on_root] @ T_world_mount[:3, :3].T + T_world_mount[:3, 3]
     return PieceTable(table.link, pts, table.count, table.radius)
 
 
@@ -165,16 +192,18 @@ class ShadowRenderer:
     """Fast exact batched renderer of the hand's shadow for one rig.
 
     ``render(theta (B, 21) or (21,)) -> (B, H, W) uint8`` (1 = shadow). Invalid poses raise ``ValueError``. A rig
-    with a mount roll renders the rolled hand exactly: the roll ``R_z`` is folded into the root's joints and
-    pieces (``T_world_root = R_z(roll)``), so ``fk`` gives the rolled frames too.
+    with a mount roll or a moved mount renders that hand exactly: ``T_world_mount`` (offset and roll ``R_z``) is
+    folded into the root's joints and pieces, so ``fk`` gives the mounted frames too; a calibrated ``foam`` grows
+    every piece of the shell.
     """
 
     def __init__(self, hand: Hand | None = None, rig: Rig | None = None, ring_points: int = 16):
         self.hand = hand or load_hand()
         self.rig = rig or Rig()
         self.ring_points = ring_points  # points per projected sphere outline (area-preserving polygon)
-        self.joints = rolled_joints(joint_table(self.hand), self.rig.roll)
-        self.pieces = rolled_pieces(piece_table(self.hand, "visual"), self.rig.roll)
+        T_world_mount = self.rig.T_world_mount
+        self.joints = mounted_joints(joint_table(self.hand), T_world_mount)
+        self.pieces = mounted_pieces(piece_table(self.hand, "visual", self.rig.foam), T_world_mount)
         self._light = np.asarray(self.rig.light, dtype=np.float64)
 
     def render(self, theta: np.ndarray, check: bool = True) -> np.ndarray:

@@ -45,8 +45,9 @@ def capsule_obj(radius: float, length: float, segments: int = 64, rings: int = 1
     return "\n".join(lines) + "\n"
 
 
-def mesh_twin_urdf(hand: Hand, folder: Path) -> Path:
-    """Write a copy of the hand's URDF whose visual capsules/spheres are fine meshes; returns its path."""
+def mesh_twin_urdf(hand: Hand, folder: Path, foam: float = 0.0) -> Path:
+    """Write a copy of the hand's URDF whose visual capsules/spheres are fine meshes, every visual piece grown by
+    ``foam`` m (boxes by ``foam`` on each face: square edges where the renderer's are rounded); returns its path."""
     root = ET.fromstring(hand.urdf_text)
     n = 0
     for link in root.findall("link"):
@@ -58,7 +59,11 @@ def mesh_twin_urdf(hand: Hand, folder: Path) -> Path:
             elif shape.tag == "sphere":
                 r, length = float(shape.get("radius")), 0.0
             else:
+                if foam and shape.tag == "box":
+                    size = [float(v) + 2 * foam for v in shape.get("size").split()]
+                    shape.set("size", " ".join(f"{v:.7f}" for v in size))
                 continue
+            r += foam
             obj = folder / f"piece_{n}.obj"
             obj.write_text(capsule_obj(r, length))
             n += 1
@@ -89,8 +94,9 @@ class PyBulletShadowCamera(PyBulletClient):
 
     def _load(self, half_pixel_shift: bool) -> None:
         p, hand, rig = self.p, self.hand, self.rig
-        urdf = mesh_twin_urdf(hand, Path(self._tmp.name))
-        self.body = p.loadURDF(str(urdf), useFixedBase=True, physicsClientId=self.client)
+        urdf = mesh_twin_urdf(hand, Path(self._tmp.name), rig.foam)
+        roll = p.getQuaternionFromEuler([0.0, 0.0, rig.roll])
+        self.body = p.loadURDF(str(urdf), list(rig.hand_offset), roll, useFixedBase=True, physicsClientId=self.client)
         names = [p.getJointInfo(self.body, i, physicsClientId=self.client)[1].decode() for i in range(hand.dof)]
         if names != hand.joint_names:
             raise ValueError("PyBullet joint order differs from the URDF order")

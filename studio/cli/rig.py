@@ -1,0 +1,122 @@
+"""``shadow-studio calibrate-rig``: play known poses, photograph their shadows, fit the rig, save it.
+
+::
+
+    shadow-studio calibrate-rig --camera 0 --port /dev/ttyUSB0 --calibration cal.yaml --out rig-cal
+    shadow-studio calibrate-rig --camera virtual --true-rig RIG.yaml --emulator --out rig-cal
+
+``--camera`` is a device index, a video file or frame folder, or ``virtual``: the servo emulator's measured angles
+rendered through the rig of ``--true-rig`` (a YAML of ``studio.sim.rig_file``'s keys, with an optional ``camera``)
+and photographed (:class:`hardware.virtual_camera.VirtualCamera`); the virtual camera needs ``--emulator``. The
+engine is :func:`studio.project.rig_calibration.calibrate_rig` (the Rig panel's too). It prints, last, one JSON line:
+the fitted ``light_distance_m``, ``backdrop_distance_m``, ``hand_offset_m``, ``mount_roll_deg``, ``foam_mm``,
+``iou_loss_before``, ``iou_loss_after``, ``seconds``. The servos stop and hold however it ends (the session's
+fail-safe close); Ctrl-C, SIGTERM and SIGHUP end it with the signal's exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from contextlib import ExitStack
+from pathlib import Path
+
+from studio.cli.flags import add_config_flags, config_from_args
+from studio.cli.progress import add_quiet_flag
+
+
+def _corners(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 8:
+        raise argparse.ArgumentTypeError("--corners takes 8 numbers: x,y of the window's top-left, top-right, "
+                                         "bottom-right and bottom-left corners in the camera image")  # fmt: skip
+    return values
+
+
+def open_camera(source: str, session, calibration, true_rig: Path | None):
+    """The camera ``source`` names (``virtual`` needs the session's emulator and a true rig file), not yet open."""
+    from hardware.camera import Camera
+
+    if source != "virtual":
+        if true_rig is not None:
+            raise ValueError("--true-rig describes the virtual camera's world: use it with --camera virtual")
+        return Camera(int(source) if source.strip().isdigit() else source)
+    from hardware.virtual_camera import VirtualCamera, emulator_angles
+    from studio.sim.photo import CameraModel
+    from studio.sim.rig_file import read_rig_file
+
+    if true_rig is None:
+        raise ValueError("--camera virtual needs --true-rig RIG.yaml: the rig as it really is, which it photographs")
+    if session.emulator is None:
+        raise ValueError("--camera virtual photographs the servo emulator's hand: add --emulator")
+    rig, camera = read_rig_file(true_rig)
+    return Camera(VirtualCamera(emulator_angles(session.emulator, calibration), rig, CameraModel.from_dict(camera)))
+
+
+def cmd_calibrate_rig(args: argparse.Namespace) -> int:
+    from hardware.calibration import load_calibration
+    from hardware.estop import check_not_latched
+    from studio.cli.servos import session_for
+    from studio.cli.signals import stop_on_signals
+    from studio.jobs.bars import TqdmBars
+    from studio.learn.rig_fit import RigFitConfig
+    from studio.project.capture import CaptureConfig
+    from studio.project.rig_calibration import RigCalibrationConfig, calibrate_rig
+    from studio.sim.hand import load_hand
+    from studio.targets.backdrop import backdrop_from_corners
+
+    hand = load_hand()
+    cal = load_calibration(args.calibration, hand)
+    fit = config_from_args(args, RigFitConfig, base=RigFitConfig(fit=tuple(args.fit.split(","))))
+    cfg = config_from_args(args, RigCalibrationConfig, capture=config_from_args(args, CaptureConfig), fit=fit)
+    out = args.out
+    if out.exists() and any(out.iterdir()) and not args.force:
+        raise ValueError(f"{out} is not empty: choose another --out or pass --force to write over its files")
+    if not args.emulator and not args.port:
+        raise ValueError("give --port PATH (the servo adapter) or --emulator")
+    check_not_latched(args.port or "the emulator")
+    start = cal.rig()
+    H = None
+    if args.corners is not None:
+        import numpy as np
+
+        H = backdrop_from_corners(np.reshape(args.corners, (4, 2)), start.window)
+    with ExitStack() as stack:
+        stack.enter_context(stop_on_signals("calibrate-rig"))
+        session = stack.enter_context(session_for(args, cal, args.emulator))
+        camera = stack.enter_context(open_camera(args.camera, session, cal, args.true_rig))
+        bars = stack.enter_context(TqdmBars(disable=args.quiet))
+        result = calibrate_rig(session.bus, cal, camera, cfg, start, out, hand=hand, progress=bars,
+                               H_backdrop_camera=H)  # fmt: skip
+    s = result.summary
+    print(f"window IoU loss {s['iou_loss_before']:.4f} -> {s['iou_loss_after']:.4f} over {s['poses']} poses "
+          f"in {s['seconds']:.1f} s; rig saved in {result.files['calibration']}")  # fmt: skip
+    print(json.dumps(s))
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from studio.cli.servos import bus_args
+    from studio.learn.rig_fit import PARAMETERS, RigFitConfig
+    from studio.project.capture import CaptureConfig
+    from studio.project.rig_calibration import RigCalibrationConfig
+
+    p = sub.add_parser("calibrate-rig", help="measure the rig (light, backdrop, mount, roll, foam) with a camera")
+    p.add_argument("--camera", required=True, help="camera index, video file or frame folder, or 'virtual'")
+    p.add_argument("--true-rig", type=Path, help="the virtual camera's rig as it really is (YAML)")
+    p.add_argument("--emulator", action="store_true", help="play to the built-in servo emulator instead of --port")
+    bus_args(p, port_required=False)
+    p.add_argument("--calibration", type=Path, help="servo calibration to start from (default: the shipped one)")
+    p.add_argument("--out", type=Path, required=True, help="folder for calibration.yaml, captures/, compare.png")
+    p.add_argument("--force", action="store_true", help="write into a non-empty --out")
+    p.add_argument("--corners", type=_corners, help="no markers: the window's 4 corners in the image, x,y ×4")
+    p.add_argument("--fit", default=",".join(PARAMETERS), help=f"parameters to fit (default: all of "
+                   f"{','.join(PARAMETERS)})")  # fmt: skip
+    add_config_flags(p, RigCalibrationConfig, ("poses", "seed"))
+    add_config_flags(p, CaptureConfig)
+    add_config_flags(p, RigFitConfig, ("supersample", "max_evals"))
+    add_quiet_flag(p)
+    p.set_defaults(func=cmd_calibrate_rig)

@@ -1,0 +1,215 @@
+"""Fit the rig to captured shadows: light and backdrop distances, the mount's place and roll, the foam's thickness.
+
+Given poses ``theta (N, 21)`` played on the real hand and the shadows a camera saw, ``captured (N, R, R)`` uint8
+(1 = shadow, rectified into the rig's window), find the :class:`~studio.sim.shadow.Rig` whose rendered shadows match
+them best under the **window** IoU loss (``1 - IoU`` of the whole window, position and scale included; not the
+crop-aligned loss of imitation, which would forgive exactly what is being measured).
+
+What the shadows can tell apart: a point ``p`` of the hand falls at ``A p_xy / (C - p_z)`` on the backdrop (light
+on the axis), with ``A`` the light-to-backdrop and ``C`` the light-to-hand distance. So a hand moved along the light
+axis by ``d`` casts exactly the shadows of a light moved by ``-d`` and a backdrop by ``+d``: the fit keeps the mount's
+``z`` where the starting rig has it and measures the light and backdrop distances from there. ``A / C`` (the
+shadow's scale) is sharp; ``C`` alone shows only through perspective (the parts nearer the light grow more), which
+is why the calibration poses should bend the hand towards the light (:func:`calibration_poses`).
+
+The search compares **coverage**, not masks: each captured pixel's darkness normalised to [0, 1] (what share of it
+the shadow covers, as the camera's rectified image says) against the rendered shadow drawn at ``supersample`` times
+the captures' resolution and averaged into coverage fractions, by their mean absolute difference. Binary masks
+would quantise away the sub-pixel shifts that tell the light's distance from the backdrop's (measured: along the
+line of equal scale, the binary loss wanders by more than it changes, while the coverage loss has one clean minimum
+at the true rig). Nelder–Mead (scipy) runs from the starting rig in scaled coordinates, then again from its answer
+(a restart escapes a collapsed simplex). The figures reported are the window IoU losses of the binary masks.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from studio.errors import Cancelled, StudioError
+from studio.progress import ProgressFn, report
+from studio.sim.hand import Hand, load_hand
+from studio.sim.shadow import Rig, ShadowRenderer
+
+log = logging.getLogger(__name__)
+
+# the fitted parameters: name → (how to read it from a rig, its scale in the search: a typical error of a rig set
+# up by hand, so one unit is as far in every direction)
+PARAMETERS = {
+    "light_distance": (lambda r: r.light[2], 0.3),  # m
+    "backdrop_distance": (lambda r: -r.backdrop_z, 0.2),  # m
+    "hand_x": (lambda r: r.hand_offset[0], 0.02),  # m
+    "hand_y": (lambda r: r.hand_offset[1], 0.02),  # m
+    "roll": (lambda r: r.roll, math.radians(3.0)),  # rad
+    "foam": (lambda r: r.foam, 0.002),  # m
+}
+SCALE_STEP = 0.02  # search scale of the shadow's magnification (light-to-backdrop over light-to-hand)
+
+
+@dataclass(frozen=True)
+class RigFitConfig:
+    """How the rig is fitted."""
+
+    fit: tuple[str, ...] = tuple(PARAMETERS)  # which parameters move (the rest stay at the starting rig's values)
+    supersample: int = 3  # render at this multiple of the captures' resolution, averaged into coverage [1, 8]
+    max_evals: int = 1500  # loss evaluations per simplex search (two searches) [50, 100000]
+    tolerance: float = 1e-5  # stop when the simplex's losses differ by less than this
+
+    def __post_init__(self) -> None:
+        unknown = set(self.fit) - set(PARAMETERS)
+        if unknown:
+            raise ValueError(f"unknown rig parameter(s) {sorted(unknown)}: choose from {', '.join(PARAMETERS)}")
+        if not 1 <= self.supersample <= 8 or self.max_evals < 50:
+            raise ValueError("supersample must be within 1..8 and max_evals at least 50")
+
+
+@dataclass(frozen=True)
+class RigFit:
+    """The answer: the rig before and after, their window IoU losses (binary, at the captures' resolution)."""
+
+    before: Rig  # the starting (nominal) rig
+    after: Rig  # the fitted rig
+    loss_before: float  # mean window IoU loss of the captures against the starting rig's shadows
+    loss_after: float  # the same against the fitted rig's shadows
+    per_pose_after: tuple[float, ...]  # each capture's window IoU loss against the fitted rig
+    evaluations: int  # loss evaluations spent
+    seconds: float  # wall time of the fit
+
+
+class RigFitError(StudioError):
+    """The captures cannot be fitted (empty, mismatched, nothing in them)."""
+
+
+def window_iou_loss(captured: np.ndarray, rendered: np.ndarray) -> np.ndarray:
+    """``1 - IoU`` over the last two axes of ``captured (..., R, R)`` {0, 1} and ``rendered (..., R, R)`` in [0, 1]
+    (coverage fractions allowed: a soft IoU ``Σ min / Σ max``); two empty images have loss 0."""
+    c = captured.astype(np.float32)
+    r = rendered.astype(np.float32)
+    inter = np.minimum(c, r).sum(axis=(-2, -1))
+    union = np.maximum(c, r).sum(axis=(-2, -1))
+    return np.where(union > 0, 1.0 - inter / np.maximum(union, 1e-9), 0.0)
+
+
+def _rig_with(start: Rig, values: dict[str, float]) -> Rig:
+    v = {name: get(start) for name, (get, _) in PARAMETERS.items()} | values
+    light = (start.light[0], start.light[1], float(v["light_distance"]))
+    offset = (float(v["hand_x"]), float(v["hand_y"]), start.hand_offset[2])
+    foam = float(np.clip(v["foam"], -0.005, 0.05))
+    return replace(start, light=light, backdrop_z=-float(v["backdrop_distance"]), hand_offset=offset,
+                   roll=float(v["roll"]), foam=foam)  # fmt: skip
+
+
+def coverage(renderer: ShadowRenderer, theta: np.ndarray, supersample: int) -> np.ndarray:
+    """Shadows of ``theta (N, 21)`` as coverage fractions ``(N, R, R)`` float32, where the renderer draws at
+    ``R * supersample`` and each block of pixels is averaged."""
+    img = renderer.render(theta, check=False).astype(np.float32)
+    if supersample == 1:
+        return img
+    n, big = img.shape[0], img.shape[1]
+    r = big // supersample
+    return img.reshape(n, r, supersample, r, supersample).mean(axis=(2, 4))
+
+
+def calibration_poses(hand: Hand, n: int = 12, seed: int = 0, pool: int = 3000) -> np.ndarray:
+    """``(n, 21)`` poses to calibrate with: collision-free (they are played on the real hand), each reaching far
+    towards and away from the light (the perspective that tells the light's distance), and unlike one another
+    (greedy farthest-point choice in joint space among the deepest quarter of a seeded pool)."""
+    from studio.sim.kinematics import fk_numpy
+    from studio.sim.physics import CollisionWorld
+    from studio.sim.sampling import sample_poses
+
+    if n < 1:
+        raise ValueError("calibrate with at least one pose")
+    cand = sample_poses(hand, max(pool, 4 * n), np.random.default_rng(seed))[0]
+    with CollisionWorld(hand) as world:
+        cand = cand[~world.in_collision(cand)]
+    z = fk_numpy(hand, cand)[:, :, 2, 3]  # (N, L) every link's depth along the light axis
+    deep = cand[np.argsort(-(z.max(1) - z.min(1)))[: max(n, len(cand) // 4)]]
+    chosen = [0]
+    dist = np.linalg.norm(deep - deep[0], axis=1)
+    while len(chosen) < min(n, len(deep)):
+        chosen.append(int(np.argmax(dist)))
+        dist = np.minimum(dist, np.linalg.norm(deep - deep[chosen[-1]], axis=1))
+    return deep[chosen]
+
+
+def fit_rig(
+    theta: np.ndarray,
+    captured: np.ndarray,
+    start: Rig,
+    cfg: RigFitConfig | None = None,
+    hand: Hand | None = None,
+    progress: ProgressFn | None = None,
+    cancel: threading.Event | None = None,
+) -> RigFit:
+    """Fit ``start``'s parameters named in ``cfg.fit`` to ``captured (N, R, R)`` shadows of ``theta (N, 21)``:
+    coverage in [0, 1] (float; best) or binary masks (uint8 1 = shadow).
+
+    ``start``'s window is the captures' window; its resolution is ignored (the captures' ``R`` is used). Progress
+    is reported as stage ``"fit"`` (evaluations of the budget, the best coverage loss); ``cancel`` raises
+    :class:`~studio.errors.Cancelled`.
+    """
+    from scipy.optimize import minimize
+
+    cfg = cfg or RigFitConfig()
+    hand = hand or load_hand()
+    theta = np.ascontiguousarray(np.atleast_2d(theta), dtype=np.float64)
+    captured = np.asarray(captured)
+    if captured.ndim != 3 or captured.shape[1] != captured.shape[2] or len(captured) != len(theta) or not len(theta):
+        raise RigFitError(f"need one square capture per pose: {len(theta)} poses, captures of shape {captured.shape}")
+    if not captured.any(axis=(1, 2)).any():
+        raise RigFitError("every capture is empty: the camera saw no shadow (is the light on, the backdrop found?)")
+    res = captured.shape[1]
+    soft = np.clip(captured.astype(np.float32), 0.0, 1.0)
+    captured = (soft >= 0.5).astype(np.float32)
+    start = start.with_resolution(res)
+    # Searched in (light distance, shadow scale A / C) rather than (light, backdrop): the scale is sharp and the
+    # light's distance at a given scale shows only through perspective, so the weak direction lies along one axis.
+    both = {"light_distance", "backdrop_distance"} <= set(cfg.fit)
+    names = ["shadow_scale" if both and n == "backdrop_distance" else n for n in cfg.fit]
+    L0, B0 = start.light[2], -start.backdrop_z
+    get = {n: PARAMETERS[n][0] for n in PARAMETERS} | {"shadow_scale": lambda r: (L0 + B0) / L0}
+    x_start = np.array([get[n](start) for n in names])
+    scale = np.array([SCALE_STEP if n == "shadow_scale" else PARAMETERS[n][1] for n in names])
+    budget, evals, best, t0 = 2 * cfg.max_evals, 0, math.inf, time.perf_counter()
+
+    def rig_at(x: np.ndarray) -> Rig:
+        values = dict(zip(names, x_start + scale * x))
+        if both:
+            k = values.pop("shadow_scale")
+            values["backdrop_distance"] = (k - 1.0) * values["light_distance"]
+        return _rig_with(start, values)
+
+    def loss(x: np.ndarray) -> float:
+        nonlocal evals, best
+        if cancel is not None and cancel.is_set():
+            raise Cancelled("the rig fit was cancelled")
+        evals += 1
+        if evals % 25 == 0:
+            report(progress, "fit", min(evals, budget), budget, best)
+        try:
+            rig = rig_at(x).with_resolution(res * cfg.supersample)
+        except ValueError:  # a rig that cannot be (the hand behind the light): as bad as can be
+            return 2.0
+        value = float(np.abs(coverage(ShadowRenderer(hand, rig), theta, cfg.supersample) - soft).mean())
+        best = min(best, value)
+        return value
+
+    x = np.zeros(len(names))
+    for _ in range(2):  # the second search restarts the simplex around the first answer
+        opts = {"maxfev": cfg.max_evals, "xatol": 1e-3, "fatol": cfg.tolerance * 1e-3, "initial_simplex": None}
+        simplex = np.vstack([x, x + np.eye(len(names)) * 0.5])
+        opts["initial_simplex"] = simplex
+        x = minimize(loss, x, method="Nelder-Mead", options=opts).x
+    after = rig_at(x)
+    binary = ShadowRenderer(hand, after).render(theta, check=False)
+    per_pose = window_iou_loss(captured, binary)
+    before = float(window_iou_loss(captured, ShadowRenderer(hand, start).render(theta, check=False)).mean())
+    report(progress, "fit", evals, evals, best)
+    return RigFit(start, after, before, float(per_pose.mean()), tuple(float(v) for v in per_pose), evals,
+                  time.perf_counter() - t0)  # fmt: skip
