@@ -40,7 +40,7 @@ CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--disable-background-networking",
                   "--disable-component-update", "--disable-sync", "--no-first-run"]  # fmt: skip
 VIEWPORT = {"width": 1600, "height": 2300}  # the tester's 1,600 px wide window, tall enough for a whole tab
-PANELS = ["Targets", "Keyframes", "Masks", "Weights", "Optimise", "Review", "Jog", "Export"]
+PANELS = ["Targets", "Keyframes", "Masks", "Weights", "Optimise", "Review", "Jog", "Rig", "Export"]
 SCREENSHOT_COPY = os.environ.get("SHADOW_STUDIO_SCREENSHOT")  # a folder: the tab screenshots are copied there too
 STUDIO = ".jp-OutputArea-output .shadow-studio"
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")

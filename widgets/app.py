@@ -33,6 +33,7 @@ PANELS = (
     ("Optimise", "optimise"),
     ("Review", "review"),
     ("Jog", "jog"),
+    ("Rig", "rig"),
     ("Export", "export"),
 )  # (title, module in widgets/), in the order an artist works
 PROJECT_ENV = "SHADOW_STUDIO_PROJECT"  # environment variable: the project open_studio() opens when given none

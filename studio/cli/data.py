@@ -28,6 +28,6 @@ def _collect(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("collect", help="sample poses, render their shadows, write resumable shards")
     p.add_argument("--out", default="data/selfexplore", help="dataset folder (default data/selfexplore)")
-    add_config_flags(p, CollectConfig, ("n", "shard_size", "seed", "resolution", "window"))
+    add_config_flags(p, CollectConfig, ("n", "shard_size", "seed", "resolution", "window", "rig_file"))
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_collect)

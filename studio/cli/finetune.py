@@ -15,7 +15,7 @@ from studio.cli.flags import add_config_flags
 
 # FinetuneConfig's own flags (weight_decay and device are the shared trainer's, with its help)
 FLAGS = ("captures", "model", "out", "steps", "batch_size", "lr", "warmup", "eval_every", "held_out_fraction",
-         "seed", "threads")  # fmt: skip
+         "held_out", "seed", "threads")  # fmt: skip
 
 
 def _finetune(args: argparse.Namespace) -> int:
@@ -26,7 +26,8 @@ def _finetune(args: argparse.Namespace) -> int:
     from studio.path_checks import check_outputs
 
     cfg = config_from_args(args, FinetuneConfig)
-    check_outputs([cfg.out], inputs=[cfg.captures, cfg.start_model()])  # never replaces the model it starts from
+    inputs = [cfg.captures, cfg.start_model(), *([cfg.held_out] if cfg.held_out else [])]
+    check_outputs([cfg.out], inputs=inputs)  # never replaces the model it starts from
     args.data = cfg.captures  # what run_training checks the output against too
     with ctrl_c_cancels() as cancel:
         run_training(args, "finetune", cfg.steps, cfg.out, lambda **kw: finetune(cfg, cancel=cancel, **kw))

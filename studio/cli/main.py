@@ -61,6 +61,7 @@ VERBS = {
     "play": "studio.cli.servos",
     "jog": "studio.cli.servos",
     "calibrate-rig": "studio.cli.rig",
+    "capture": "studio.cli.rig",
     "estop": "studio.cli.estop",
     "plan": "studio.cli.plan",
     "validate": "studio.cli.plan",

@@ -16,7 +16,7 @@ from studio.cli.flags import add_config_flags
 
 # the shared trainer's fields that are flags (``out`` and ``data`` are added with their verb's help)
 TRAINER_FLAGS = ("steps", "batch_size", "lr", "weight_decay", "warmup", "eval_every", "eval_size", "seed",
-                 "device", "threads")  # fmt: skip
+                 "device", "threads", "rig_file")  # fmt: skip
 
 
 def add_trainer_flags(p: argparse.ArgumentParser, base) -> None:

@@ -34,9 +34,10 @@ from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, Retrieved,
 from studio.imitate.roll_search import RollChoice, RollSearchConfig, choose_roll
 from studio.imitate.search import SearchResult, gradient_search
 from studio.imitate.seeding import Seeds, seed_poses
+from studio.learn.checkpoint import model_rig
 from studio.learn.selfmodel import SelfModel, load_selfmodel
 from studio.progress import ProgressFn, report, stopped
-from studio.sim.shadow import Rig, ShadowRenderer
+from studio.sim.shadow import ShadowRenderer
 from studio.targets.expressive import still_expressive
 from studio.targets.images import TargetConfig, load_target
 
@@ -98,7 +99,8 @@ class Imitator:
         self.refine_cfg = refine or CPU_REFINE
         self.cfg = config or ImitateConfig()
         self.sweep_cfg = sweep or SweepConfig()
-        self.renderer = ShadowRenderer(self.hand, Rig(resolution=self.resolution))
+        # the rig of the model's training shadows (a calibrated rig's geometry when it learnt from one)
+        self.renderer = ShadowRenderer(self.hand, model_rig(getattr(model, "trained_rig", None), self.resolution))
         self.refiner = Refiner(self.renderer)
         self._index = retrieval if isinstance(retrieval, RetrievalIndex) else None
         self._warmed = False  # torch's first-use start-up is done (run beside the first sweep)

@@ -27,6 +27,7 @@ import torch
 from studio.atomic import write_with
 from studio.errors import StudioError
 from studio.sim.hand import Hand, load_hand
+from studio.sim.shadow import Rig
 
 FORMAT_NAME = "shadow-studio-checkpoint"
 FORMAT_VERSION = 1  # the version this code writes and reads
@@ -137,5 +138,13 @@ def load_model(path: str | Path, cls: type, hand: Hand | None = None, device: st
     except (TypeError, ValueError, RuntimeError) as e:
         raise CheckpointError(f"{path}: its weights do not fit its architecture ({e}); retrain it", cls.kind) from None
     ckpt.state_dict = {}
+    model.trained_rig = dict(ckpt.rig)  # the rig of its training shadows: what its renderers and index draw with
     dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
     return model.to(dev).eval(), ckpt
+
+
+def model_rig(rig: dict | None, resolution: int) -> Rig:
+    """The rig a network's checkpoint records (:attr:`Checkpoint.rig`; None or empty: nominal) at ``resolution``,
+    unrolled: the renderer that searches and refines beside that network draws with it (a calibrated rig's light,
+    backdrop, mount offset and foam), and the retrieval index is keyed by it."""
+    return Rig.from_dict(rig or {}).with_resolution(resolution).with_roll(0.0)

@@ -60,6 +60,15 @@ class TrainerConfig:
     seed: int = 0  # data and initialisation seed [0, 4294967295]
     device: str | None = None  # "cpu" or "cuda"; unset: CUDA when present
     threads: int | None = None  # torch CPU threads; unset: torch's default [1, 256]
+    rig_file: str | None = None  # calibrate-rig's calibration.yaml (or a rig file): on-the-fly shadows through its rig
+
+    def rig(self, resolution: int) -> Rig:
+        """The rig of on-the-fly training shadows at ``resolution``: nominal, or measured by ``rig_file``."""
+        from studio.sim.rig_file import measured_rig
+        from studio.sim.shadow import Rig
+
+        base = Rig(resolution=resolution)
+        return measured_rig(self.rig_file, base) if self.rig_file else base
 
     def __post_init__(self) -> None:
         problems = [
@@ -139,6 +148,7 @@ class CollectConfig:
     seed: int = 0  # shard k is drawn from the seed sequence (seed, k) [0, 4294967295]
     resolution: int = 256  # shadow image side, pixels [8, 1024]
     window: float = 0.6  # backdrop window side, metres (see studio.sim.shadow.Rig) (0, 100]
+    rig_file: str | None = None  # calibrate-rig's calibration.yaml (or a rig file): shadows rendered through its rig
 
     def __post_init__(self) -> None:
         if self.n < 1 or self.shard_size < 1:
@@ -149,6 +159,9 @@ class CollectConfig:
         return (self.n + self.shard_size - 1) // self.shard_size
 
     def rig(self) -> Rig:
+        """The rig the shards are rendered through: nominal, or measured by ``rig_file`` (a calibrated rig)."""
+        from studio.sim.rig_file import measured_rig
         from studio.sim.shadow import Rig
 
-        return Rig(window=self.window, resolution=self.resolution)
+        base = Rig(window=self.window, resolution=self.resolution)
+        return measured_rig(self.rig_file, base) if self.rig_file else base

@@ -50,6 +50,7 @@ class FinetuneConfig(TrainerConfig):
     warmup: int = 40  # linear warm-up steps before the cosine decay to lr/50 [0, 10000000]
     eval_every: int = 100  # steps between held-out evaluations + checkpoints [1, 10000000]
     held_out_fraction: float = 0.1  # share of the captures held out for the before/after MAE (0, 1)
+    held_out: str | None = None  # a second capture set held out whole (another session or walk); unset: a share
     seed: int = 0  # held-out split and batch order seed [0, 4294967295]
     threads: int | None = 1  # torch CPU threads (1 is fastest on shared cores) [1, 256]
 
@@ -150,7 +151,13 @@ def finetune(
     _, start_ckpt = load_selfmodel(start, hand, device="cpu")  # fails early: missing, another kind or hand
     captures = load_captures(cfg.captures, hand.hash)
     _check_fit(captures, start_ckpt.rig, cfg.captures)
-    train, held = split(captures, cfg.held_out_fraction, cfg.seed)
+    if cfg.held_out:  # a set of its own: no neighbour of a training pair sits in it (captures along a walk do)
+        train, held = captures, load_captures(cfg.held_out, hand.hash)
+        _check_fit(held, start_ckpt.rig, cfg.held_out)
+        if held.rig != captures.rig:
+            raise CapturesMismatch(f"{cfg.held_out} was rectified into another rig than {cfg.captures}")
+    else:
+        train, held = split(captures, cfg.held_out_fraction, cfg.seed)
     record = {"folder": str(Path(cfg.captures).resolve()), "count": len(captures), "sha256": captures.sha256,
               "source": captures.source, "pairs_train": len(train), "pairs_held_out": len(held),
               "start_model": str(start), "start_metrics": start_ckpt.metrics}  # fmt: skip

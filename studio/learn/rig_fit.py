@@ -118,7 +118,8 @@ def coverage(renderer: ShadowRenderer, theta: np.ndarray, supersample: int) -> n
 def calibration_poses(hand: Hand, n: int = 12, seed: int = 0, pool: int = 3000) -> np.ndarray:
     """``(n, 21)`` poses to calibrate with: collision-free (they are played on the real hand), each reaching far
     towards and away from the light (the perspective that tells the light's distance), and unlike one another
-    (greedy farthest-point choice in joint space among the deepest quarter of a seeded pool)."""
+    (greedy farthest-point choice in joint space among the deepest quarter of a seeded pool), in the order that
+    plays them quickest from the rest pose (:func:`travel_order`)."""
     from studio.sim.kinematics import fk_numpy
     from studio.sim.physics import CollisionWorld
     from studio.sim.sampling import sample_poses
@@ -135,7 +136,19 @@ def calibration_poses(hand: Hand, n: int = 12, seed: int = 0, pool: int = 3000) 
     while len(chosen) < min(n, len(deep)):
         chosen.append(int(np.argmax(dist)))
         dist = np.minimum(dist, np.linalg.norm(deep - deep[chosen[-1]], axis=1))
-    return deep[chosen]
+    return travel_order(deep[chosen], np.zeros(hand.dof))
+
+
+def travel_order(poses: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """``poses (N, 21)`` reordered to play quickly from ``start (21,)``: each next pose the one whose largest joint
+    move is smallest (a move's time is its largest joint's distance over the joint speed)."""
+    left, out, at = list(range(len(poses))), [], np.asarray(start, dtype=float)
+    while left:
+        k = min(left, key=lambda i: float(np.abs(poses[i] - at).max()))
+        out.append(k)
+        left.remove(k)
+        at = poses[k]
+    return poses[out]
 
 
 def fit_rig(
@@ -185,7 +198,7 @@ def fit_rig(
             values["backdrop_distance"] = (k - 1.0) * values["light_distance"]
         return _rig_with(start, values)
 
-    def loss(x: np.ndarray) -> float:
+    def loss(x: np.ndarray, target: np.ndarray) -> float:
         nonlocal evals, best
         if cancel is not None and cancel.is_set():
             raise Cancelled("the rig fit was cancelled")
@@ -193,19 +206,21 @@ def fit_rig(
         if evals % 25 == 0:
             report(progress, "fit", min(evals, budget), budget, best)
         try:
-            rig = rig_at(x).with_resolution(res * cfg.supersample)
+            rig = rig_at(x).with_resolution(target.shape[1] * cfg.supersample)
         except ValueError:  # a rig that cannot be (the hand behind the light): as bad as can be
             return 2.0
-        value = float(np.abs(coverage(ShadowRenderer(hand, rig), theta, cfg.supersample) - soft).mean())
+        value = float(np.abs(coverage(ShadowRenderer(hand, rig), theta, cfg.supersample) - target).mean())
         best = min(best, value)
         return value
 
+    # Coarse to fine: the first search on the coverage averaged over 2×2 blocks (a quarter of the pixels to draw),
+    # the second restarts the simplex around its answer at the captures' own resolution.
+    half = soft.reshape(len(soft), res // 2, 2, res // 2, 2).mean(axis=(2, 4)) if res % 2 == 0 and res >= 64 else soft
     x = np.zeros(len(names))
-    for _ in range(2):  # the second search restarts the simplex around the first answer
-        opts = {"maxfev": cfg.max_evals, "xatol": 1e-3, "fatol": cfg.tolerance * 1e-3, "initial_simplex": None}
-        simplex = np.vstack([x, x + np.eye(len(names)) * 0.5])
-        opts["initial_simplex"] = simplex
-        x = minimize(loss, x, method="Nelder-Mead", options=opts).x
+    for target in (half, soft):
+        opts = {"maxfev": cfg.max_evals, "xatol": 1e-3, "fatol": cfg.tolerance * 1e-3}
+        opts["initial_simplex"] = np.vstack([x, x + np.eye(len(names)) * 0.5])
+        x = minimize(loss, x, args=(target,), method="Nelder-Mead", options=opts).x
     after = rig_at(x)
     binary = ShadowRenderer(hand, after).render(theta, check=False)
     per_pose = window_iou_loss(captured, binary)

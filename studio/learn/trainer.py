@@ -29,7 +29,7 @@ from studio.learn.config import TrainerConfig
 from studio.progress import ProgressFn, report, stopped
 from studio.sim.hand import Hand
 from studio.sim.sampling import sample_poses
-from studio.sim.shadow import Rig, ShadowRenderer
+from studio.sim.shadow import ShadowRenderer
 
 log = logging.getLogger(__name__)
 Batch = tuple[torch.Tensor, torch.Tensor]  # theta (B, 21) float32 rad, shadows (B, 1, R, R) float32 (1 = shadow)
@@ -70,7 +70,7 @@ class Pairs:
                 _fit(torch.zeros(1, 1, meta["resolution"], meta["resolution"]), resolution)  # fails early
             self.rig = meta["rig"] | ({"resolution": resolution} if fit else {})
         else:
-            self.renderer = ShadowRenderer(hand, Rig(resolution=resolution))
+            self.renderer = ShadowRenderer(hand, cfg.rig(resolution))
             self.rig = self.renderer.rig.to_dict()
 
     def _stream(self, split: str, shuffle: bool) -> Iterator[Batch]:

@@ -15,7 +15,9 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -23,8 +25,12 @@ from hardware.calibration import Calibration
 from hardware.camera import Camera
 from hardware.jog import Jog, JogConfig
 from studio.errors import Cancelled
+from studio.learn.captures import CaptureRecorder, CaptureSet
 from studio.progress import ProgressFn, report
 from studio.sim.backdrop import BackdropLayout
+from studio.sim.hand import load_hand
+from studio.sim.physics import CollisionWorld
+from studio.sim.sampling import walk_poses
 from studio.targets.backdrop import find_backdrop, rectify, shadow_coverage
 
 log = logging.getLogger(__name__)
@@ -85,17 +91,20 @@ def capture_poses(
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     keep_photos: bool = True,
+    on_capture: Callable[[np.ndarray, np.ndarray, float], None] | None = None,
 ) -> Captures:
     """Play each of ``poses (N, 21)`` rad (hand order) on ``bus`` and photograph its shadow with ``camera``.
 
     The backdrop is found in every photograph from ``layout``'s markers unless ``H_backdrop_camera (3, 3)`` (from
     four clicked corners) is given. Progress ``("capture", done, N)``; ``cancel`` raises
     :class:`~studio.errors.Cancelled` between poses (the servos hold the last pose; the caller's session stops them).
+    ``on_capture(theta (21,), coverage (R, R), t)`` sees each capture as it is made (a recorder saving as it goes).
     """
     cfg = cfg or CaptureConfig()
     layout = layout or BackdropLayout()
     poses = np.atleast_2d(np.asarray(poses, dtype=np.float64))
     jog = Jog(bus, calibration, JogConfig(speed_rad_s=cfg.speed_rad_s))
+    jog.target = np.clip(jog.read_array(strict=False), calibration.lower, calibration.upper)  # paced from here
     n, res = len(poses), cfg.resolution
     out = Captures(np.zeros((n, poses.shape[1])), np.zeros((n, poses.shape[1])), np.zeros((n, res, res), np.float32),
                    np.zeros(n))  # fmt: skip
@@ -112,6 +121,38 @@ def capture_poses(
         out.t[i], out.H_backdrop_camera = frame.t, H
         if keep_photos:
             out.photos.append(frame.image.copy())
+        if on_capture is not None:
+            on_capture(out.theta[i], out.coverage[i], frame.t)
         report(progress, "capture", i + 1, n)
         log.debug("captured pose %d/%d at frame %d", i + 1, n, frame.index)
     return out
+
+
+def capture_walk(
+    bus,
+    calibration: Calibration,
+    camera: Camera,
+    n: int,
+    folder: Path,
+    cfg: CaptureConfig | None = None,
+    step_rad: float = 0.25,
+    seed: int = 0,
+    layout: BackdropLayout | None = None,
+    H_backdrop_camera: np.ndarray | None = None,
+    progress: ProgressFn | None = None,
+    cancel: threading.Event | None = None,
+) -> CaptureSet:
+    """Capture ``n`` (pose, shadow) pairs to learn from into the capture set ``folder`` (continued when it holds one
+    for the same rig): a seeded collision-free random walk from the rest pose (each joint at most ``step_rad`` per
+    pose, so each move is short), saved every 25 pairs as it goes (an interruption keeps what was captured). The
+    set's rig is the one ``calibration`` records (its measured geometry and roll, at ``cfg.resolution``)."""
+    cfg = cfg or CaptureConfig()
+    hand = load_hand()
+    with CollisionWorld(hand) as world:
+        poses = walk_poses(hand, n, np.random.default_rng(seed), step_rad, hand.rest_pose(), world.in_collision)
+    rig = calibration.rig().with_resolution(cfg.resolution)
+    source = f"{n} poses of a random walk (step {step_rad:g} rad, seed {seed}) photographed by {camera.name}"
+    with CaptureRecorder(folder, rig.to_dict(), hand.hash, source) as rec:
+        capture_poses(bus, calibration, camera, poses, rig.window, cfg, layout, H_backdrop_camera, progress, cancel,
+                      keep_photos=False, on_capture=lambda theta, cov, t: rec.append(theta, cov >= 0.5, t))  # fmt: skip
+    return rec.captures

@@ -144,14 +144,14 @@ def search_renderer(model_path: Path | None = None) -> Any:
     """The renderer a keyframe job's search ranks the retrieval index with: the self-model's hand at its resolution
     (as :class:`~studio.imitate.still.Imitator` makes it; ``model_path`` None: the shipped self-model)."""
     from studio.imitate.still import DEFAULT_MODEL
-    from studio.learn.checkpoint import read_checkpoint
+    from studio.learn.checkpoint import model_rig, read_checkpoint
     from studio.learn.selfmodel import SelfModel
     from studio.sim.hand import load_hand
-    from studio.sim.shadow import Rig, ShadowRenderer
+    from studio.sim.shadow import ShadowRenderer
 
     hand = load_hand()
     ckpt = read_checkpoint(Path(model_path or DEFAULT_MODEL), SelfModel.kind, hand.hash)
-    return ShadowRenderer(hand, Rig(resolution=SelfModel.config_from_dict(ckpt.config).resolution))
+    return ShadowRenderer(hand, model_rig(ckpt.rig, SelfModel.config_from_dict(ckpt.config).resolution))
 
 
 def index_needed(model_path: Path | None = None, retrieval: Any = None) -> bool:

@@ -122,7 +122,7 @@ def write_outputs(result: RigCalibration, out: Path, hand: Hand, cfg: RigCalibra
     files = {"calibration": out / "calibration.yaml", "captures": out / "captures", "compare": out / "compare.png",
              "summary": out / "rig_fit.json"}  # fmt: skip
     save_calibration(result.calibration, files["calibration"])
-    rig = fit.before.with_resolution(caught.coverage.shape[1])
+    rig = fit.after.with_resolution(caught.coverage.shape[1])  # the set's rig: the measured one (fine-tuning keeps it)
     cs = CaptureSet(caught.theta, caught.masks, caught.t, rig.to_dict(), hand.hash,
                     source="calibrate-rig: calibration poses photographed on the rig")  # fmt: skip
     save_captures(files["captures"], cs)

@@ -95,3 +95,23 @@ def read_rig_file(path: str | Path, base: Rig | None = None) -> tuple[Rig, dict 
     if camera is not None and not isinstance(camera, dict):
         raise RigFileError(f"{where}camera must be a mapping (position_m, look_at_m, fov_deg, width, height, ...)")
     return rig, camera
+
+
+def measured_rig(path: str | Path, base: Rig | None = None) -> Rig:
+    """The rig geometry a calibration file (``calibrate-rig``'s ``calibration.yaml``: its ``rig`` section) or a rig
+    file measured, on ``base``, **unrolled**: the mount's roll is a show's choice and the self-model, the retrieval
+    index and training shadows live in the unrolled hand's frame (DESIGN §1); light, backdrop, offset and foam are the
+    rig's own and go into every shadow they render."""
+    p = Path(path)
+    if not p.is_file():
+        raise RigFileError(f"rig or calibration file not found: {p}")
+    try:
+        doc = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as e:
+        raise RigFileError(f"{p}: not valid YAML ({e})") from None
+    if isinstance(doc, dict) and "joints" in doc:  # a calibration file: its rig section, if it has one
+        doc = doc.get("rig") or {}
+    if not isinstance(doc, dict):
+        raise RigFileError(f"{p}: a rig must be a mapping of {', '.join(KEYS)}")
+    doc = {k: v for k, v in doc.items() if ALIASES.get(k, k) not in ("mount_roll_deg", *EXTRA)}
+    return rig_from_mapping(doc, (base or Rig()).with_roll(0.0), f"{p}: ")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,3 +62,30 @@ def sample_poses(
         active[:, other] = True
     theta = np.where(active, uniform, near_rest)
     return theta, mode
+
+
+def walk_poses(
+    hand: Hand,
+    n: int,
+    rng: np.random.Generator,
+    step_rad: float = 0.25,
+    start: np.ndarray | None = None,
+    bad: Callable[[np.ndarray], np.ndarray] | None = None,
+    tries: int = 50,
+) -> np.ndarray:
+    """``(n, 21)`` poses of a random walk within the limits, each joint moving at most ``step_rad`` from one pose to
+    the next (quick to play one after another: capturing real shadows to learn from). ``start (21,)`` defaults to a
+    sampled pose; ``bad(theta (K, 21)) -> (K,) bool`` rejects steps (e.g. self-collisions; ``start`` must pass it):
+    of ``tries`` candidate steps the first good one is taken, else the walk stays put for that pose."""
+    if n < 1 or not step_rad > 0:
+        raise ValueError("walk at least one pose with a positive step")
+    lo, hi = hand.lower, hand.upper
+    at = np.clip(start if start is not None else sample_poses(hand, 1, rng)[0][0], lo, hi)
+    out = np.empty((n, hand.dof))
+    for i in range(n):
+        steps = np.clip(at + rng.uniform(-step_rad, step_rad, size=(tries, hand.dof)), lo, hi)
+        good = np.flatnonzero(~bad(steps)) if bad is not None else np.arange(tries)
+        if len(good):
+            at = steps[good[0]]
+        out[i] = at
+    return out
