@@ -18,7 +18,8 @@ the captures' resolution and averaged into coverage fractions, by their mean abs
 would quantise away the sub-pixel shifts that tell the light's distance from the backdrop's (measured: along the
 line of equal scale, the binary loss wanders by more than it changes, while the coverage loss has one clean minimum
 at the true rig). Nelder–Mead (scipy) runs from the starting rig in scaled coordinates, then again from its answer
-(a restart escapes a collapsed simplex). The figures reported are the window IoU losses of the binary masks.
+(a restart escapes a collapsed simplex), after a scan of the roll over the whole circle (a mount may be rolled far
+from where the calibration had it). The figures reported are the window IoU losses of the binary masks.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ PARAMETERS = {
     "roll": (lambda r: r.roll, math.radians(3.0)),  # rad
     "foam": (lambda r: r.foam, 0.002),  # m
 }
+ROLL_SCAN_DEG = 3.0  # step of the first scan over the whole circle of rolls, degrees
 SCALE_STEP = 0.02  # search scale of the shadow's magnification (light-to-backdrop over light-to-hand)
 
 
@@ -217,6 +219,11 @@ def fit_rig(
     # the second restarts the simplex around its answer at the captures' own resolution.
     half = soft.reshape(len(soft), res // 2, 2, res // 2, 2).mean(axis=(2, 4)) if res % 2 == 0 and res >= 64 else soft
     x = np.zeros(len(names))
+    if "roll" in names:  # a mount rolled far from where the calibration had it: start from the best of a scan
+        k = names.index("roll")
+        scan = np.arange(-180.0, 180.0, ROLL_SCAN_DEG)
+        trials = [np.where(np.arange(len(names)) == k, math.radians(d) / scale[k], 0.0) for d in scan]
+        x = min(trials, key=lambda t: loss(t, half))
     for target in (half, soft):
         opts = {"maxfev": cfg.max_evals, "xatol": 1e-3, "fatol": cfg.tolerance * 1e-3}
         opts["initial_simplex"] = np.vstack([x, x + np.eye(len(names)) * 0.5])

@@ -42,14 +42,14 @@ class CaptureConfig:
 
     resolution: int = 256  # window pixels per side of each capture [32, 2048]
     settle_s: float = 0.3  # wait after a move's time before reading the hand back, s [0, 10]
-    speed_rad_s: float = 1.5  # joint speed of the moves between poses, rad/s (0, 6]
+    speed_rad_s: float = 2.5  # joint speed of the moves between poses, rad/s: half the URDF's 5.2 (0, 5.2]
     frame_timeout_s: float = 3.0  # a camera that gives no newer frame within this is stalled, s (0, 60]
 
     def __post_init__(self) -> None:
         if not 32 <= self.resolution <= 2048:
             raise ValueError(f"capture resolution must be within 32..2048 pixels, got {self.resolution}")
-        if not (0 <= self.settle_s <= 10 and 0 < self.speed_rad_s <= 6 and 0 < self.frame_timeout_s <= 60):
-            raise ValueError("settle_s must be within 0..10 s, speed_rad_s within 0..6 rad/s, frame_timeout_s > 0")
+        if not (0 <= self.settle_s <= 10 and 0 < self.speed_rad_s <= 5.2 and 0 < self.frame_timeout_s <= 60):
+            raise ValueError("settle_s must be within 0..10 s, speed_rad_s within 0..5.2 rad/s, frame_timeout_s > 0")
 
 
 @dataclass
