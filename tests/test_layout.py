@@ -107,6 +107,7 @@ def test_io_libraries_stay_at_their_edges():
             "studio.project.play",
             "studio.project.capture",
             "studio.project.rig_calibration",
+            "studio.project.show_capture",
             "widgets",
         ),  # DESIGN §3: project's play and capture steps
         "widgets": ("widgets",),

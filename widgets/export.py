@@ -42,6 +42,7 @@ from studio.project.show_timing import ShowLayout
 from studio.project.state import ProjectError
 from studio.sim.hand import Hand, load_hand
 from widgets.images import Messages, title
+from widgets.real_vs_sim import real_vs_sim_view
 from widgets.show_text import ProjectView, artist_lines, ramp_line
 from widgets.state import StudioState
 from widgets.words import ALLOW_LATE, count, late_lines, seconds
@@ -105,6 +106,7 @@ class ExportPanel:
         self.play_button.on_click(lambda _: self.play())
         self.stop_button.on_click(lambda _: self.stop())
         self.target.observe(lambda _: self.show_info(), names="value")  # the ramp-in depends on where it plays
+        self.real_vs_sim = real_vs_sim_view(state, self)  # play with a camera: real vs simulated shadows
         self.widget = w.VBox([
             title("Export"),
             w.HBox([self.plan_button, self.allow_late]),
@@ -114,6 +116,7 @@ class ExportPanel:
             w.HBox([self.target, self.port, self.play_button, self.stop_button]),
             w.HBox([self.progress, self.status]),
             self.messages.widget,
+            self.real_vs_sim.widget,
         ])  # fmt: skip
         self._unsubscribe = state.queue.subscribe(self._on_event)
         self._stop_listening = state.on_change(self._on_change)
@@ -336,6 +339,7 @@ class ExportPanel:
         left to close them."""
         self._unsubscribe()
         self._stop_listening()
+        self.real_vs_sim.close()
         for job, session in list(self._sessions.items()):
             job.cancel()
             if not job.wait(self.cfg.close_wait_s).finished:

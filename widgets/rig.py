@@ -32,6 +32,7 @@ from hardware.serial_bus import BusConfig
 from hardware.session import CloseReport, ServoSession
 from studio.errors import Cancelled, StudioError
 from studio.progress import Progress
+from studio.project.capture import open_camera_source
 from studio.project.rig_calibration import RigCalibration, RigCalibrationConfig, calibrate_rig
 from studio.sim.hand import Hand, load_hand
 from widgets.images import Messages, title
@@ -142,19 +143,14 @@ class RigPanel:
         if not source:
             raise ValueError("type the camera: its number (0 for the first), a video file or frame folder, or virtual")
         if source != "virtual":
-            return stack.enter_context(Camera(source))
-        from hardware.virtual_camera import VirtualCamera, emulator_angles
-        from studio.sim.photo import CameraModel
-        from studio.sim.rig_file import read_rig_file
-
+            return stack.enter_context(open_camera_source(source))
         if not self.true_rig.value.strip():
             raise ValueError("the virtual camera needs a true rig file (YAML): the rig as it really is")
-        rig, model = read_rig_file(Path(self.true_rig.value.strip()).expanduser())
         session = session or self._servos(stack)
         if session.emulator is None:
             raise ValueError("the virtual camera photographs the emulator's hand: choose the emulator servos")
-        angles = emulator_angles(session.emulator, self.cal)
-        return stack.enter_context(Camera(VirtualCamera(angles, rig, CameraModel.from_dict(model), hand=self.hand)))
+        true_rig = Path(self.true_rig.value.strip()).expanduser()
+        return stack.enter_context(open_camera_source(source, session.emulator, self.cal, true_rig, hand=self.hand))
 
     def show_camera(self) -> bool:
         """Grab one frame, find the backdrop's window in it and show both; whether a frame came."""

@@ -43,23 +43,17 @@ def _corners(text: str) -> list[float]:
 
 
 def open_camera(source: str, session, calibration, true_rig: Path | None):
-    """The camera ``source`` names (``virtual`` needs the session's emulator and a true rig file), not yet open."""
-    from hardware.camera import Camera
+    """The camera ``source`` names, not yet open (:func:`studio.project.capture.open_camera_source`), after the
+    flags that go with ``virtual`` are checked in the command line's words."""
+    from studio.project.capture import open_camera_source
 
-    if source != "virtual":
-        if true_rig is not None:
-            raise ValueError("--true-rig describes the virtual camera's world: use it with --camera virtual")
-        return Camera(int(source) if source.strip().isdigit() else source)
-    from hardware.virtual_camera import VirtualCamera, emulator_angles
-    from studio.sim.photo import CameraModel
-    from studio.sim.rig_file import read_rig_file
-
-    if true_rig is None:
+    if source.strip() != "virtual" and true_rig is not None:
+        raise ValueError("--true-rig describes the virtual camera's world: use it with --camera virtual")
+    if source.strip() == "virtual" and true_rig is None:
         raise ValueError("--camera virtual needs --true-rig RIG.yaml: the rig as it really is, which it photographs")
-    if session.emulator is None:
+    if source.strip() == "virtual" and session.emulator is None:
         raise ValueError("--camera virtual photographs the servo emulator's hand: add --emulator")
-    rig, camera = read_rig_file(true_rig)
-    return Camera(VirtualCamera(emulator_angles(session.emulator, calibration), rig, CameraModel.from_dict(camera)))
+    return open_camera_source(source, session.emulator, calibration, true_rig)
 
 
 def _check_out(out: Path, force: bool) -> None:
@@ -94,10 +88,11 @@ def _servos_and_camera(args: argparse.Namespace, verb: str) -> Iterator[tuple]:
 def cmd_calibrate_rig(args: argparse.Namespace) -> int:
     from studio.learn.rig_fit import RigFitConfig
     from studio.project.capture import CaptureConfig
-    from studio.project.rig_calibration import RigCalibrationConfig, calibrate_rig
+    from studio.project.rig_calibration import CALIBRATION_CAPTURE, RigCalibrationConfig, calibrate_rig
 
     fit = config_from_args(args, RigFitConfig, base=RigFitConfig(fit=tuple(args.fit.split(","))))
-    cfg = config_from_args(args, RigCalibrationConfig, capture=config_from_args(args, CaptureConfig), fit=fit)
+    capture = config_from_args(args, CaptureConfig, base=CALIBRATION_CAPTURE)
+    cfg = config_from_args(args, RigCalibrationConfig, capture=capture, fit=fit)
     _check_out(args.out, args.force)
     with _servos_and_camera(args, "calibrate-rig") as (session, camera, cal, H, bars):
         result = calibrate_rig(session.bus, cal, camera, cfg, None, args.out, progress=bars, H_backdrop_camera=H)
@@ -140,7 +135,7 @@ def _photographing_args(p: argparse.ArgumentParser) -> None:
 def register(sub: argparse._SubParsersAction) -> None:
     from studio.learn.rig_fit import PARAMETERS, RigFitConfig
     from studio.project.capture import CaptureConfig
-    from studio.project.rig_calibration import RigCalibrationConfig
+    from studio.project.rig_calibration import CALIBRATION_CAPTURE, RigCalibrationConfig
 
     p = sub.add_parser("calibrate-rig", help="measure the rig (light, backdrop, mount, roll, foam) with a camera")
     _photographing_args(p)
@@ -149,7 +144,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fit", default=",".join(PARAMETERS), help=f"parameters to fit (default: all of "
                    f"{','.join(PARAMETERS)})")  # fmt: skip
     add_config_flags(p, RigCalibrationConfig, ("poses", "seed"))
-    add_config_flags(p, CaptureConfig)
+    add_config_flags(p, CaptureConfig, base=CALIBRATION_CAPTURE)
     add_config_flags(p, RigFitConfig, ("supersample", "max_evals"))
     p.set_defaults(func=cmd_calibrate_rig)
 

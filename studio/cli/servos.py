@@ -48,6 +48,7 @@ from hardware.session import ServoSession, load_emulator
 from hardware.wizard import CalibrationWizard
 from studio.atomic import write_text
 from studio.cli.flags import add_config_flags, config_from_args, ranged
+from studio.cli.play_camera import add_camera_flags, prepare_camera
 from studio.cli.progress import add_quiet_flag
 from studio.cli.runs import advice
 from studio.cli.servo_logs import log_path, save_log
@@ -167,6 +168,7 @@ def cmd_play(args) -> int:
     if not args.dry_run and not args.port:
         raise ValueError("give --port PATH (or --dry-run to play to the emulator)")
     check_not_latched(args.port or "the emulator")  # before the port is opened: nothing to undo
+    camera = prepare_camera(args, show)  # --camera: its flags and the show's targets, before the port too
     log_to = log_path(args.log, "play", ".npz")
     with stop_on_signals("play") as caught, session_for(args, cal, args.dry_run, args.release_on_stop) as session:
         if session.emulator is not None:
@@ -176,13 +178,18 @@ def cmd_play(args) -> int:
         player = Player(session.bus, cal, cfg)
         try:
             with TqdmBars(disable=args.quiet) as bars:
-                result = player.play(show.times, show.positions, show.joint_names, progress=bars)
+                if camera is None:
+                    result = player.play(show.times, show.positions, show.joint_names, progress=bars)
+                else:  # the camera refuses before the servos move when it sees no backdrop
+                    result = (captured := camera.play(session, player, show, bars)).playback
         finally:  # the log is written however playback ended (even by a bug, which then surfaces)
             if player.last_result is not None:
                 write = partial(save_playback_log, player.last_result)
                 save_log(write, log_to, args.log, "command vs measured")
         session.close()  # the servos stopped before the verb reports (a later signal is ignored till it returns)
         _report(result)
+        if camera is not None:
+            camera.report(captured, log_to)
     if result.reason == StopReason.INTERRUPTED:  # Ctrl-C, SIGTERM, SIGHUP: the shell's code for that signal
         return exit_code(caught[0] if caught else None)
     return 0 if result.ok else 1
@@ -283,6 +290,7 @@ def register(sub) -> None:
     p.add_argument("--log", type=Path, help="save command vs measured positions to this .npz (default: "
                    "<studio home>/logs/play-<time>.npz)")  # fmt: skip
     p.add_argument("--force", action="store_true", help="play a show planned for another hand model")
+    add_camera_flags(p)
     add_quiet_flag(p)
     p.set_defaults(func=cmd_play)
 

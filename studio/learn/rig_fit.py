@@ -49,6 +49,7 @@ PARAMETERS = {
     "roll": (lambda r: r.roll, math.radians(3.0)),  # rad
     "foam": (lambda r: r.foam, 0.002),  # m
 }
+LIGHT_RANGE = (1.0, 8.0)  # light distances the line search along the weak direction considers, m
 ROLL_SCAN_DEG = 3.0  # step of the first scan over the whole circle of rolls, degrees
 SCALE_STEP = 0.02  # search scale of the shadow's magnification (light-to-backdrop over light-to-hand)
 
@@ -58,7 +59,7 @@ class RigFitConfig:
     """How the rig is fitted."""
 
     fit: tuple[str, ...] = tuple(PARAMETERS)  # which parameters move (the rest stay at the starting rig's values)
-    supersample: int = 3  # render at this multiple of the captures' resolution, averaged into coverage [1, 8]
+    supersample: int = 2  # render at this multiple of the captures' resolution, averaged into coverage [1, 8]
     max_evals: int = 1500  # loss evaluations per simplex search (two searches) [50, 100000]
     tolerance: float = 1e-5  # stop when the simplex's losses differ by less than this
 
@@ -118,11 +119,10 @@ def coverage(renderer: ShadowRenderer, theta: np.ndarray, supersample: int) -> n
 
 
 def calibration_poses(hand: Hand, n: int = 12, seed: int = 0, pool: int = 3000) -> np.ndarray:
-    """``(n, 21)`` poses to calibrate with: collision-free (they are played on the real hand), each reaching far
-    towards and away from the light (the perspective that tells the light's distance), and unlike one another
-    (greedy farthest-point choice in joint space among the deepest quarter of a seeded pool), in the order that
-    plays them quickest from the rest pose (:func:`travel_order`)."""
-    from studio.sim.kinematics import fk_numpy
+    """``(n, 21)`` poses to calibrate with: collision-free (they are played on the real hand), each telling the
+    light's distance well (the most pixels differ between two rigs of equal shadow scale, light near and far), and
+    unlike one another (greedy farthest-point choice in joint space among the most telling quarter of a seeded
+    pool), in the order that plays them quickest from the rest pose (:func:`travel_order`)."""
     from studio.sim.physics import CollisionWorld
     from studio.sim.sampling import sample_poses
 
@@ -131,8 +131,12 @@ def calibration_poses(hand: Hand, n: int = 12, seed: int = 0, pool: int = 3000) 
     cand = sample_poses(hand, max(pool, 4 * n), np.random.default_rng(seed))[0]
     with CollisionWorld(hand) as world:
         cand = cand[~world.in_collision(cand)]
-    z = fk_numpy(hand, cand)[:, :, 2, 3]  # (N, L) every link's depth along the light axis
-    deep = cand[np.argsort(-(z.max(1) - z.min(1)))[: max(n, len(cand) // 4)]]
+    # how much each pose tells the light's distance from the shadow's scale: the pixels that differ between two rigs
+    # of equal scale (4/3), the light at 2.4 m and at 3.6 m (only the perspective of the parts nearer the light does)
+    near = ShadowRenderer(hand, Rig(light=(0.0, 0.0, 2.4), backdrop_z=-0.8, resolution=128)).render(cand, check=False)
+    far = ShadowRenderer(hand, Rig(light=(0.0, 0.0, 3.6), backdrop_z=-1.2, resolution=128)).render(cand, check=False)
+    telling = (near != far).sum(axis=(1, 2))
+    deep = cand[np.argsort(-telling)[: max(n, len(cand) // 4)]]
     chosen = [0]
     dist = np.linalg.norm(deep - deep[0], axis=1)
     while len(chosen) < min(n, len(deep)):
@@ -169,7 +173,7 @@ def fit_rig(
     is reported as stage ``"fit"`` (evaluations of the budget, the best coverage loss); ``cancel`` raises
     :class:`~studio.errors.Cancelled`.
     """
-    from scipy.optimize import minimize
+    from scipy.optimize import minimize, minimize_scalar
 
     cfg = cfg or RigFitConfig()
     hand = hand or load_hand()
@@ -228,6 +232,15 @@ def fit_rig(
         opts = {"maxfev": cfg.max_evals, "xatol": 1e-3, "fatol": cfg.tolerance * 1e-3}
         opts["initial_simplex"] = np.vstack([x, x + np.eye(len(names)) * 0.5])
         x = minimize(loss, x, args=(target,), method="Nelder-Mead", options=opts).x
+    if both:  # the weak direction: the light's distance at the fitted scale, searched along its own line, then polished
+        i = names.index("light_distance")
+        lo, hi = (LIGHT_RANGE[0] - x_start[i]) / scale[i], (LIGHT_RANGE[1] - x_start[i]) / scale[i]
+        along = minimize_scalar(lambda v: loss(np.where(np.arange(len(x)) == i, v, x), soft), bounds=(lo, hi),
+                                method="bounded", options={"xatol": 0.01})  # fmt: skip
+        x[i] = along.x
+        opts = {"maxfev": cfg.max_evals // 2, "xatol": 1e-3, "fatol": cfg.tolerance * 1e-3}
+        opts["initial_simplex"] = np.vstack([x, x + np.eye(len(names)) * 0.2])
+        x = minimize(loss, x, args=(soft,), method="Nelder-Mead", options=opts).x
     after = rig_at(x)
     binary = ShadowRenderer(hand, after).render(theta, check=False)
     per_pose = window_iou_loss(captured, binary)

@@ -156,3 +156,26 @@ def capture_walk(
         capture_poses(bus, calibration, camera, poses, rig.window, cfg, layout, H_backdrop_camera, progress, cancel,
                       keep_photos=False, on_capture=lambda theta, cov, t: rec.append(theta, cov >= 0.5, t))  # fmt: skip
     return rec.captures
+
+
+def open_camera_source(source: str | int, emulator=None, calibration=None, true_rig: str | Path | None = None,
+                       fps: float = 30.0, hand=None) -> Camera:  # fmt: skip
+    """The camera a face names (not yet open): a device index (``0`` or ``"0"``), a video file or frame folder, or
+    ``"virtual"``: ``emulator``'s measured angles (through ``calibration``) rendered on the rig of the ``true_rig``
+    file and photographed by its camera (:class:`~hardware.virtual_camera.VirtualCamera`). The one way every face
+    opens a camera (``calibrate-rig``, ``capture``, ``play --camera``, the Rig and Export panels)."""
+    if str(source).strip() != "virtual":
+        if true_rig is not None:
+            raise ValueError("a true rig file describes the virtual camera's world: use it with the virtual camera")
+        return Camera(int(source) if str(source).strip().isdigit() else source)
+    from hardware.virtual_camera import VirtualCamera, emulator_angles
+    from studio.sim.photo import CameraModel
+    from studio.sim.rig_file import read_rig_file
+
+    if true_rig is None:
+        raise ValueError("the virtual camera needs a true rig file (YAML): the rig as it really is, to photograph")
+    if emulator is None or calibration is None:
+        raise ValueError("the virtual camera photographs the servo emulator's hand: play on the emulator")
+    rig, camera = read_rig_file(true_rig)
+    angles = emulator_angles(emulator, calibration)
+    return Camera(VirtualCamera(angles, rig, CameraModel.from_dict(camera), fps=fps, hand=hand))

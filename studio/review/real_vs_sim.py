@@ -4,17 +4,19 @@
 shows at a glance: both in shadow dark grey, only the camera's shadow orange, only the simulation's blue, both lit
 the backdrop's light grey. :func:`compare_sheet` lays out one row per pose (the rig calibration's picture):
 photograph | captured | simulated before | after, the overlays labelled with their window IoU losses.
-:func:`real_sim_row` is one keyframe's row for a show played with a camera: target | captured | simulated.
+:func:`real_sim_row` is one keyframe's row for a show played with a camera: target | captured | simulated |
+overlay, labelled with the losses; :func:`real_sim_sheet` stacks them (``real_vs_sim.png``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Mapping, Sequence
 
 import cv2
 import numpy as np
 
-from studio.review.sheets import BACKDROP, SHADOW, fit_tile, grid, label, shadow_tile
+from studio.review.sheets import BACKDROP, GAP, SHADOW, fit_tile, grid, label, shadow_tile
 
 ONLY_REAL = (235, 140, 40)  # RGB where only the camera saw shadow
 ONLY_SIM = (60, 120, 230)  # RGB where only the simulation casts shadow
@@ -62,13 +64,52 @@ def compare_sheet(
     return cv2.cvtColor(grid(rows, gap=4), cv2.COLOR_RGB2BGR)
 
 
-def real_sim_row(target: np.ndarray, captured: np.ndarray, simulated: np.ndarray, tile: int = 192) -> np.ndarray:
-    """One keyframe: its target | the camera's shadow | overlay of captured and simulated, with the losses of the
-    captured and the simulated shadow against the target → RGB ``(T, 3T + gaps, 3)`` uint8."""
-    t = cv2.resize(np.asarray(target, np.uint8), captured.shape[::-1], interpolation=cv2.INTER_NEAREST)
+def _loss_text(x: float | None) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{x:.3f}"
+
+
+def _blank(tile: int, text: str) -> np.ndarray:
+    return label(np.full((tile, tile, 3), GAP, np.uint8), text)
+
+
+def real_sim_row(
+    target: np.ndarray | None,
+    captured: np.ndarray | None,
+    simulated: np.ndarray,
+    tile: int = 192,
+    losses: Mapping[str, float] | None = None,
+    name: str = "",
+) -> np.ndarray:
+    """One keyframe of a show played with a camera: its target | the camera's shadow | the simulated shadow |
+    overlay of captured and simulated (the module's colours) → RGB ``(T, 4T + 3 gaps, 3)`` uint8.
+
+    ``target`` ``(S, S)``, ``captured`` and ``simulated`` ``(R, R)``, 1 = shadow; a missing target or picture is a
+    grey tile saying so. ``losses`` (``captured_vs_target``, ``simulated_vs_target``, ``captured_vs_simulated``;
+    NaN: not computed, shown as ``-``) label the tiles; without them the window IoU losses are computed here.
+    ``name`` is written on the first tile (``"k2 1.50 s"``)."""
+    simulated = np.asarray(simulated)
+    if losses is None:
+        t = None if target is None else cv2.resize(np.asarray(target, np.uint8), simulated.shape[::-1],
+                                                    interpolation=cv2.INTER_NEAREST)  # fmt: skip
+        both = (t is not None) and (captured is not None)
+        losses = {
+            "captured_vs_target": window_iou_loss(t, captured) if both else math.nan,
+            "simulated_vs_target": window_iou_loss(t, simulated) if t is not None else math.nan,
+            "captured_vs_simulated": window_iou_loss(captured, simulated) if captured is not None else math.nan,
+        }
+    head = f"{name} " if name else ""
+    real_sim = f"real vs sim {_loss_text(losses.get('captured_vs_simulated'))}"
     cells = [
-        label(shadow_tile(t, tile), "target"),
-        label(shadow_tile(captured, tile), f"captured {window_iou_loss(t, captured):.3f}"),
-        label(overlay(captured, simulated, tile), f"simulated {window_iou_loss(t, simulated):.3f}"),
+        _blank(tile, f"{head}no target") if target is None else label(shadow_tile(target, tile), f"{head}target"),
+        _blank(tile, "no picture")
+        if captured is None
+        else label(shadow_tile(captured, tile), f"captured {_loss_text(losses.get('captured_vs_target'))}"),
+        label(shadow_tile(simulated, tile), f"simulated {_loss_text(losses.get('simulated_vs_target'))}"),
+        _blank(tile, "real vs sim -") if captured is None else label(overlay(captured, simulated, tile), real_sim),
     ]
     return grid([cells], gap=4)
+
+
+def real_sim_sheet(rows: Sequence[np.ndarray]) -> np.ndarray:
+    """Rows of :func:`real_sim_row` one under the other → RGB ``(H, W, 3)`` uint8 (``write_png`` writes it)."""
+    return grid([[r] for r in rows], gap=6)
