@@ -213,7 +213,7 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
             texts[name] = open_tab(page, name)
             assert name in texts[name], f"the {name} tab shows no {name!r} label: {texts[name][:200]!r}"
             assert "unavailable" not in texts[name], texts[name][:300]
-            if name in ("Keyframes", "Masks", "Weights", "Export"):
+            if name in ("Keyframes", "Masks", "Weights", "Rig", "Export"):
                 shots.append(shoot_tab(page, name, tmp_path))
 
         # Targets: the preview tints the shape the project stored, not the backdrop around it

@@ -51,7 +51,7 @@ class RigCalibrationConfig:
     """What a rig calibration does."""
 
     poses: int = 12  # known poses played and photographed [3, 200]
-    seed: int = 0  # which calibration poses (the same seed plays the same poses)
+    seed: int = 0  # which calibration poses (the same seed plays the same poses) [0, 4294967295]
     capture: CaptureConfig = field(default_factory=lambda: CALIBRATION_CAPTURE)  # how each pose is captured
     fit: RigFitConfig = field(default_factory=RigFitConfig)  # how the rig is fitted
 
