@@ -14,7 +14,9 @@ is why the calibration poses should bend the hand towards the light (:func:`cali
 
 The search compares **coverage**, not masks: each captured pixel's darkness normalised to [0, 1] (what share of it
 the shadow covers, as the camera's rectified image says) against the rendered shadow drawn at ``supersample`` times
-the captures' resolution and averaged into coverage fractions, by their mean absolute difference. Binary masks
+the captures' resolution and averaged into coverage fractions, then blurred by the camera's blur (fitted too, σ in
+window pixels: without it a blurred capture pulled the light's distance 2-3 % long), by their mean absolute
+difference. Binary masks
 would quantise away the sub-pixel shifts that tell the light's distance from the backdrop's (measured: along the
 line of equal scale, the binary loss wanders by more than it changes, while the coverage loss has one clean minimum
 at the true rig). Nelder–Mead (scipy) runs from the starting rig in scaled coordinates, then again from its answer
@@ -30,6 +32,7 @@ import threading
 import time
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 
 from studio.errors import Cancelled, StudioError
@@ -48,6 +51,7 @@ PARAMETERS = {
     "hand_y": (lambda r: r.hand_offset[1], 0.02),  # m
     "roll": (lambda r: r.roll, math.radians(3.0)),  # rad
     "foam": (lambda r: r.foam, 0.002),  # m
+    "blur": (lambda r: 0.8, 0.5),  # the camera's blur as the captures show it, σ in window pixels (from 0.8: a lens)
 }
 LIGHT_RANGE = (1.0, 8.0)  # light distances the line search along the weak direction considers, m
 ROLL_SCAN_DEG = 3.0  # step of the first scan over the whole circle of rolls, degrees
@@ -81,6 +85,7 @@ class RigFit:
     loss_after: float  # the same against the fitted rig's shadows
     per_pose_after: tuple[float, ...]  # each capture's window IoU loss against the fitted rig
     evaluations: int  # loss evaluations spent
+    blur_px: float  # the camera's blur the fit found, σ in capture pixels (0 when not fitted)
     seconds: float  # wall time of the fit
 
 
@@ -204,6 +209,12 @@ def fit_rig(
             values["backdrop_distance"] = (k - 1.0) * values["light_distance"]
         return _rig_with(start, values)
 
+    def blur_of(x: np.ndarray) -> float:
+        if "blur" not in names:
+            return 0.0
+        i = names.index("blur")
+        return abs(float(x_start[i] + scale[i] * x[i]))  # |σ|: the search passes through 0 instead of sticking there
+
     def loss(x: np.ndarray, target: np.ndarray) -> float:
         nonlocal evals, best
         if cancel is not None and cancel.is_set():
@@ -215,7 +226,11 @@ def fit_rig(
             rig = rig_at(x).with_resolution(target.shape[1] * cfg.supersample)
         except ValueError:  # a rig that cannot be (the hand behind the light): as bad as can be
             return 2.0
-        value = float(np.abs(coverage(ShadowRenderer(hand, rig), theta, cfg.supersample) - target).mean())
+        drawn = coverage(ShadowRenderer(hand, rig), theta, cfg.supersample)
+        sigma = blur_of(x) * target.shape[1] / res  # σ in this stage's pixels
+        if sigma > 0.05:  # the captures are the shadow seen through a lens: blur the drawing alike before comparing
+            drawn = np.stack([cv2.GaussianBlur(d, (0, 0), sigma) for d in drawn])
+        value = float(np.abs(drawn - target).mean())
         best = min(best, value)
         return value
 
@@ -247,4 +262,4 @@ def fit_rig(
     before = float(window_iou_loss(captured, ShadowRenderer(hand, start).render(theta, check=False)).mean())
     report(progress, "fit", evals, evals, best)
     return RigFit(start, after, before, float(per_pose.mean()), tuple(float(v) for v in per_pose), evals,
-                  time.perf_counter() - t0)  # fmt: skip
+                  blur_of(x), time.perf_counter() - t0)  # fmt: skip

@@ -79,6 +79,7 @@ def summary_of(fit: RigFit, seconds: float, poses: int) -> dict:
         "seconds": round(seconds, 2),
         "poses": poses,
         "evaluations": fit.evaluations,
+        "camera_blur_px": round(fit.blur_px, 3),
     }
 
 
