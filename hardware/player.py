@@ -43,6 +43,7 @@ from hardware.errors import (
 )
 from hardware.playback_log import PlaybackResult, Recording, StopReason
 from hardware.safety import SafetyConfig, check_faults, check_temperature, check_voltage, clip_command, tracking_error
+from hardware.tick_source import ShowTicks, TickSource
 from studio.progress import Progress, ProgressFn
 
 __all__ = ["PlaybackResult", "Player", "PlayerConfig", "SampleHook", "StopReason"]
@@ -144,13 +145,22 @@ class Player:
         Never raises for a stop condition, a lost bus, a raising hook or Ctrl-C: the result says why it stopped and
         what torque state it left. A malformed show raises ValueError before anything is sent; an unexpected
         exception (a bug) is re-raised after the safe stop, with what was played in :attr:`last_result`."""
+        self._columns(times, positions, joint_names)  # a bad show fails here, before the bus is touched
+        show = ShowTicks(lambda start: self.trajectory(times, positions, joint_names, start))
+        return self.stream(show, cancel, progress)
+
+    def stream(
+        self, source: TickSource, cancel: threading.Event | None = None, progress: ProgressFn | None = None
+    ) -> PlaybackResult:
+        """Play what ``source`` gives tick by tick (:mod:`hardware.tick_source`: a show, or live motion) with the
+        same safety as :meth:`play`; ``progress`` gets ``Progress("play", tick, total)`` (total 0 when open-ended).
+        Never raises for a stop condition; a raising source is a bug (re-raised after the safe stop)."""
         rec = Recording(len(self.cal.ids))
         self.last_result = None
         if self.bus.estop_latched:
             return self._finish(StopReason.ESTOP, self.bus.latch_message(), rec)
-        self._columns(times, positions, joint_names)  # a bad show fails here, before the bus is touched
         try:
-            reason, message = self._run(times, positions, joint_names, rec, cancel, progress)
+            reason, message = self._run(source, rec, cancel, progress)
         except _Stop as s:
             reason, message = s.reason, s.message
         except EStopLatched:
@@ -166,14 +176,15 @@ class Player:
             raise
         return self._finish(reason, message, rec)
 
-    def _run(self, times, positions, joint_names, rec: Recording, cancel, progress) -> tuple[StopReason, str]:
+    def _run(self, source: TickSource, rec: Recording, cancel, progress) -> tuple[StopReason, str]:
         """The playback loop; returns ``(COMPLETED, message)`` or raises what stopped it."""
         ids, J, dt = self.cal.ids, len(self.cal.ids), 1.0 / self.cfg.rate_hz
         try:
             start = self.cal.to_rad(np.array([self.bus.read_position(i) for i in ids], dtype=float))
         except (ServoTimeout, ProtocolError) as e:
             raise _Stop(StopReason.LOST_COMMUNICATION, f"cannot read the starting pose: {e}") from e
-        q, rec.ramp_ticks = self.trajectory(times, positions, joint_names, start)
+        source.begin(start)
+        rec.ramp_ticks = source.ramp_ticks
         rec.measured = start.copy()
         rec.history = np.repeat(start[None], self.safety.tracking_lag_ticks, 0)
         batches = [list(range(k, min(k + self.cfg.batch_size, J))) for k in range(0, J, self.cfg.batch_size)]
@@ -182,12 +193,16 @@ class Player:
         max_step = self.safety.max_speed_rad_s * dt
         rec.t0 = time.perf_counter() + 0.002
         k = -1
-        while k + 1 < len(q):
-            # next tick; if the OS stalled us past a whole tick, skip to the current one (keeps sync with
-            # the show's clock; the step limit then spreads the catch-up over several ticks)
-            k = max(k + 1, min(int((time.perf_counter() - rec.t0) / dt), len(q) - 1))
+        while True:
+            # next tick; if the OS stalled us past a whole tick, skip to the current one (keeps sync with the
+            # clock; the step limit then spreads the catch-up over several ticks)
+            behind = int((time.perf_counter() - rec.t0) / dt)
+            k = max(k + 1, behind if source.total is None else min(behind, source.total - 1))
+            want = source.command(k)
+            if want is None:
+                break
             deadline = rec.t0 + k * dt
-            c = clip_command(q[k], prev, self.cal.lower, self.cal.upper, max_step)
+            c = clip_command(want, prev, self.cal.lower, self.cal.upper, max_step)
             units = self.cal.to_units(c.sent)
             for b, batch in enumerate(batches):
                 self._check_stop(cancel)
@@ -197,8 +212,9 @@ class Player:
                 self.bus.move_batch({ids[j]: units[j] for j in batch}, dt)  # EStopLatched once latched
                 rec.commands += len(batch)
                 if b == 0:
+                    source.sent(k, time.monotonic())
                     prev = c.sent
-                    rec.record_command(k, q[k], c)
+                    rec.record_command(k, want, c)
                 for _ in range(self.cfg.reads_per_batch):
                     self._read_back(reads % J, rec)
                     reads += 1
@@ -208,9 +224,10 @@ class Player:
             if self.on_sample is not None:
                 self._hook("on_sample", self.on_sample, k * dt, c.sent.copy(), rec.measured.copy())
             if progress is not None:
-                self._hook("progress", progress, Progress("play", k + 1, len(q)))
-        skipped = len(q) - len(rec.ticks)
-        return StopReason.COMPLETED, f"played {len(q)} ticks ({len(q) * dt:.2f} s, {skipped} skipped)"
+                self._hook("progress", progress, Progress("play", k + 1, source.total or 0))
+        played = k  # the tick that found the source done
+        skipped = played - len(rec.ticks)
+        return StopReason.COMPLETED, f"played {played} ticks ({played * dt:.2f} s, {skipped} skipped)"
 
     @staticmethod
     def _hook(name: str, fn: Callable, *args) -> None:
