@@ -47,3 +47,22 @@ def test_sigint_is_handled_where_it_was_ignored_and_an_ignored_sighup_stays_igno
     finally:
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGHUP, old_hup)
+
+
+def test_in_the_commands_own_process_a_stop_leaves_the_stop_signals_ignored_until_it_exits(monkeypatch):
+    """A second Ctrl-C just after the verb ended must not kill the exiting process (exit code 130, not -2):
+    Python's finalization resets Python handlers to the default action but leaves ignored signals ignored."""
+    import studio.cli.signals as signals
+
+    monkeypatch.setitem(signals._HOLD, "after_stop", True)
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with stop_on_signals("test"):
+            pass  # no signal: the handlers come back
+        assert {s: signal.getsignal(s) for s in before} == before
+        with pytest.raises(Signalled), stop_on_signals("test"):
+            send(signal.SIGINT)
+        assert all(signal.getsignal(s) is signal.SIG_IGN for s in before)
+    finally:
+        for s, handler in before.items():
+            signal.signal(s, handler)

@@ -19,6 +19,7 @@ from collections.abc import Iterable
 from studio.cli.flags import CliParser
 from studio.cli.os_errors import os_error_line
 from studio.cli.runs import advice
+from studio.cli.signals import hold_after_stop
 from studio.errors import StudioError
 from studio.path_checks import check_text
 
@@ -33,6 +34,7 @@ VERB_MODULES = (
     "studio.cli.video",
     "studio.cli.servos",
     "studio.cli.rig",
+    "studio.cli.live",
     "studio.cli.estop",
     "studio.cli.plan",
     "studio.cli.project",
@@ -62,6 +64,7 @@ VERBS = {
     "jog": "studio.cli.servos",
     "calibrate-rig": "studio.cli.rig",
     "capture": "studio.cli.rig",
+    "live": "studio.cli.live",
     "estop": "studio.cli.estop",
     "plan": "studio.cli.plan",
     "validate": "studio.cli.plan",
@@ -95,7 +98,10 @@ def build_parser(verb_modules: Iterable[str] = VERB_MODULES) -> argparse.Argumen
 
 def main(argv: list[str] | None = None, verb_modules: Iterable[str] | None = None) -> int:
     """Run ``shadow-studio`` with ``argv`` (default ``sys.argv[1:]``); returns the exit code. ``verb_modules``
-    None: the modules the command line needs (:func:`verb_modules_for`)."""
+    None: the modules the command line needs (:func:`verb_modules_for`). Without ``argv`` this is the process's
+    own command: a verb a stop signal ended keeps ignoring later ones until the process exits."""
+    if argv is None:
+        hold_after_stop()
     argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
     parser = build_parser(verb_modules_for(argv) if verb_modules is None else verb_modules)
     args = parser.parse_args(argv)

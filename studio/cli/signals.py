@@ -26,6 +26,14 @@ STOP_SIGNALS = tuple(
 )  # SIGHUP: POSIX only
 
 
+_HOLD = {"after_stop": False}  # set by hold_after_stop(): this process exits once a stop signal ended its verb
+
+
+def hold_after_stop() -> None:
+    """This process ends with the verb: once a stop signal was caught, later ones stay ignored until it exits."""
+    _HOLD["after_stop"] = True
+
+
 class Signalled(KeyboardInterrupt):
     """A stop signal, raised in the main thread; ``str()`` names it as a person knows it ("Ctrl-C", "SIGTERM")."""
 
@@ -73,4 +81,6 @@ def stop_on_signals(verb: str) -> Iterator[list[Signalled]]:
         yield caught
     finally:
         for sig, handler in previous.items():
+            if caught and _HOLD["after_stop"]:  # the process exits with the first signal's code
+                handler = signal.SIG_IGN
             signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
