@@ -62,3 +62,7 @@ class SegmentTooFastError(PlanError):
             f"{len(self.segments)} segment(s) too fast for the servo limits: {lines}. "
             "Give those keyframes more time, or allow late transitions to stretch them (later keyframes shift)"
         )
+
+
+class MotionError(StudioError):
+    """Ruckig could not step the online motion (limits too small to reach the target, or an invalid state)."""
