@@ -105,6 +105,7 @@ def test_io_libraries_stay_at_their_edges():
             "hardware",
             "studio.cli",
             "studio.project.play",
+            "studio.project.live",
             "studio.project.capture",
             "studio.project.rig_calibration",
             "studio.project.show_capture",
