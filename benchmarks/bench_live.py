@@ -72,7 +72,8 @@ def run_camera(source: Path, seconds: float, imitator, hand, cal) -> dict:
     from studio.imitate.live_pose import offline_first_answer
     from studio.motion.limits import JointLimits
     from studio.project.capture import open_camera_source
-    from studio.project.live import LiveConfig, run_live
+    from studio.project.live import run_live
+    from studio.project.live_config import LiveConfig
 
     targets: list[tuple[np.ndarray, float]] = []
 

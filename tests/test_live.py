@@ -19,7 +19,8 @@ from hardware.session import ServoSession
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex
 from studio.imitate.still import Imitator
 from studio.motion.plan import load_keyframes
-from studio.project.live import LiveConfig, run_live
+from studio.project.live import run_live
+from studio.project.live_config import LiveConfig
 from studio.review.live_record import LiveRecorder
 from studio.review.readback import read_recording
 

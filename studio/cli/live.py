@@ -44,10 +44,11 @@ def cmd_live(args: argparse.Namespace) -> int:
     from studio.cli.servo_logs import log_path, save_log
     from studio.cli.servos import session_for
     from studio.cli.signals import exit_code, stop_on_signals
-    from studio.imitate.live_pose import LivePoseConfig
+    from studio.imitate.config import LivePoseConfig
     from studio.imitate.still import Imitator
     from studio.project.capture import open_camera_source
-    from studio.project.live import LiveConfig, run_live
+    from studio.project.live import run_live
+    from studio.project.live_config import LiveConfig
     from studio.review.live_record import LiveRecorder
     from studio.sim.hand import load_hand
     from studio.targets.live_target import LiveTargetConfig
@@ -135,8 +136,8 @@ class StatusLine:
 
 def register(sub) -> None:
     from studio.cli.servos import bus_args
-    from studio.imitate.live_pose import LivePoseConfig
-    from studio.project.live import LiveConfig
+    from studio.imitate.config import LivePoseConfig
+    from studio.project.live_config import LiveConfig
     from studio.targets.live_target import LiveTargetConfig
 
     p = sub.add_parser("live", help="the hand follows a camera's silhouette live (Ruckig online at 40 Hz)")

@@ -29,33 +29,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from studio.imitate.config import LossConfig, RefineConfig
+from studio.imitate.config import LivePoseConfig, LossConfig, RefineConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
 from studio.imitate.retrieval import RetrievalIndex
 from studio.sim.roll import into_hand_frame
-
-
-@dataclass(frozen=True)
-class LivePoseConfig:
-    """How one live frame becomes a pose."""
-
-    budget_s: float = 0.04  # seconds for one frame's pose (retrieval + refinement; refinement stops when spent) (0, 10]
-    shortlist: int = 48  # retrieval poses rendered and scored exactly per frame [1, 4096]
-    refine_steps: int = 40  # at most this many hill-climbing steps per frame (the budget usually ends them) [0, 10000]
-    refine_chains: int = 4  # hill-climbing chains run together [1, 64]
-    refine_sigma: float = 0.05  # proposal std of the refinement, rad (0, 1]
-    w_temporal: float = LossConfig.w_temporal  # weight of ‖θ − θ_prev‖² against the previous answer (rad²) [0, 100]
-    path_checks: int = 8  # collision checks along the straight path from the commanded pose to an answer [0, 100]
-    seed: int = 0  # refinement noise seed [0, 4294967295]
-
-    def __post_init__(self) -> None:
-        if not 0 < self.budget_s <= 10 or not 1 <= self.shortlist <= 4096 or not 0 <= self.refine_steps <= 10000:
-            raise ValueError("live pose: budget_s must be in (0, 10] s, shortlist in [1, 4096], refine_steps ≥ 0")
-        if not 1 <= self.refine_chains <= 64 or not 0 < self.refine_sigma <= 1 or not 0 <= self.w_temporal <= 100:
-            raise ValueError("live pose: refine_chains in [1, 64], refine_sigma in (0, 1] rad, w_temporal in [0, 100]")
-        if not 0 <= self.path_checks <= 100:
-            raise ValueError("live pose: path_checks must be in [0, 100]")
 
 
 @dataclass(frozen=True)

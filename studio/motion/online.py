@@ -24,8 +24,10 @@ sooner, so the state stays inside up to floating-point noise (~1e-15 rad, seen w
 :meth:`~OnlineMotion.step` returns the position clipped into the limits, so a command never leaves them. The
 internal state is not clipped (the motion stays exactly Ruckig's).
 
-When Ruckig fails (limits so small that the motion outlasts what it can time, or invalid input) :meth:`step`
-raises :class:`MotionError` naming the state and leaves the state as it was: never a silent wrong position.
+A joint whose state is its target up to floating-point residue is first put exactly there (``SETTLE_RAD``: Ruckig
+fails on such residues). When Ruckig fails (limits so small that the motion outlasts what it can time, or invalid
+input) :meth:`step` raises :class:`MotionError` naming the state and leaves the state as it was: never a silent
+wrong position.
 Pure compute: no clock, no IO, no threads.
 """
 
@@ -40,6 +42,11 @@ from studio.motion.errors import MotionError
 from studio.motion.limits import JointLimits
 
 AT_TARGET_RAD = 1e-6  # a joint this close to its target (rad), with |velocity| and |acceleration| below it, is there
+# A joint within SETTLE_RAD of its target with |velocity| ≤ SETTLE_RAD_S and |acceleration| ≤ SETTLE_RAD_S2 is put
+# exactly at its target, at rest, before Ruckig steps: Ruckig 0.x fails ("error in step 2 ... t sync: 0") on such
+# floating-point residues (distances of 1e-16..1e-11 rad with velocities of 1e-15..1e-9 rad/s, ~30 % of random
+# cases), which a hand holding its pose meets after a replan. The jump is far below a servo step (~4e-3 rad).
+SETTLE_RAD, SETTLE_RAD_S, SETTLE_RAD_S2 = 1e-8, 1e-6, 1e-5
 
 
 @dataclass(frozen=True)
@@ -126,7 +133,8 @@ class OnlineMotion:
     def step(self) -> np.ndarray:
         """Advance one tick (``1 / rate_hz`` s); the new position ``(J,) rad`` clipped into ``[lower, upper]``.
 
-        Raises :class:`MotionError` (state unchanged) when Ruckig finds no motion."""
+        Raises :class:`MotionError` (state unchanged but for the settling below) when Ruckig finds no motion."""
+        self._settle()
         try:
             res = self._otg.update(self._inp, self._out)
             why = "" if res in (Result.Working, Result.Finished) else f"result {res}"
@@ -137,6 +145,15 @@ class OnlineMotion:
             raise MotionError(self._describe(why))
         self._out.pass_to_input(self._inp)
         return np.clip(self.position, self._limits.lower, self._limits.upper)
+
+    def _settle(self) -> None:
+        """Joints at their target up to floating-point residue (``SETTLE_*``) put exactly there, at rest."""
+        p, v, a, t = self.position, self.velocity, self.acceleration, self.target
+        near = (np.abs(p - t) <= SETTLE_RAD) & (np.abs(v) <= SETTLE_RAD_S) & (np.abs(a) <= SETTLE_RAD_S2)
+        if near.any() and ((p != t) | (v != 0) | (a != 0))[near].any():
+            self._inp.current_position = np.where(near, t, p).tolist()
+            self._inp.current_velocity = np.where(near, 0.0, v).tolist()
+            self._inp.current_acceleration = np.where(near, 0.0, a).tolist()
 
     def _describe(self, why: str) -> str:
         worst = int(np.argmax(np.abs(self.target - self.position)))

@@ -55,8 +55,8 @@ class LiveTargetConfig:
     resolution: int = 128  # side of the target mask, pixels [8, 2048]
     polarity: str = "auto"  # "auto" (first clear frame borders, then kept), "dark" (shadow on a wall), "bright"
     work_size: int = 320  # longer side the frame is reduced to before thresholding (speed), pixels [32, 4096]
-    min_share: float = 0.002  # silhouette smaller than this share of the frame: none [0, max_share)
-    max_share: float = 0.6  # larger: none (the backdrop reads as shadow) (min_share, 1]
+    min_share: float = 0.002  # silhouette smaller than this share of the frame: none (below max_share) [0, 1)
+    max_share: float = 0.6  # larger: none (the backdrop reads as shadow) (0, 1]
     max_components: int = 2  # largest 8-connected pieces kept [1, 1000]
     margin: float = TargetConfig.margin  # frame margin around the shadow box, share of its longer side [0, 10]
     min_contrast: float = 0.25  # a shadow is at least this much darker than the wall behind it, share of it [0, 1)
