@@ -40,7 +40,7 @@ CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--disable-background-networking",
                   "--disable-component-update", "--disable-sync", "--no-first-run"]  # fmt: skip
 VIEWPORT = {"width": 1600, "height": 2300}  # the tester's 1,600 px wide window, tall enough for a whole tab
-PANELS = ["Targets", "Keyframes", "Masks", "Weights", "Optimise", "Review", "Jog", "Rig", "Export"]
+PANELS = ["Targets", "Keyframes", "Masks", "Weights", "Optimise", "Review", "Jog", "Rig", "Live", "Export"]
 SCREENSHOT_COPY = os.environ.get("SHADOW_STUDIO_SCREENSHOT")  # a folder: the tab screenshots are copied there too
 STUDIO = ".jp-OutputArea-output .shadow-studio"
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
@@ -213,7 +213,7 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
             texts[name] = open_tab(page, name)
             assert name in texts[name], f"the {name} tab shows no {name!r} label: {texts[name][:200]!r}"
             assert "unavailable" not in texts[name], texts[name][:300]
-            if name in ("Keyframes", "Masks", "Weights", "Rig", "Export"):
+            if name in ("Keyframes", "Masks", "Weights", "Rig", "Live", "Export"):
                 shots.append(shoot_tab(page, name, tmp_path))
 
         # Targets: the preview tints the shape the project stored, not the backdrop around it

@@ -54,5 +54,5 @@ def test_studio_notebook_opens_the_given_project(tmp_path, monkeypatch):
     texts = [m["state"]["value"] for m in state.values() if isinstance(m["state"].get("value"), str)]
     assert any(str(project.path) in t for t in texts)  # the header names the project it opened
     tabs = [m["state"] for m in state.values() if m["model_name"] == "TabModel"]
-    titles = ["Targets", "Keyframes", "Masks", "Weights", "Optimise", "Review", "Jog", "Rig", "Export"]
+    titles = ["Targets", "Keyframes", "Masks", "Weights", "Optimise", "Review", "Jog", "Rig", "Live", "Export"]
     assert tabs[0]["titles"] == titles

@@ -35,8 +35,19 @@ def test_every_panel_in_order_and_a_placeholder_says_why(state, monkeypatch):
     monkeypatch.setattr(widgets.weights, "weights_panel", broken)
     studio = app.studio_app(state)
     tab = tab_of(studio)
-    assert tab.titles == ("Targets", "Keyframes", "Masks", "Weights", "Optimise", "Review", "Jog", "Rig", "Export")
-    assert len(tab.children) == 9 and all(isinstance(c, w.Widget) for c in tab.children)
+    assert tab.titles == (
+        "Targets",
+        "Keyframes",
+        "Masks",
+        "Weights",
+        "Optimise",
+        "Review",
+        "Jog",
+        "Rig",
+        "Live",
+        "Export",
+    )
+    assert len(tab.children) == 10 and all(isinstance(c, w.Widget) for c in tab.children)
     assert tab.children[3].value == "Weights: unavailable (RuntimeError: the canvas is gone)"
     assert studio.studio_state is state
     missing = app.build_panel(state, "Nothing", "no_such_panel")

@@ -34,6 +34,7 @@ PANELS = (
     ("Review", "review"),
     ("Jog", "jog"),
     ("Rig", "rig"),
+    ("Live", "live"),
     ("Export", "export"),
 )  # (title, module in widgets/), in the order an artist works
 PROJECT_ENV = "SHADOW_STUDIO_PROJECT"  # environment variable: the project open_studio() opens when given none
