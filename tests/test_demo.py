@@ -118,3 +118,15 @@ def test_demo_again_reuses_the_project(first_run):
     assert summary["keyframes_optimised"] == [] and summary["keyframes_skipped"] == first["keyframes_optimised"]
     assert summary["played"] is True and summary["late_transitions"] == first["late_transitions"]
     assert load_show(summary["show"]).duration == pytest.approx(load_show(first["show"]).duration)
+
+
+@pytest.mark.parametrize("flag", ["--fresh", "--force"])
+def test_demo_fresh_removes_only_a_project(tmp_path, capsys, flag):
+    """`demo --fresh` (as on imitate-video; `--force` its old name) never deletes a folder that is not a project."""
+    mine = tmp_path / "demo.shadow"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("my own file")
+    assert main(["demo", "--out", str(tmp_path), flag]) == 2
+    err = capsys.readouterr().err
+    assert "is not a project folder; --fresh removes only a project" in err and "Traceback" not in err
+    assert (mine / "notes.txt").read_text() == "my own file"

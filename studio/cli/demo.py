@@ -12,8 +12,9 @@ light and backdrop on ``show_time``, and the played show's commanded vs measured
 comes last: ``{"project", "show", "review", "keyframes", "played", "seconds", ...}``.
 
 Run again on the same DIR, it reuses the project: keyframes whose results are current are not recomputed (only the
-show is played and reviewed again); ``--force`` starts a fresh project. Exit codes: 0 played; 1 no show or the
-playback stopped (the message says why); 2 bad input; 130 Ctrl-C (finished keyframes stay in the project).
+show is played and reviewed again); ``--fresh`` starts a new project (as on ``imitate-video``; ``--force``, its old
+name, still works). Exit codes: 0 played; 1 no show or the playback stopped (the message says why); 2 bad input;
+130 Ctrl-C (finished keyframes stay in the project).
 """
 
 from __future__ import annotations
@@ -32,21 +33,21 @@ from studio.cli.run_flags import add_budget_flags, add_engine_flags, add_show_fl
 from studio.cli.runs import print_run, run_with_bars
 
 
-def _project(out: Path, force: bool):
+def _project(out: Path, fresh_start: bool):
     """The demo's project in ``out`` (:func:`studio.project.demo.demo_project`): reused when there, made fresh
-    (``force``: after removing the old one)."""
+    (``fresh_start``: after removing the old one)."""
     from studio.project.demo import PROJECT_NAME, demo_project
     from studio.project.project import ProjectError
     from studio.project.project_format import DOC
 
     path = out / PROJECT_NAME
-    if path.exists() and force:
+    if path.exists() and fresh_start:
         if not (path / DOC).is_file() and any(path.iterdir()):
-            raise ProjectError(f"{path} is not a project folder; --force removes only a project: move it away")
+            raise ProjectError(f"{path} is not a project folder; --fresh removes only a project: move it away")
         shutil.rmtree(path)
     project, fresh = demo_project(out)
     if not fresh:
-        print(f"reusing {path} (--force starts fresh)", file=sys.stderr)
+        print(f"reusing {path} (--fresh starts a new one)", file=sys.stderr)
     return project, fresh
 
 
@@ -74,7 +75,7 @@ def _demo(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file; give a folder for demo.shadow, show.json and review.rrd")
     out.mkdir(parents=True, exist_ok=True)
-    project, fresh = _project(out, args.force)
+    project, fresh = _project(out, args.fresh)
     cfg = dataclasses.replace(run_config_from_args(args), device=args.device)
     clip = clip_from_args(args)
     summary = {"project": str(project.path), "show": None, "review": str(out / "review.rrd"),
@@ -87,7 +88,7 @@ def _demo(args: argparse.Namespace) -> int:
                 review.job_progress(),
             )
         except ProjectError as e:
-            raise ProjectError(f"{e} (or start fresh: shadow-studio demo --out {out} --force)") from None
+            raise ProjectError(f"{e} (or start fresh: shadow-studio demo --out {out} --fresh)") from None
         print_run(report)
         summary |= {k: v for k, v in report.summary().items() if k not in ("project", "show", "seconds", "error")}
         summary["fresh_project"] = fresh
@@ -124,7 +125,13 @@ def _demo(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="the bundled still and video end to end: project, poses, show, emulator, review")
     p.add_argument("--out", required=True, help="folder for demo.shadow (the project), show.json and review.rrd")
-    p.add_argument("--force", action="store_true", help="start a fresh project (default: reuse DIR/demo.shadow)")
+    p.add_argument(
+        "--fresh",
+        "--force",
+        action="store_true",
+        dest="fresh",
+        help="start a new project even when DIR holds one (default: reuse DIR/demo.shadow)",
+    )
     add_budget_flags(p)
     add_show_flags(p, allow_late=True)  # the horse is faster than the servos: stretch and say so (--no-allow-late)
     add_engine_flags(p)

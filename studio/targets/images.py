@@ -280,9 +280,9 @@ def gather_targets(
     ``per_folder`` of each, by name; of those, the first ``per_class`` of each :func:`first_per_class` class).
     Raises :class:`TargetError` for a missing path or when nothing is found."""
     if per_folder is not None and per_folder < 1:
-        raise ValueError("--per-folder must be at least 1")
+        raise ValueError(f"per_folder (images per folder) must be at least 1, not {per_folder}")
     if per_class is not None and per_class < 1:
-        raise ValueError("--per-class must be at least 1")
+        raise ValueError(f"per_class (images per class) must be at least 1, not {per_class}")
     out: list[Path] = []
     for p in map(Path, paths):
         if p.is_file():
