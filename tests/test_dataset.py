@@ -25,7 +25,7 @@ def small_dataset(tmp_path_factory, hand):
 
 def test_collect_writes_shards_with_metadata(small_dataset, hand):
     out, cfg, summary = small_dataset
-    assert summary == {"written": 3, "skipped": 0, "samples": 250, "folder": str(out)}
+    assert summary == {"written": 3, "skipped": 0, "samples": 250, "folder": str(out), "workers": "this process"}
     paths = list_shards(out)
     assert [p.name for p in paths] == ["shard_00000.npz", "shard_00001.npz", "shard_00002.npz"]
     shard = read_shard(paths[2], hand.hash, Rig(resolution=64).hash)

@@ -232,7 +232,7 @@ def test_gather_targets_per_class(tmp_path):
     assert [p.stem for p in gather_targets([tmp_path], per_class=1)] == ["camel-1", "key", "rat-01"]
     two = ["camel-1", "camel-10", "key", "rat-01", "rat-02"]  # first by name: camel-10 sorts before camel-2
     assert [p.stem for p in gather_targets([tmp_path], per_class=2)] == two
-    with pytest.raises(ValueError, match="--per-class"):
+    with pytest.raises(ValueError, match="per_class .* at least 1"):
         gather_targets([tmp_path], per_class=0)
 
 

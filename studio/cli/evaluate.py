@@ -18,6 +18,7 @@ from studio.cli.device_flags import add_device_flags, torch_threads
 from studio.cli.flags import add_config_flags, config_from_args, ranged
 from studio.cli.progress import add_quiet_flag, ctrl_c_cancels
 from studio.cli.run_flags import add_budget_flags, sequence_from_args
+from studio.cli.scale_flags import add_fanout_flags, fanout_from_args
 from studio.cli.source_flags import add_source_flags, still_config_from_args
 from studio.imitate.config import still_configs
 from studio.targets.images import gather_targets
@@ -41,7 +42,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 
     _check_table_folder(args.out, FILES, [*args.targets, args.model, args.inverse])
     with torch_threads(args.threads):
-        return _run_evaluation(args, files)
+        return _run_evaluation(args, files)  # (the ones spread over workers set their own threads)
 
 
 def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
@@ -62,13 +63,36 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
         (str(f), load_target(f, size, target_cfg), *([load_target(f, score_side, target_cfg)] * (score_side != size)))
         for f in files
     ]
-    clip = clip_from_args(args, device=next(model.parameters()).device)  # CLIP sits with the self-model
-    imitator = Imitator(model, clip=clip, search=search, refine=refine, config=config, sweep=sweep)
     eval_cfg = EvalConfig(seed=0 if args.seed is None else args.seed, score_resolution=args.score_resolution,
                           roll=args.roll)  # fmt: skip
-    with imitator, Evaluator(imitator, Path(args.inverse), Path(args.nn_data), eval_cfg) as evaluator:
-        with TqdmBars(disable=args.quiet) as bars:
-            result = evaluator.run(targets, progress=bars)
+    fanout = fanout_from_args(args)
+    if fanout.workers > 1 or fanout.ray:  # every worker loads its own models (studio.evaluate.table1_task)
+        from studio.evaluate.table1_task import Table1Task, evaluate_spread
+
+        task = Table1Task(
+            str(args.model or DEFAULT_MODEL),
+            str(args.inverse),
+            str(args.nn_data),
+            eval_cfg,
+            search,
+            refine,
+            config,
+            sweep,
+            device=args.device,
+            threads=args.threads or 1,
+            clip_weights=args.clip_weights,
+            clip_model=args.clip_model,
+            use_clip=not args.no_clip,
+        )
+        clip = clip_from_args(args)  # said once here; each worker finds the same weights
+        with TqdmBars(disable=args.quiet) as bars, ctrl_c_cancels() as cancel:
+            result = evaluate_spread(task, targets, fanout, progress=bars, cancel=cancel)
+    else:
+        clip = clip_from_args(args, device=next(model.parameters()).device)  # CLIP sits with the self-model
+        imitator = Imitator(model, clip=clip, search=search, refine=refine, config=config, sweep=sweep)
+        with imitator, Evaluator(imitator, Path(args.inverse), Path(args.nn_data), eval_cfg) as evaluator:
+            with TqdmBars(disable=args.quiet) as bars:
+                result = evaluator.run(targets, progress=bars)
     paths = write_table(result, Path(args.out))
     if not args.quiet:
         print(Path(paths["markdown"]).read_text())
@@ -169,6 +193,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_device_flags(p, zero_threads=True)
     add_quiet_flag(p, "no progress bar and no table on stdout (JSON only)")
     add_clip_arguments(p)
+    add_fanout_flags(p)
     p.set_defaults(func=_evaluate)
 
     from studio.imitate.transitions import TransitionConfig

@@ -82,15 +82,15 @@ class TrainingSet:
 
 
 class RandomImage:
-    """Random baseline: a uniformly drawn training image (seeded, a new draw per query)."""
+    """Random baseline: a uniformly drawn training image; query ``k`` draws from the seed ``(seed, k)``, so a
+    target's draw does not depend on which targets ran before it (or where)."""
 
     def __init__(self, data: TrainingSet, seed: int = 0):
-        self.data = data
-        self.rng = np.random.default_rng(seed)
+        self.data, self.seed = data, seed
 
-    def query(self) -> BaselineOutput:
+    def query(self, k: int = 0) -> BaselineOutput:
         t0 = time.perf_counter()
-        i = int(self.rng.integers(len(self.data)))
+        i = int(np.random.default_rng([self.seed, k]).integers(len(self.data)))
         return self.data.answer(i, time.perf_counter() - t0)
 
 

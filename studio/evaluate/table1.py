@@ -128,12 +128,14 @@ class Evaluator:
 
     def evaluate_target(
         self, name: str, target: np.ndarray, cancel: threading.Event | None = None,
-        score_target: np.ndarray | None = None, progress: ProgressFn | None = None,
+        score_target: np.ndarray | None = None, progress: ProgressFn | None = None, index: int = 0,
     ) -> list[dict]:  # fmt: skip
         """One record per method for one ``(R, R)`` target mask (at the model's side ``R``). With a scoring side
         other than the model's, ``score_target`` is the same target framed at that side (``(S, S)``): every
         method's pose is rendered and scored there (Random and Nearest Neighbour: their training pose's shadow).
-        ``progress`` gets our imitation's stages (:meth:`~studio.imitate.still.Imitator.imitate`)."""
+        ``progress`` gets our imitation's stages (:meth:`~studio.imitate.still.Imitator.imitate`). ``index``: the
+        target's place in the run (Random draws from the seed ``(seed, index)``, so a target scores the same
+        wherever it runs)."""
         if self.inverse.closed:
             raise ClosedError("this Evaluator was closed; make a new one (or evaluate inside its `with` block)")
         expressive = still_expressive(target)
@@ -144,7 +146,7 @@ class Evaluator:
                                    before_refine)  # fmt: skip
         final = BaselineOutput(ours.theta, ours.shadow, not ours.collision_free, ours.seconds)
         outputs = {
-            "Random": self.random.query(),
+            "Random": self.random.query(index),
             "Inverse CNN": self.inverse.query(target),
             "Nearest Neighbour": self.nn.query(target, loss_fn),
         }
@@ -220,7 +222,7 @@ class Evaluator:
             if stopped(cancel):
                 break
             steps = staged(progress, "", item=name)
-            records += self.evaluate_target(name, target, cancel, scored[0] if scored else None, steps)
+            records += self.evaluate_target(name, target, cancel, scored[0] if scored else None, steps, index=i)
             report(progress, "evaluate", i + 1, len(targets), item=name)
         rows = summarise(records)
         return EvalResult(rows, records, self.notes(rows), self.settings())
@@ -237,66 +239,73 @@ class Evaluator:
             "nn": asdict(self.cfg.nn), "nn_setup_seconds": round(self.nn_setup_seconds, 2), "roll": self.cfg.roll,
         }  # fmt: skip
 
-    def _method_note(self) -> str:
-        im = self.imitator
-        s, r, c, w = im.search_cfg, im.refine_cfg, im.cfg, im.sweep_cfg
-        sweep = (
-            f"a block sweep of its {w.starts} best poses ({w.draws} draws per finger, {w.wrist_draws} for the wrist, "
-            f"up to {w.passes} passes), "
-            if w.starts
-            else ""
-        )
-        if r.method == "hill":
-            refine = f"hill climbing, {r.restarts} chains × {r.steps} steps"
-        else:
-            refine = f"CMA-ES, {r.restarts} run(s) × {r.steps} generations of {r.popsize}"
-        first = (
-            f"retrieval over {im.retrieval_cfg.size} collision-free self-exploration shadows (Ours, first answer: "
-            f"its best pose), " + sweep + "its best distinct poses seeding the search, "
-            if c.retrieve
-            else "sampled initial poses, "
-        )
-        pick = "scored on the renderer" if c.select == "rendered" else "ranked by the self-model's loss"
-        return (
-            f"{first}gradient search batch {s.batch} × {s.iterations} iterations ({pick}), refinement ({refine}) "
-            f"from each of the {c.candidates} best distinct poses."
-        )
-
     def notes(self, rows: list[dict]) -> list[str]:
-        im, n = self.imitator, rows[0]["targets"] if rows else 0
-        k = rows[0]["expressive_targets"] if rows else 0
-        lc = im.loss_cfg
-        side = self.score_resolution
-        shadows = (
-            "the training image itself; the others: the rendered shadow of their pose"
-            if self.score_renderer is None
-            else f"their training pose's; every shadow rendered at {side}², the target framed at {side}²"
+        """How the table was measured (:func:`table_notes` of these settings)."""
+        return table_notes(rows, self.settings(), self.cfg)
+
+
+def _method_note(st: dict) -> str:
+    """Our method in words, from :meth:`Evaluator.settings`."""
+    s, r, c, w = st["search"], st["refine"], st["imitate"], st["sweep"] or {"starts": 0}
+    sweep = (
+        f"a block sweep of its {w['starts']} best poses ({w['draws']} draws per finger, {w['wrist_draws']} for the "
+        f"wrist, up to {w['passes']} passes), "
+        if w["starts"]
+        else ""
+    )
+    if r["method"] == "hill":
+        refine = f"hill climbing, {r['restarts']} chains × {r['steps']} steps"
+    else:
+        refine = f"CMA-ES, {r['restarts']} run(s) × {r['steps']} generations of {r['popsize']}"
+    first = (
+        f"retrieval over {st['retrieval']['size']} collision-free self-exploration shadows (Ours, first answer: "
+        f"its best pose), " + sweep + "its best distinct poses seeding the search, "
+        if c["retrieve"]
+        else "sampled initial poses, "
+    )
+    pick = "scored on the renderer" if c["select"] == "rendered" else "ranked by the self-model's loss"
+    return (
+        f"{first}gradient search batch {s['batch']} × {s['iterations']} iterations ({pick}), refinement ({refine}) "
+        f"from each of the {c['candidates']} best distinct poses."
+    )
+
+
+def table_notes(rows: list[dict], st: dict, cfg: EvalConfig) -> list[str]:
+    """How the table was measured, from :meth:`Evaluator.settings` ``st`` (wherever the targets ran)."""
+    n = rows[0]["targets"] if rows else 0
+    k = rows[0]["expressive_targets"] if rows else 0
+    side = st["score_resolution"]
+    shadows = (
+        "the training image itself; the others: the rendered shadow of their pose"
+        if side == st["resolution"]
+        else f"their training pose's; every shadow rendered at {side}², the target framed at {side}²"
+    )
+    notes = [
+        f"{n} targets at {st['resolution']}²; every method's shadow (Random, Nearest Neighbour: {shadows}) scored "
+        f"by the same image loss on {side}² aligned crops. Lower is better.",
+        f"Exp. IoU / Exp. CLIP: the expressive region of a still target is its holes; means over the {k} of {n} "
+        f"targets that have holes (n/a: none has). Total = Base + expressive term for those targets, Base alone "
+        f"for the others.",
+        "In collision: share of each method's poses whose skeleton penetrates itself (Ours w/o refinement: the "
+        "searched poses before refinement). Seconds: wall time per target on this machine.",
+        f"Random and Nearest Neighbour draw from {st['training_images']} training images (aligning them once per "
+        f"run took {st['nn_setup_seconds']:.1f} s, not in the per-target seconds; Random's draw for target i comes "
+        f"from the seed (seed, i)); ours: {_method_note(st)}",
+    ]
+    if cfg.roll_rows is not None:
+        how = ("one roll per target chosen on the retrieval index (coarse 15° grid, refined to ~0.25° on the "
+               "renderer), its time in the seconds" if cfg.roll == "auto" else "the given roll")  # fmt: skip
+        notes.append(
+            f"Ours, {cfg.roll_rows}: the hand's mount rolled about the light axis ({how}); the target is "
+            "turned into the hand's frame and imitated as above, and the shadow the rolled mount casts is scored "
+            "against the target as it is. The rows above are the paper's upright rig (roll 0)."
         )
-        notes = [
-            f"{n} targets at {im.resolution}²; every method's shadow (Random, Nearest Neighbour: {shadows}) scored "
-            f"by the same image loss on {side}² aligned crops. Lower is better.",
-            f"Exp. IoU / Exp. CLIP: the expressive region of a still target is its holes; means over the {k} of {n} "
-            f"targets that have holes (n/a: none has). Total = Base + expressive term for those targets, Base alone "
-            f"for the others.",
-            "In collision: share of each method's poses whose skeleton penetrates itself (Ours w/o refinement: the "
-            "searched poses before refinement). Seconds: wall time per target on this machine.",
-            f"Random and Nearest Neighbour draw from {self.training_size} training images (aligning them once per "
-            f"run took {self.nn_setup_seconds:.1f} s, not in the per-target seconds); ours: {self._method_note()}",
-        ]
-        if self.cfg.roll_rows is not None:
-            how = ("one roll per target chosen on the retrieval index (coarse 15° grid, refined to ~0.25° on the "
-                   "renderer), its time in the seconds" if self.cfg.roll == "auto" else "the given roll")  # fmt: skip
-            notes.append(
-                f"Ours, {self.cfg.roll_rows}: the hand's mount rolled about the light axis ({how}); the target is "
-                "turned into the hand's frame and imitated as above, and the shadow the rolled mount casts is scored "
-                "against the target as it is. The rows above are the paper's upright rig (roll 0)."
-            )
-        if not lc.use_clip:
-            notes.append(
-                "CLIP off (no local CLIP weights, or turned off): CLIP and Exp. CLIP not computed (n/a); "
-                "Base = 0.06·MAE + 0.4·IoU loss."
-            )
-        return notes
+    if not st["losses"]["use_clip"]:
+        notes.append(
+            "CLIP off (no local CLIP weights, or turned off): CLIP and Exp. CLIP not computed (n/a); "
+            "Base = 0.06·MAE + 0.4·IoU loss."
+        )
+    return notes
 
 
 DIGITS = {"collide_pct": 1, "seconds": 1}  # decimals of the non-loss columns (losses: 3)

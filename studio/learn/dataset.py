@@ -23,9 +23,10 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from studio.atomic import write_json
 from studio.errors import ShardError
+from studio.fanout import FanoutConfig, fan_out
 from studio.learn.config import CollectConfig
 from studio.learn.shards import SHARD_FORMAT, Shard, list_shards, pack_masks, read_shard, shard_path, write_shard
-from studio.progress import ProgressFn, report, stopped
+from studio.progress import ProgressFn, report
 from studio.sim.hand import Hand, load_hand
 from studio.sim.sampling import SamplerConfig, sample_poses
 from studio.sim.shadow import Rig, ShadowRenderer
@@ -67,6 +68,46 @@ def make_shard(hand: Hand, renderer: ShadowRenderer, world, n: int, seed: int, i
     return Shard(theta.astype(np.float32), pack_masks(masks), mode, collides, meta)
 
 
+class ShardTask:
+    """Write shard ``k`` of a dataset folder (a :func:`studio.fanout.fan_out` task): set up once per worker (the
+    renderer and a collision world), then ``task(k) → (samples, written)``; an existing complete shard is kept."""
+
+    def __init__(self, out: Path, cfg: CollectConfig, sampler: SamplerConfig, hand: Hand | None = None):
+        self.out, self.cfg, self.sampler, self.hand = Path(out), cfg, sampler, hand
+        self._renderer: ShadowRenderer | None = None
+        self._world = None
+
+    def __getstate__(self) -> dict:  # what a worker process gets: the recipe, not this process's renderer
+        return self.__dict__ | {"_renderer": None, "_world": None}
+
+    def setup(self) -> None:
+        from studio.sim.physics import CollisionWorld
+
+        self.hand = self.hand or load_hand()
+        self._renderer = ShadowRenderer(self.hand, self.cfg.rig())
+        self._world = CollisionWorld(self.hand)
+
+    def close(self) -> None:
+        if self._world is not None:
+            self._world.close()
+            self._world = None
+
+    def __call__(self, k: int) -> tuple[int, bool]:
+        if self._renderer is None:
+            raise RuntimeError("ShardTask.setup() was not called")
+        cfg, hand = self.cfg, self.hand
+        n_k = min(cfg.shard_size, cfg.n - k * cfg.shard_size)
+        path = shard_path(self.out, k)
+        if path.exists():
+            try:
+                if len(read_shard(path, hand.hash, self._renderer.rig.hash)) == n_k:
+                    return n_k, False
+            except ShardError as e:
+                log.warning("rewriting damaged shard: %s", e)
+        write_shard(path, make_shard(hand, self._renderer, self._world, n_k, cfg.seed, k, self.sampler))
+        return n_k, True
+
+
 def collect(
     out: Path,
     cfg: CollectConfig | None = None,
@@ -74,15 +115,16 @@ def collect(
     sampler: SamplerConfig | None = None,
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
+    fanout: FanoutConfig | None = None,
 ) -> dict:
     """Fill ``out`` with ``cfg.n`` samples in shards; resumes an interrupted run of the same config.
 
-    Reports stage "collect" after each shard (step: samples done, of ``cfg.n``; shards already on disk count at
-    once); setting ``cancel`` stops after the current shard (finished shards stay). Returns ``{"written",
-    "skipped", "samples", "folder"}``.
+    ``fanout`` spreads the shards over local processes or Ray actors (:mod:`studio.fanout`; default: this process);
+    shard ``k`` is drawn from ``(seed, k)`` wherever it is made, so every way gives the same files (on a cluster,
+    ``out`` must be a path every machine sees). Reports stage "collect" after each shard (step: samples done, of
+    ``cfg.n``; shards already on disk count when reached); setting ``cancel`` stops after the shards being made
+    (finished shards stay). Returns ``{"written", "skipped", "samples", "folder", "workers"}``.
     """
-    from studio.sim.physics import CollisionWorld
-
     cfg = cfg or CollectConfig()
     hand = hand or load_hand()
     sampler = sampler or SamplerConfig()
@@ -99,28 +141,19 @@ def collect(
             )
     else:
         write_json(mpath, manifest, sort_keys=True)
-    renderer = ShadowRenderer(hand, cfg.rig())
-    written = skipped = done = 0
-    with CollisionWorld(hand) as world:
-        for k in range(cfg.num_shards):
-            if stopped(cancel):
-                break
-            n_k = min(cfg.shard_size, cfg.n - k * cfg.shard_size)
-            path = shard_path(out, k)
-            if path.exists():
-                try:
-                    if len(read_shard(path, hand.hash, renderer.rig.hash)) == n_k:
-                        skipped += 1
-                        done += n_k
-                        report(progress, "collect", done, cfg.n)
-                        continue
-                except ShardError as e:
-                    log.warning("rewriting damaged shard: %s", e)
-            write_shard(path, make_shard(hand, renderer, world, n_k, cfg.seed, k, sampler))
-            written += 1
-            done += n_k
-            report(progress, "collect", done, cfg.n)
-    return {"written": written, "skipped": skipped, "samples": done, "folder": str(out)}
+    fanout = fanout or FanoutConfig()
+    task = ShardTask(out, cfg, sampler, hand if fanout.workers == 1 and not fanout.ray else None)
+    samples = 0
+
+    def counted(_k: int, result: tuple[int, bool]) -> None:
+        nonlocal samples
+        samples += result[0]
+        report(progress, "collect", samples, cfg.n)
+
+    done = fan_out(task, range(cfg.num_shards), fanout, cancel=cancel, on_result=counted)
+    written = sum(w for _, w in done.values())
+    return {"written": written, "skipped": len(done) - written, "samples": samples,
+            "folder": str(out), "workers": fanout.where}  # fmt: skip
 
 
 class ShardStream(IterableDataset):

@@ -1,0 +1,104 @@
+"""Table 1 spread over workers: every target one item of a :func:`studio.fanout.fan_out`, each worker holding its own
+imitator and baselines (loaded once), the rows gathered in the targets' order.
+
+:func:`evaluate_spread` gives the same rows and records as :meth:`studio.evaluate.table1.Evaluator.run` in one
+process (tests hold them equal, seconds aside): every method is seeded per target (the search and refinement by
+their configs' seeds, Random by ``(seed, target index)``), so where a target runs does not change its result.
+A worker loads the self-model, the inverse CNN, the Nearest Neighbour's training shards and CLIP itself: on a
+cluster every path must exist on every machine.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from studio.evaluate.config import EvalConfig
+from studio.evaluate.table1 import EvalResult, summarise, table_notes
+from studio.fanout import FanoutConfig, fan_out
+from studio.imitate.config import ImitateConfig, RefineConfig, SearchConfig, SweepConfig
+from studio.imitate.retrieval import RetrievalConfig
+from studio.progress import ProgressFn
+
+__all__ = ["Table1Task", "evaluate_spread"]
+
+
+@dataclass
+class Table1Task:
+    """What a worker needs to evaluate targets (a :mod:`studio.fanout` task): paths and configs, all picklable.
+    ``task((index, name, target (R, R)[, score_target (S, S)])) → (records, settings)``."""
+
+    model: str  # self-model checkpoint
+    inverse: str  # inverse-CNN checkpoint
+    nn_data: str  # training shards of Random and Nearest Neighbour
+    eval_cfg: EvalConfig = field(default_factory=EvalConfig)
+    search: SearchConfig = field(default_factory=SearchConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)
+    config: ImitateConfig = field(default_factory=ImitateConfig)
+    sweep: SweepConfig = field(default_factory=SweepConfig)
+    retrieval: RetrievalConfig | None = None  # the retrieval index (None: the imitator's default, cached per machine)
+    device: str | None = None  # torch device (None: CUDA when present)
+    threads: int = 1  # torch CPU threads per worker (0: torch's default)
+    clip_weights: str | None = None  # CLIP: as the command line's --clip-weights
+    clip_model: str = "ViT-B-32"  # CLIP architecture
+    use_clip: bool = True  # False: the CLIP terms off (--no-clip)
+    _held: Any = field(default=None, init=False, repr=False, compare=False)  # (imitator, evaluator) once set up
+
+    def __getstate__(self) -> dict:  # a worker gets the recipe, never this process's models
+        return self.__dict__ | {"_held": None}
+
+    def setup(self) -> None:
+        import torch
+
+        from studio.evaluate.table1 import Evaluator
+        from studio.imitate.clip_loss import find_clip
+        from studio.imitate.still import Imitator
+        from studio.learn.selfmodel import load_selfmodel
+
+        if self.threads:
+            torch.set_num_threads(self.threads)
+        model, _ = load_selfmodel(Path(self.model), device=self.device)
+        clip, _ = find_clip(self.clip_weights, self.clip_model, enabled=self.use_clip,
+                            device=next(model.parameters()).device)  # fmt: skip
+        imitator = Imitator(model, clip=clip, search=self.search, refine=self.refine, config=self.config,
+                            sweep=self.sweep, retrieval=self.retrieval)  # fmt: skip
+        self._held = imitator, Evaluator(imitator, Path(self.inverse), Path(self.nn_data), self.eval_cfg)
+
+    def close(self) -> None:
+        if self._held is not None:
+            imitator, evaluator = self._held
+            evaluator.close()
+            imitator.close()
+            self._held = None
+
+    def __call__(self, item: tuple) -> tuple[list[dict], dict]:
+        if self._held is None:
+            raise RuntimeError("Table1Task.setup() was not called")
+        index, name, target, *scored = item
+        evaluator = self._held[1]
+        records = evaluator.evaluate_target(name, target, None, scored[0] if scored else None, index=index)
+        return records, evaluator.settings()
+
+
+def evaluate_spread(
+    task: Table1Task,
+    targets: list[tuple[str, np.ndarray] | tuple[str, np.ndarray, np.ndarray]],
+    fanout: FanoutConfig,
+    progress: ProgressFn | None = None,
+    cancel: threading.Event | None = None,
+) -> EvalResult:
+    """Table 1 over ``targets`` (as :meth:`~studio.evaluate.table1.Evaluator.run` takes them) on the workers
+    ``fanout`` names. Reports stage "evaluate" as each target finishes (item: its name). ``cancel`` stops the
+    workers; the table then holds the targets finished before it (in their order)."""
+    items = [(i, *t) for i, t in enumerate(targets)]
+    done = fan_out(task, items, fanout, progress, cancel, "evaluate", [t[0] for t in targets])
+    records = [r for i in sorted(done) for r in done[i][0]]
+    settings = next(iter(done.values()))[1] if done else {}
+    rows = summarise(records)
+    settings = settings | {"workers": fanout.where}
+    return EvalResult(rows, records, table_notes(rows, settings, task.eval_cfg) if settings.get("search") else [],
+                      settings)  # fmt: skip

@@ -1,0 +1,173 @@
+"""Many items through one task: in this process, on local worker processes, or on a Ray cluster.
+
+A *task* is a picklable object with ``setup()`` (load what every item needs: a model, a renderer; once per worker)
+and ``__call__(item)`` (one item's result, picklable); ``close()`` is optional. :func:`fan_out` runs it over
+``items`` and returns ``{index: result}`` for the items finished, whichever way they ran:
+
+* ``workers == 1`` and no Ray: in this process, one item after another (the reference path);
+* ``workers > 1`` and no Ray: that many spawned processes (``spawn``: numba's OpenMP pool kills a child plainly
+  forked from a process that has rendered, DESIGN §4), each set up once;
+* ``ray``: that many Ray actors (:mod:`studio.ray_cluster`: a local Ray started for the run, or a cluster
+  joined), each set up once and fed the next item as soon as it is free.
+
+Results are keyed by the item's index, so callers gather them in order however the work was spread. Progress:
+stage ``stage``, step = items finished (``item``: the item's name when ``names`` is given). ``cancel`` stops
+handing out items and ends the workers (on Ray the actors are killed, so running items stop at once); the items
+finished before it are returned. An error in a task is raised here as :class:`FanoutError` naming the item, after
+the other workers are stopped. Nothing imports Ray unless ``cfg.ray`` asks for it (DESIGN §3).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import threading
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from studio.errors import StudioError
+from studio.progress import ProgressFn, report, stopped
+
+__all__ = ["FanoutConfig", "FanoutError", "Task", "fan_out"]
+
+POLL_S = 0.2  # how often a waiting fan-out looks at ``cancel``, s
+
+
+@dataclass(frozen=True)
+class FanoutConfig:
+    """How work is spread (the ``--workers`` and ``--ray`` flags)."""
+
+    workers: int = 1  # worker processes (or Ray actors); 1 without Ray: in this process [1, 1024]
+    ray: str = ""  # "" no Ray; "local": start a local Ray for the run; an address ("auto", "host:6379"): join it
+    cpus_per_worker: float = 1.0  # CPUs each Ray actor reserves (0, 256]
+    gpus_per_worker: float = 0.0  # GPUs each Ray actor reserves (0: CPU only) [0, 16]
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.workers <= 1024:
+            raise ValueError(f"workers must be in [1, 1024], got {self.workers}")
+        if not 0 < self.cpus_per_worker <= 256 or not 0 <= self.gpus_per_worker <= 16:
+            raise ValueError("cpus_per_worker must be in (0, 256] and gpus_per_worker in [0, 16]")
+
+    @property
+    def where(self) -> str:
+        """How the work runs, in words ("this process", "2 local processes", "2 Ray actors on a local Ray")."""
+        if self.ray:
+            on = "a local Ray" if self.ray == "local" else f"the Ray cluster at {self.ray}"
+            return f"{self.workers} Ray actor{'s' * (self.workers != 1)} on {on}"
+        return "this process" if self.workers == 1 else f"{self.workers} local processes"
+
+
+class Task(Protocol):
+    """What :func:`fan_out` runs (module doc)."""
+
+    def setup(self) -> None: ...
+
+    def __call__(self, item: Any) -> Any: ...
+
+
+class FanoutError(StudioError):
+    """A task failed on one item (the message names it and the error)."""
+
+
+def fan_out(
+    task: Task,
+    items: Sequence[Any],
+    cfg: FanoutConfig | None = None,
+    progress: ProgressFn | None = None,
+    cancel: threading.Event | None = None,
+    stage: str = "tasks",
+    names: Sequence[str] | None = None,
+    on_result: Callable[[int, Any], None] | None = None,
+) -> dict[int, Any]:
+    """``task`` over ``items`` as ``cfg`` says (module doc); ``{index: result}`` of the items finished.
+    ``on_result(i, result)`` is called in this process as each item finishes (before its progress report)."""
+    cfg = cfg or FanoutConfig()
+    done: dict[int, Any] = {}
+
+    def finished(i: int, result: Any) -> None:
+        done[i] = result
+        if on_result is not None:
+            on_result(i, result)
+        report(progress, stage, len(done), len(items), item=names[i] if names else None)
+
+    report(progress, stage, 0, len(items))
+    if not items or stopped(cancel):
+        return done
+    if cfg.ray:
+        from studio.ray_cluster import run_on_ray
+
+        run_on_ray(task, items, cfg, finished, cancel, _failed)
+    elif cfg.workers == 1:
+        _in_process(task, items, finished, cancel)
+    else:
+        _on_processes(task, items, cfg.workers, finished, cancel)
+    return done
+
+
+def _failed(items: Sequence[Any], i: int, e: BaseException) -> FanoutError:
+    return FanoutError(f"item {i} ({str(items[i])[:80]}) failed: {type(e).__name__}: {e}")
+
+
+def _in_process(task: Task, items: Sequence[Any], finished: Callable, cancel: threading.Event | None) -> None:
+    task.setup()
+    try:
+        for i, item in enumerate(items):
+            if stopped(cancel):
+                break
+            finished(i, task(item))
+    finally:
+        close = getattr(task, "close", None)
+        if close is not None:
+            close()
+
+
+_WORKER_TASK: Task | None = None  # the task a worker process set up (one per process)
+
+
+def _set_up(task: Task) -> None:
+    global _WORKER_TASK
+    task.setup()
+    _WORKER_TASK = task
+
+
+def _run_one(item: Any) -> Any:
+    assert _WORKER_TASK is not None, "a worker process ran an item before its task was set up"
+    return _WORKER_TASK(item)
+
+
+def _on_processes(
+    task: Task, items: Sequence[Any], workers: int, finished: Callable, cancel: threading.Event | None
+) -> None:
+    """At most ``workers`` items in flight on spawned processes, each process set up once."""
+    ctx = multiprocessing.get_context("spawn")
+    pool = ProcessPoolExecutor(min(workers, len(items)), mp_context=ctx, initializer=_set_up, initargs=(task,))
+    flying: dict[Future, int] = {}
+    todo = iter(range(len(items)))
+    try:
+        for i in todo:
+            flying[pool.submit(_run_one, items[i])] = i
+            if len(flying) >= 2 * workers:  # a short queue: a cancel leaves little unstarted work behind
+                break
+        while flying:
+            ready, _ = wait(flying, timeout=POLL_S, return_when=FIRST_COMPLETED)
+            if stopped(cancel):
+                break
+            for f in ready:
+                i = flying.pop(f)
+                try:
+                    result = f.result()
+                except Exception as e:
+                    raise _failed(items, i, e) from e
+                finished(i, result)
+                nxt = next(todo, None)
+                if nxt is not None:
+                    flying[pool.submit(_run_one, items[nxt])] = nxt
+    finally:
+        for f in flying:
+            f.cancel()
+        processes = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=not stopped(cancel), cancel_futures=True)
+        if stopped(cancel):
+            for p in processes:  # running items stop now, not at their end (a shard is written atomically)
+                p.terminate()

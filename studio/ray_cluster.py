@@ -1,0 +1,107 @@
+"""The Ray side of :func:`studio.fanout.fan_out`: a Ray to run on, and one actor per worker fed item by item.
+
+The only module that imports Ray (DESIGN §3), and only when a fan-out asks for it. ``cfg.ray == "local"`` starts a
+Ray on this machine for the run (``num_cpus`` = what the actors reserve; no dashboard; bound to 127.0.0.1) and
+shuts it down after; an address (``"auto"``, ``"10.0.0.5:6379"``) joins a running cluster (``ray start --head`` on
+one machine, ``ray start --address HEAD:6379`` on the others) and leaves it running. A Ray already initialised in
+this process (a notebook, the tests' shared local Ray) is used as it is and left running.
+
+Actors are set up once (their task's ``setup()``: models loaded once per worker) and each is handed the next item as
+soon as it returns one, so uneven items keep every worker busy. ``cancel`` kills the actors (running items stop at
+once). The workers import ``studio`` from their own Python: on a cluster, install the project on every machine and
+keep data on a path every machine sees.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
+
+import ray
+
+from studio.errors import StudioError
+from studio.progress import stopped
+
+__all__ = ["RayUnavailable", "ray_for", "run_on_ray"]
+
+log = logging.getLogger(__name__)
+POLL_S = 0.2  # how often the driver looks at ``cancel`` while items run, s
+
+
+class RayUnavailable(StudioError):
+    """No Ray to run on: the address did not answer, or a local Ray did not start."""
+
+
+class _Host:
+    """An actor holding one set-up task."""
+
+    def __init__(self, task: Any):
+        task.setup()
+        self.task = task
+
+    def run(self, item: Any) -> Any:
+        return self.task(item)
+
+
+@contextlib.contextmanager
+def ray_for(address: str, cpus: float, gpus: float) -> Iterator[None]:
+    """Ray initialised for a fan-out (module doc); a Ray this context started is shut down at its end."""
+    if ray.is_initialized():
+        yield
+        return
+    local = address == "local"
+    try:
+        if local:
+            ray.init(num_cpus=max(1, round(cpus)), num_gpus=round(gpus) if gpus else None, include_dashboard=False,
+                     dashboard_host="127.0.0.1", logging_level=logging.WARNING, log_to_driver=False,
+                     configure_logging=False)  # fmt: skip
+        else:
+            ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False, configure_logging=False)
+    except (ConnectionError, RuntimeError, ValueError) as e:
+        what = "start a local Ray" if local else f"join the Ray cluster at {address}"
+        raise RayUnavailable(f"could not {what}: {e} (start one with `ray start --head`, or use --ray local)") from e
+    try:
+        yield
+    finally:
+        ray.shutdown()
+
+
+def run_on_ray(
+    task: Any,
+    items: Sequence[Any],
+    cfg: Any,
+    finished: Callable[[int, Any], None],
+    cancel: threading.Event | None,
+    failed: Callable[[Sequence[Any], int, BaseException], Exception],
+) -> None:
+    """``task`` over ``items`` on ``cfg.workers`` actors (module doc); ``finished(i, result)`` as each returns."""
+    n = min(cfg.workers, len(items))
+    with ray_for(cfg.ray, n * cfg.cpus_per_worker, n * cfg.gpus_per_worker):
+        host = ray.remote(num_cpus=cfg.cpus_per_worker, num_gpus=cfg.gpus_per_worker)(_Host)
+        actors = [host.remote(task) for _ in range(n)]
+        flying: dict[Any, tuple[int, Any]] = {}
+        todo = iter(range(len(items)))
+        try:
+            for actor in actors:
+                i = next(todo, None)
+                if i is not None:
+                    flying[actor.run.remote(items[i])] = (i, actor)
+            while flying and not stopped(cancel):
+                ready, _ = ray.wait(list(flying), num_returns=1, timeout=POLL_S)
+                for ref in ready:
+                    i, actor = flying.pop(ref)
+                    try:
+                        result = ray.get(ref)
+                    except ray.exceptions.RayError as e:
+                        cause = getattr(e, "cause", None) or e
+                        raise failed(items, i, cause) from e
+                    finished(i, result)
+                    nxt = next(todo, None)
+                    if nxt is not None:
+                        flying[actor.run.remote(items[nxt])] = (nxt, actor)
+        finally:
+            for actor in actors:
+                ray.kill(actor)

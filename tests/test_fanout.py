@@ -1,0 +1,148 @@
+"""Spreading work (studio.fanout): in this process, on spawned processes and on one real local Ray (two CPUs,
+shared by the module) the same shards and the same Table 1; a failing item is named; a cancel keeps what finished."""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from studio.evaluate.config import EvalConfig
+from studio.evaluate.table1 import Evaluator
+from studio.evaluate.table1_task import Table1Task, evaluate_spread
+from studio.fanout import FanoutConfig, FanoutError, fan_out
+from studio.imitate.config import ImitateConfig, RefineConfig, SearchConfig, SweepConfig
+from studio.imitate.retrieval import RetrievalConfig, cached_index
+from studio.imitate.still import Imitator
+from studio.learn.checkpoint import save_model
+from studio.learn.config import CollectConfig
+from studio.learn.dataset import ShardTask, collect
+from studio.learn.inverse import InverseCNN, InverseConfig
+from studio.learn.selfmodel import SelfModel, SelfModelConfig, load_selfmodel
+from studio.learn.shards import list_shards
+from studio.sim.sampling import SamplerConfig
+
+pytestmark = pytest.mark.slow
+
+RES = 32
+LOCAL, PROCESSES = FanoutConfig(), FanoutConfig(workers=2)
+SMALL = CollectConfig(n=120, shard_size=30, resolution=RES)
+
+
+@pytest.fixture(scope="module")
+def ray_cluster():
+    """One local Ray of two CPUs for the module (a fan-out uses a Ray it finds running and leaves it)."""
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    yield FanoutConfig(workers=2, ray="local")
+    ray.shutdown()
+
+
+def shard_bytes(folder) -> list[bytes]:
+    return [p.read_bytes() for p in list_shards(folder)]
+
+
+def test_collect_makes_the_same_shards_in_process_on_processes_and_on_ray(tmp_path, hand, ray_cluster):
+    made = {}
+    for name, how in {"local": LOCAL, "processes": PROCESSES, "ray": ray_cluster}.items():
+        summary = collect(tmp_path / name, SMALL, hand, fanout=how)
+        assert summary["written"] == 4 and summary["samples"] == 120 and summary["workers"] == how.where
+        made[name] = shard_bytes(tmp_path / name)
+    assert len(made["local"]) == 4 and made["processes"] == made["local"] and made["ray"] == made["local"]
+    again = collect(tmp_path / "ray", SMALL, hand, fanout=ray_cluster)  # resumable: nothing is made twice
+    assert again["written"] == 0 and again["skipped"] == 4 and shard_bytes(tmp_path / "ray") == made["local"]
+
+
+@pytest.mark.parametrize("where", ["processes", "ray"])
+def test_a_failing_item_is_named_and_stops_the_run(tmp_path, where, request):
+    how = PROCESSES if where == "processes" else request.getfixturevalue("ray_cluster")
+    (tmp_path / "shard_00002.npz").mkdir()  # shard 2 cannot be written: a folder stands where the file goes
+    task = ShardTask(tmp_path, SMALL, SamplerConfig())
+    with pytest.raises(FanoutError, match=r"item 2 \(2\) failed: .*Error"):
+        fan_out(task, range(SMALL.num_shards), how)
+
+
+def test_a_cancel_keeps_the_finished_items(tmp_path, hand):
+    cancel, seen = threading.Event(), []
+
+    def progress(p):
+        seen.append(p.step)
+        if p.step >= 1:
+            cancel.set()
+
+    cfg = CollectConfig(n=600, shard_size=30, resolution=RES)
+    summary = collect(tmp_path, cfg, hand, progress=progress, cancel=cancel, fanout=PROCESSES)
+    kept = list_shards(tmp_path)
+    assert 1 <= summary["written"] < cfg.num_shards and len(kept) >= summary["written"]
+    assert summary["samples"] == 30 * summary["written"]
+    again = collect(tmp_path, cfg, hand)  # the same command again continues: nothing lost, nothing redone twice
+    assert again["skipped"] >= summary["written"] and again["samples"] == 600
+
+
+@pytest.fixture(scope="module")
+def table_task(tmp_path_factory, hand):
+    """A tiny self-model, inverse CNN, training shards and retrieval index on disk, and the task that reads them."""
+    root = tmp_path_factory.mktemp("spread")
+    torch.manual_seed(0)
+    tiny = SelfModelConfig(resolution=RES, hidden=64, channels=16, min_channels=8, res_blocks=1)
+    save_model(root / "model.pt", SelfModel(tiny, hand).eval(), {"resolution": RES})
+    save_model(root / "inverse.pt", InverseCNN(InverseConfig(input_size=32, channels=(8, 16), hidden=32), hand),
+               {"resolution": RES})  # fmt: skip
+    collect(root / "shards", CollectConfig(n=240, shard_size=120, resolution=RES), hand)
+    retrieval = RetrievalConfig(size=3000, chunk=1500, shortlist=16)
+    model, _ = load_selfmodel(root / "model.pt", device="cpu")
+    with Imitator(model, retrieval=retrieval) as im:
+        cached_index(im.renderer, retrieval)  # built once here; every worker loads it from the cache
+    budget = SearchConfig(batch=4, iterations=4), RefineConfig(restarts=2, steps=8), ImitateConfig()
+    files = str(root / "model.pt"), str(root / "inverse.pt"), str(root / "shards")
+    return Table1Task(*files, EvalConfig(seed=3, roll=0), *budget, SweepConfig(starts=0), retrieval=retrieval,
+                      device="cpu", use_clip=False)  # fmt: skip
+
+
+def targets(n: int) -> list[tuple[str, np.ndarray]]:
+    out = []
+    for i in range(n):
+        img = np.zeros((RES, RES), np.uint8)
+        img[6 + i : 26 - i, 8 : 12 + 3 * i] = 1
+        out.append((f"bar{i}", img))
+    return out
+
+
+def comparable(records: list[dict]) -> list[dict]:
+    """The records without their timing, NaN (a term not computed) as None so that equal means equal."""
+    nan = lambda v: None if isinstance(v, float) and np.isnan(v) else v  # noqa: E731
+    return [{k: nan(v) for k, v in r.items() if k not in ("seconds", "seconds_p50", "seconds_max")} for r in records]
+
+
+def test_table1_spread_over_workers_equals_one_process(table_task, ray_cluster):
+    """Table 1 in one process (Evaluator.run, the reference), spread over two processes and over two Ray actors:
+    the same records and rows (seconds aside), in the targets' order."""
+    ts = targets(3)
+    table_task.setup()
+    try:
+        reference = table_task._held[1].run(ts)
+    finally:
+        table_task.close()
+    for how in (PROCESSES, ray_cluster):
+        got = evaluate_spread(table_task, ts, how)
+        assert [r["target"] for r in got.records] == [r["target"] for r in reference.records]
+        assert comparable(got.records) == comparable(reference.records), how.where
+        assert comparable(got.rows) == comparable(reference.rows)
+        assert got.settings["workers"] == how.where and got.notes[0].startswith("3 targets at 32²")
+
+
+def test_random_draws_by_target_index_not_by_order(table_task):
+    """Random's draw for target i comes from (seed, i): the same whichever targets ran before it."""
+    task = replace(table_task)
+    task.setup()
+    try:
+        evaluator: Evaluator = task._held[1]
+        a = evaluator.random.query(5).theta
+        evaluator.random.query(0)
+        assert np.array_equal(evaluator.random.query(5).theta, a)
+        assert not np.array_equal(evaluator.random.query(6).theta, a)
+    finally:
+        task.close()
