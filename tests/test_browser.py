@@ -1,17 +1,21 @@
 """The one end-to-end browser test (DESIGN §6 "JupyterLab in headless Chromium"), checking what a person sees by its
 pixels (DESIGN §5.15): ``shadow-studio lab`` serves ``studio.ipynb`` on a free local port, headless Chromium (Debian's
-``chromium``, driven by Playwright) opens it, waits for the kernel and runs every cell. Then, tab by tab, with a
-screenshot of each kept in the test's folder (``tab_<name>.png``; copied into ``$SHADOW_STUDIO_SCREENSHOT``, a
-folder, when set):
+``chromium``, driven by Playwright) opens it, waits for the kernel and runs every cell. The project is the bundled
+horse clip (its square frames padded with black bars, as the artist sees them) with a result for every keyframe and
+its show planned, so the studio has a show to play. Then, tab by tab, with a screenshot of each (``tab_<name>.png``,
+written as it is taken into ``$SHADOW_STUDIO_SCREENSHOT``, a folder, when set, else the test's own folder):
 
 - every panel shows its label, none is "unavailable";
-- **Targets**: the preview tints the shape, not the backdrop: its tinted pixels match the mask the project stored;
+- **Targets**: the preview tints the horse, not the backdrop nor the black bars: its tinted pixels match the mask
+  the project stored;
 - **Review**: the embedded Rerun viewer fills the output area's width and its canvas draws the recording (the target
   image's white backdrop and black shape in the canvas's pixels, not a blank canvas or Rerun's dark welcome page);
-  the show player plays (two pictures of it 300 ms apart differ);
+  the show player is there and plays the planned show: its shadow column holds a dark shadow, and that shadow
+  changes between two pictures taken at different show times (the time written on the source column does not
+  count);
 - **Optimise**: a job started from the panel shows its progress advancing;
-- **Jog**: after connecting to the emulator and pressing the E-STOP, the button looks latched (its computed
-  background is red);
+- **Jog**: after connecting to the emulator and pressing the E-STOP, the button looks latched: its computed
+  background is red, and so are most of its pixels in a screenshot;
 - no traceback in any output, no error in the page, and no request to anywhere but this machine (the studio works
   offline). Ctrl-C (SIGINT) then stops the verb and its server."""
 
@@ -20,7 +24,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 import signal
 import subprocess
 import sys
@@ -31,17 +34,16 @@ from urllib.parse import urlparse
 import cv2
 import numpy as np
 import pytest
-from studio.assets import asset
+from test_show_preview import dark, give_results, horse, plan
 
 from studio.cli.lab import free_port
-from studio.project.project import Project
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--disable-background-networking",
                   "--disable-component-update", "--disable-sync", "--no-first-run"]  # fmt: skip
 VIEWPORT = {"width": 1600, "height": 2300}  # the tester's 1,600 px wide window, tall enough for a whole tab
 PANELS = ["Targets", "Keyframes", "Masks", "Weights", "Optimise", "Review", "Jog", "Rig", "Live", "Export"]
-SCREENSHOT_COPY = os.environ.get("SHADOW_STUDIO_SCREENSHOT")  # a folder: the tab screenshots are copied there too
+SCREENSHOTS = os.environ.get("SHADOW_STUDIO_SCREENSHOT")  # a folder that keeps the screenshots (unset: the test's own)
 STUDIO = ".jp-OutputArea-output .shadow-studio"
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
 
@@ -73,11 +75,15 @@ def playwright_api():
 
 
 @pytest.fixture
-def lab(tmp_path):
+def lab(tmp_path, hand):
     """``shadow-studio lab PROJECT`` on a free port, fresh Jupyter dirs → (url, process, project, start time); stopped
-    with SIGINT. As root the verb passes JupyterLab ``--allow-root`` itself."""
+    with SIGINT. As root the verb passes JupyterLab ``--allow-root`` itself. PROJECT is the horse (five frames at 64²
+    masks, mounted rolled) with every keyframe posed differently and its show planned, as test_show_preview makes it
+    (a real optimisation would take minutes here; the shadows are the poses' own, rendered)."""
     playwright_api()  # skip before starting anything
-    project = Project.create(tmp_path / "browser.shadow", sources=[asset("targets/asl_o.jpeg")])
+    project = horse(tmp_path)
+    give_results(project, hand)
+    plan(project, hand)
     config = tmp_path / "jupyter_config"
     (config / "labconfig").mkdir(parents=True)
     disabled = {"disabledExtensions": {"@jupyterlab/apputils-extension:announcements": True}}
@@ -118,10 +124,25 @@ def open_tab(page, name: str) -> str:
     return page.evaluate(SHOWN_TAB)
 
 
+def rgb_of(png: bytes) -> np.ndarray:
+    """A PNG screenshot as ``(H, W, 3)`` uint8 RGB."""
+    return cv2.cvtColor(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
 def picture(locator) -> np.ndarray:
     """A screenshot of one element as ``(H, W, 3)`` uint8 RGB."""
-    png = np.frombuffer(locator.screenshot(), np.uint8)
-    return cv2.cvtColor(cv2.imdecode(png, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    return rgb_of(locator.screenshot())
+
+
+def picture_now(page, locator) -> np.ndarray:
+    """What the page shows where ``locator`` is now, as ``(H, W, 3)`` uint8 RGB, without waiting for the element to
+    hold still (a playing show player redraws, and its box moves with its label, several times a second)."""
+    return rgb_of(page.screenshot(clip=locator.bounding_box()))
+
+
+def keep(rgb: np.ndarray, path: Path) -> None:
+    """Write ``rgb (H, W, 3)`` uint8 to ``path`` (PNG) for a person to look at."""
+    cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
 
 
 def shoot_tab(page, name: str, folder: Path) -> Path:
@@ -153,18 +174,30 @@ def tinted(rgb: np.ndarray) -> np.ndarray:
     return (r - b > 60) & (g - b > 25)
 
 
-def iou(a: np.ndarray, b: np.ndarray) -> float:
-    return float((a & b).sum() / max(1, (a | b).sum()))
+def red(rgb: np.ndarray) -> np.ndarray:
+    """Red-dominant pixels (a latched E-STOP's colour): ``(H, W)`` bool."""
+    r, g, b = (rgb[..., i].astype(int) for i in range(3))
+    return (r >= 100) & (r > 2 * g) & (r > 2 * b)
 
 
-def in_its_box(mask: np.ndarray, side: int = 64) -> np.ndarray:
-    """``mask (H, W)`` bool cropped to its bounding box and resized to ``side × side``: a shape compared whatever
-    its framing (the preview shows the source's square, the project stores the shape's own crop)."""
-    ys, xs = np.nonzero(mask)
-    if not len(ys):
-        return np.zeros((side, side), bool)
-    crop = mask[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1].astype(np.uint8)
-    return cv2.resize(crop, (side, side), interpolation=cv2.INTER_AREA) > 0
+def shadow_tile(frame: np.ndarray, side: int = 128) -> np.ndarray:
+    """The shadow column of a show player's picture ``(H, W, 3)`` as ``(side, side, 3)``: its frames are source |
+    target | shadow, three square tiles side by side (``studio.review.video_review.side_by_side_frame``), so the
+    shadow is the last ``H`` columns however the page scales the canvas (a margin left out: the gap before it, the
+    scaling's blur); resized, so two pictures compare pixel by pixel whatever size each was drawn at."""
+    h, w = frame.shape[:2]
+    m = max(2, h // 20)
+    return cv2.resize(frame[m : h - m, w - h + m : w - m], (side, side), interpolation=cv2.INTER_AREA)
+
+
+def over_the_shape(preview: np.ndarray, stored: np.ndarray) -> tuple[float, float]:
+    """How the Targets preview ``(H, W, 3)`` tints the stored mask ``(S, S)`` {0, 1}, scaled to it (the horse's
+    preview and its stored masks share one framing, the padded square): → (share of the shape's pixels tinted, share
+    of the rest tinted: the backdrop and the black bars)."""
+    h, w = preview.shape[:2]
+    shape = cv2.resize(np.asarray(stored, np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    tint = tinted(preview)
+    return float(tint[shape].mean()), float(tint[~shape].mean())
 
 
 def drawn_recording(rgb: np.ndarray) -> tuple[bool, dict]:
@@ -190,6 +223,8 @@ def drawn_recording(rgb: np.ndarray) -> tuple[bool, dict]:
 def test_the_studio_in_jupyterlab(lab, tmp_path):
     sync_playwright = playwright_api()  # the fixture skipped already when it is absent
     url, proc, project, t0 = lab
+    folder = Path(SCREENSHOTS or tmp_path)  # every screenshot is written here as it is taken
+    folder.mkdir(parents=True, exist_ok=True)
     shots: list[Path] = []
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_FLAGS)
@@ -214,22 +249,20 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
             assert name in texts[name], f"the {name} tab shows no {name!r} label: {texts[name][:200]!r}"
             assert "unavailable" not in texts[name], texts[name][:300]
             if name in ("Keyframes", "Masks", "Weights", "Rig", "Live", "Export"):
-                shots.append(shoot_tab(page, name, tmp_path))
+                shots.append(shoot_tab(page, name, folder))
 
-        # Targets: the preview tints the shape the project stored, not the backdrop around it
+        # Targets: the preview tints the shape the project stored, not the backdrop nor the black bars around it
         open_tab(page, "Targets")
         preview = page.locator(f"{TAB} .widget-vbox:has(> .widget-html:has-text('threshold alone')) > img").first
         preview.scroll_into_view_if_needed()
         shown = picture(preview)
-        cv2.imwrite(str(tmp_path / "targets_preview.png"), cv2.cvtColor(shown, cv2.COLOR_RGB2BGR))
-        tint, stored = in_its_box(tinted(shown)), in_its_box(project.state.targets[0] > 0)
-        assert tinted(shown).mean() > 0.02, "the Targets preview tints nothing"
-        right, backdrop = iou(tint, stored), iou(in_its_box(~tinted(shown)), stored)
-        assert right > 0.85 and right > backdrop + 0.3, (
-            f"the Targets preview does not tint the stored shape: IoU {right:.2f} with it, {backdrop:.2f} when its "
-            "untinted pixels are taken for the shape"
+        keep(shown, folder / "targets_preview.png")
+        on_shape, off_shape = over_the_shape(shown, project.state.targets[0])
+        assert on_shape > 0.85 and off_shape < 0.15, (
+            f"the Targets preview does not tint the stored shape: {on_shape:.0%} of its pixels tinted, {off_shape:.0%} "
+            "of the backdrop and the black bars"
         )
-        shots.append(shoot_tab(page, "Targets", tmp_path))
+        shots.append(shoot_tab(page, "Targets", folder))
 
         # Review: the Rerun viewer, as wide as the output area, draws the recording; the show player plays
         open_tab(page, "Review")
@@ -243,33 +276,45 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
             drawn = picture(canvas)
-            cv2.imwrite(str(tmp_path / "rerun_canvas.png"), cv2.cvtColor(drawn, cv2.COLOR_RGB2BGR))
+            keep(drawn, folder / "rerun_canvas.png")
             ok, facts = drawn_recording(drawn)
             if ok:
                 break
             page.wait_for_timeout(1000)
         if not ok:
-            shoot_tab(page, "Review", tmp_path)
+            shoot_tab(page, "Review", folder)
         assert ok, f"the Rerun viewer does not draw the recording (blank or its welcome page): {facts}"
         marks["rerun drawn"] = time.perf_counter() - t0
+        # the show player (widgets.show_player) plays the planned show: a dark shadow that moves with the show time
         player = page.locator(f"{TAB} .show-player")
-        if player.count():  # the show player (widgets.show_player): plays frames in the browser
-            scrub = "document.querySelector(\"[data-shown-tab='1'] .show-player input[type=range]\")"
-            page.wait_for_function(f"() => Number(({scrub} || {{}}).max) > 0", timeout=90_000)  # it has frames
-            player.locator("input[type=checkbox]").first.check()  # loop
-            player.locator("button", has_text="Play").first.click()
-            screen = player.locator("canvas").first
-            differ = False
-            for _ in range(8):
-                a = picture(screen)
-                page.wait_for_timeout(300)
-                if not np.array_equal(a, picture(screen)):
-                    differ = True
-                    break
-            assert differ, "the show player shows the same picture 300 ms apart while playing"
-            player.locator("button", has_text="Pause").first.click()
-            marks["player plays"] = time.perf_counter() - t0
-        shots.append(shoot_tab(page, "Review", tmp_path))
+        player.first.wait_for(timeout=30_000)
+        assert player.count() == 1, "the Review tab has no show player"
+        scrub = "document.querySelector(\"[data-shown-tab='1'] .show-player input[type=range]\")"
+        page.wait_for_function(f"() => Number(({scrub} || {{}}).max) > 0", timeout=90_000)  # it has frames
+        marks["preview ready"] = time.perf_counter() - t0
+        assert "the planned show" in page.evaluate(SHOWN_TAB), "the player shows no planned show"
+        screen = player.locator("canvas").first
+        screen.scroll_into_view_if_needed()  # while it holds still
+        player.locator("input[type=checkbox]").first.check()  # loop
+        player.locator("button", has_text="Play").first.click()
+        played = []  # (the preview frame in view, its shadow tile's dark pixels) while it plays
+        moved = False
+        for _ in range(10):  # the time written on the source column does not count: only the shadow tile is compared
+            shown_at = player.get_attribute("data-frame")
+            frame = picture_now(page, screen)
+            played.append((shown_at, dark(shadow_tile(frame))))
+            keep(frame, folder / ("player_first.png" if len(played) == 1 else "player_later.png"))
+            (at_first, first), (at_now, now) = played[0], played[-1]
+            moved = at_now != at_first and (first != now).mean() > 0.01
+            if moved:
+                break
+            page.wait_for_timeout(300)
+        shares = [round(float(d.mean()), 3) for _, d in played]
+        assert all(0.01 < share < 0.7 for share in shares), f"the show player's shadow column is blank: {shares}"
+        assert moved, f"the shadow in the show player does not change while it plays (dark shares {shares})"
+        player.locator("button", has_text="Pause").first.dispatch_event("click")  # it moves while it plays
+        marks["player plays"] = time.perf_counter() - t0
+        shots.append(shoot_tab(page, "Review", folder))
 
         # Optimise: start this keyframe and see a progress bar advance
         open_tab(page, "Optimise")
@@ -289,12 +334,13 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
             page.wait_for_timeout(250)
         assert advanced(), f"no progress seen advancing: {seen}"
         marks["progress seen"] = time.perf_counter() - t0
-        shots.append(shoot_tab(page, "Optimise", tmp_path))
+        shots.append(shoot_tab(page, "Optimise", folder))
         cancel = page.locator(f"{TAB} button", has_text="Cancel").first
         if cancel.is_enabled():  # spare the CPU for the rest (the panel's own tests check cancelling)
             cancel.click()
 
-        # Jog: connect to the emulator, press the e-stop, see it latched: the button turns red and says so
+        # Jog: connect to the emulator, press the e-stop, see it latched: the button turns red (its style, and the
+        # pixels a person sees) and says so
         open_tab(page, "Jog")
         page.locator(f"{TAB} button", has_text="connect").first.click()
         estop = page.locator(f"{TAB} button", has_text="E-STOP").first
@@ -307,7 +353,10 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
         colour = estop.evaluate("b => getComputedStyle(b).backgroundColor")
         r, g, b = (int(v) for v in re.findall(r"\d+", colour)[:3])
         assert r >= 100 and r > 2 * g and r > 2 * b, f"the latched E-STOP is not red: {colour}"
-        shots.append(shoot_tab(page, "Jog", tmp_path))
+        button = picture(estop)
+        keep(button, folder / "estop_latched.png")
+        assert red(button).mean() > 0.5, f"the latched E-STOP does not look red: {red(button).mean():.0%} red pixels"
+        shots.append(shoot_tab(page, "Jog", folder))
         found = tracebacks(page)
         browser.close()
     seconds = time.perf_counter() - t0
@@ -318,11 +367,8 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
     slow_start = "[anywidget] Failed to initialize model."
     assert not [e for e in errors if e != slow_start], errors
     assert not outside, f"the studio reached outside this machine: {outside}"
-    assert len(shots) == len(PANELS) and all(s.stat().st_size > 10_000 for s in shots)
-    if SCREENSHOT_COPY:
-        Path(SCREENSHOT_COPY).mkdir(parents=True, exist_ok=True)
-        for s in [*shots, tmp_path / "rerun_canvas.png"]:
-            shutil.copyfile(s, Path(SCREENSHOT_COPY) / s.name)
+    assert sorted(s.name for s in shots) == sorted(f"tab_{name.lower()}.png" for name in PANELS)  # one a tab
+    assert all(s.stat().st_size > 10_000 for s in shots)
     print(f"browser part took {seconds:.1f} s:", {k: round(v, 1) for k, v in marks.items()}, "Rerun canvas:", facts)
     proc.send_signal(signal.SIGINT)  # Ctrl-C stops the verb and its server
     assert proc.wait(30) == 0

@@ -1,5 +1,6 @@
-"""The Masks panel driven from Python: strokes through the canvas panel's API (and its mouse callbacks) end in the
-project's paint PNGs, erasures and additions apart; clear and undo."""
+"""The Masks panel driven from Python: its frame picker selects the frame in every tab and the picture drawn follows
+it; strokes through the canvas panel's API (and its mouse callbacks) end in the project's paint PNGs, erasures and
+additions apart; clear and undo."""
 
 from __future__ import annotations
 
@@ -13,8 +14,10 @@ from studio.assets import asset
 from studio.project.jobs import queue_for
 from studio.project.project import Project
 from studio.targets.video import VideoConfig
+from widgets.images import upscale
 from widgets.masks import MasksPanel, masks_panel
 from widgets.state import StudioState
+from widgets.targets import TargetsPanel
 
 S = 64  # the project's square frame, px
 SIDE = 256  # the canvas, px: 4 canvas px per mask px
@@ -23,6 +26,16 @@ SIDE = 256  # the canvas, px: 4 canvas px per mask px
 @pytest.fixture
 def state(tmp_path):
     project = Project.create(tmp_path / "m.shadow", [Path(asset("targets/asl_o.jpeg"))], video=VideoConfig(size=S))
+    s = StudioState(project, queue_for(project))
+    yield s
+    s.close()
+
+
+@pytest.fixture
+def horse(tmp_path):
+    """The bundled horse clip: five frames, each its own shape."""
+    project = Project.create(tmp_path / "h.shadow", [Path(asset("videos/muybridge_horse.gif"))],
+                             video=VideoConfig(size=S))  # fmt: skip
     s = StudioState(project, queue_for(project))
     yield s
     s.close()
@@ -43,6 +56,32 @@ def test_title_and_the_expressive_mask_over_the_target(state):
     assert auto.any()
     y, x = np.argwhere(auto)[0] * (SIDE // S)
     assert not (pic[y, x] == pic[y, x, 0]).all()  # the automatic mask is tinted (not grey)
+
+
+def test_the_frame_picker_selects_the_frame_in_every_tab_and_the_picture_follows(horse):
+    targets = horse.project.state.targets
+    panel, other = MasksPanel(horse, side=SIDE), TargetsPanel(horse)
+    drawn: list[np.ndarray] = []  # every picture the panel puts on its canvas
+    put = panel.paint.put
+    panel.paint.put = lambda rgb: (drawn.append(np.array(rgb)), put(rgb))
+
+    def shape_drawn() -> np.ndarray:  # the target's dark shape in the last picture drawn (orange tint or not)
+        return drawn[-1].astype(float).mean(axis=2) < 128
+
+    def like(f: int) -> float:  # IoU of the shape drawn with frame f's target at the canvas's size
+        want = upscale(targets[f], SIDE) > 0
+        return float((shape_drawn() & want).sum() / (shape_drawn() | want).sum())
+
+    try:
+        assert panel.frame_picker in panel.widget.children and panel.frame_picker.max == len(targets) - 1
+        panel.frame_picker.value = 3
+        assert horse.selection.frame == 3 and other.scrubber.value == 3  # selected in every tab
+        assert drawn and like(3) > 0.95 and like(0) < 0.8  # the picture is frame 3's, not the one before
+        horse.select(frame=1)  # picked elsewhere (the strip, another tab): the picker and the picture follow
+        assert panel.frame_picker.value == 1 and like(1) > 0.95 and like(3) < 0.8
+    finally:
+        panel.close()
+        other.close()
 
 
 def test_strokes_are_saved_as_the_paint_pngs_and_undo(state):

@@ -1,8 +1,8 @@
-"""The Masks panel: the selected frame's target with its expressive mask drawn over it (automatic in orange,
-painted additions green, erasures red), and a brush on an ipycanvas ``Canvas`` to paint additions and erasures:
-brush size, mode add / erase, clear, undo. Each stroke is rasterised into the project's square frame ``(S, S)`` and
-saved with ``project.paint(frame, additions=..., erasures=...)`` (the separate PNGs of DESIGN §4), one undoable
-edit per stroke.
+"""The Masks panel: a frame picker (:mod:`widgets.frame_picker`: a frame picked here is selected in every tab),
+the selected frame's target with its expressive mask drawn over it (automatic in orange, painted additions green,
+erasures red), and a brush on an ipycanvas ``Canvas`` to paint additions and erasures: brush size, mode add / erase,
+clear, undo. Each stroke is rasterised into the project's square frame ``(S, S)`` and saved with
+``project.paint(frame, additions=..., erasures=...)`` (the separate PNGs of DESIGN §4), one undoable edit per stroke.
 
     panel = MasksPanel(state)
     panel.stroke([(10, 10), (60, 40)], radius=6, mode="add")    # what a mouse drag does, in canvas pixels
@@ -21,6 +21,7 @@ import numpy as np
 
 from studio.project.state import ProjectError
 from widgets.brush import BrushCanvas
+from widgets.frame_picker import frame_picker
 from widgets.images import (
     ADD_RGB,
     ERASE_RGB,
@@ -58,18 +59,20 @@ class MasksPanel:
         self.clear = w.Button(description="Clear paint", icon="eraser")
         self.undo = w.Button(description="Undo", icon="undo")
         self.info = w.Label()
+        self.frame_picker, stop_picker = frame_picker(state)  # selects the frame in view in every tab
         picture, note = self.paint.widget, self.paint.note
         self.clear.on_click(lambda _: self.messages.run(self._clear))
         self.undo.on_click(lambda _: self.messages.run(self.state.undo))
         self.widget = w.VBox([
             title("Masks"),
+            self.frame_picker,
             picture,
             w.HBox([self.mode, self.brush]),
             w.HBox([self.clear, self.undo, self.info]),
             w.HTML(f"<i>{note}</i>" if note else ""),
             self.messages.widget,
         ])  # fmt: skip
-        self._stops = [state.on_change(self._changed)]
+        self._stops = [stop_picker, state.on_change(self._changed)]
         self.redraw()
 
     def close(self) -> None:

@@ -34,6 +34,7 @@ import numpy as np
 from studio.errors import StudioError
 from studio.review.recording import ProjectRecording
 from studio.review.scene import ShadowScene
+from widgets.frame_picker import frame_picker
 from widgets.images import Messages, mask_picture, title
 from widgets.review_viewer import ViewerBox, log_finished_play
 from widgets.show_player import ShowPreviewPanel
@@ -94,8 +95,7 @@ class ReviewPanel:
             self.scene = self.messages.run(ShadowScene)
         pictures = w.HBox([w.VBox([w.HTML("target"), self.target_image]),
                            w.VBox([w.HTML("shadow"), self.shadow_image])])  # fmt: skip
-        self.frame_picker = w.IntSlider(min=0, max=max(0, len(project.frames) - 1), description="frame")
-        self.frame_picker.observe(self._picked, names="value")
+        self.frame_picker, self._stop_picker = frame_picker(state)  # selects the frame in view in every tab
         self.preview = ShowPreviewPanel(state)  # the show preview player and the frame strip (widgets.show_player)
         self.follow_player(self.preview.player)
         self.widget = w.VBox([
@@ -153,8 +153,6 @@ class ReviewPanel:
         k = p.keyframes[int(p.assignment()[i])].id if p.keyframes else None
         result = None if k is None else p.results.get(k)
         self.shown_frame = i
-        with self.frame_picker.hold_trait_notifications():  # no clamped value in between
-            self.frame_picker.max, self.frame_picker.value = len(p.frames) - 1, i
         self.target_image.value = mask_picture(p.state.targets[i], px)
         self.shown_shadow = None if result is None else np.asarray(result.shadow)
         self.shadow_image.value = mask_picture(self.shown_shadow, px)
@@ -204,10 +202,6 @@ class ReviewPanel:
             if np.isfinite(theta).all() and not soon:
                 self.show_pose(theta)
 
-    def _picked(self, change: dict) -> None:
-        if change["new"] != self.state.selection.frame:
-            self.state.select(frame=change["new"])
-
     def _on_change(self, what: str) -> None:
         with self._lock:
             if self.closed:
@@ -226,6 +220,7 @@ class ReviewPanel:
                 return
             self.closed = True
         self._stop()
+        self._stop_picker()
         self._unsubscribe()
         self.preview.close()
         if self.recording is not None:
