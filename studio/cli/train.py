@@ -13,6 +13,7 @@ import math
 from collections.abc import Callable
 
 from studio.cli.flags import add_config_flags
+from studio.cli.scale_flags import add_fanout_flags, fanout_from_args
 
 # the shared trainer's fields that are flags (``out`` and ``data`` are added with their verb's help)
 TRAINER_FLAGS = ("steps", "batch_size", "lr", "weight_decay", "warmup", "eval_every", "eval_size", "seed",
@@ -71,7 +72,31 @@ def _train(args: argparse.Namespace) -> int:
     from studio.learn.train import train
 
     cfg = config_from_args(args, TrainConfig)
-    return run_training(args, "train", cfg.steps, cfg.out, lambda **kw: train(cfg, **kw))
+    fanout = fanout_from_args(args)
+    if not fanout.ray:
+        if fanout.workers > 1:
+            raise ValueError("training spreads over workers on Ray only: add --ray (a local Ray, or an address)")
+        return run_training(args, "train", cfg.steps, cfg.out, lambda **kw: train(cfg, **kw))
+    from functools import partial
+    from pathlib import Path
+
+    from studio.cli.progress import ctrl_c_cancels
+
+    if cfg.batch_size % fanout.workers:  # before Ray starts (the trainer says it too)
+        raise ValueError(f"the batch of {cfg.batch_size} does not split evenly over {fanout.workers} workers: "
+                         "choose a batch size that is a multiple of the worker count")  # fmt: skip
+    if Path(cfg.out).exists() and not (args.resume or args.force):
+        raise ValueError(f"{cfg.out} exists: pass --resume to continue training it, --force to replace it, "
+                         "or choose another --out")  # fmt: skip
+
+    def on_ray(resume: bool, overwrite: bool, progress) -> dict:
+        from studio.learn.ray_train import fit_on_ray
+
+        run = partial(train, cfg, resume=resume, overwrite=overwrite)
+        with ctrl_c_cancels() as cancel:
+            return fit_on_ray(run, cfg.out, "selfmodel", cfg.steps, fanout, progress, cancel)
+
+    return run_training(args, "train", cfg.steps, cfg.out, on_ray)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -80,4 +105,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("train", help="train the shadow self-model from shards or on-the-fly renders")
     add_config_flags(p, TrainConfig, ("model", "input", "resolution"))
     add_trainer_flags(p, TrainConfig())
+    add_fanout_flags(p)
     p.set_defaults(func=_train)

@@ -100,12 +100,14 @@ class CapturePairs:
         masks = turn(cs.masks[rows].astype(np.float32), -self.roll)
         return torch.from_numpy(cs.theta[rows]), resize(torch.from_numpy(masks)[:, None], self.res)
 
-    def train_batches(self, start_step: int = 0):
-        """Endless ``(theta (B, 21), masks (B, 1, res, res))`` training batches from step ``start_step``."""
+    def train_batches(self, start_step: int = 0, part: tuple[int, int] = (0, 1)):
+        """Endless ``(theta (B, 21), masks (B, 1, res, res))`` training batches from step ``start_step``; ``part
+        (r, W)``: rows ``r::W`` of each (a data-parallel replica's share)."""
         step = start_step
         while True:
             rng = np.random.default_rng([self.seed, step])
-            yield self._batch(self.train, np.sort(rng.choice(len(self.train), self.batch_size, replace=False)))
+            rows = np.sort(rng.choice(len(self.train), self.batch_size, replace=False))
+            yield self._batch(self.train, rows[part[0] :: part[1]])
             step += 1
 
     def held_out(self, split: str) -> list[tuple[torch.Tensor, torch.Tensor]]:

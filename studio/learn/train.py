@@ -11,7 +11,7 @@ import torch
 
 from studio.learn.config import TrainConfig
 from studio.learn.selfmodel import SelfModel
-from studio.learn.trainer import Batch, Pairs, Task, fit
+from studio.learn.trainer import Batch, Pairs, Replica, Task, fit
 from studio.progress import ProgressFn
 from studio.sim.hand import Hand, load_hand
 
@@ -41,9 +41,11 @@ def train(
     overwrite: bool = False,
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
+    replica: Replica | None = None,
 ) -> dict:
     """Train (or resume) a self-model; returns the metrics written into the checkpoint (``test_mae``,
-    ``val_mae``, ...; see :func:`studio.learn.trainer.fit`, which says the stages reported and what ``cancel`` does)."""
+    ``val_mae``, ...; see :func:`studio.learn.trainer.fit`, which says the stages reported, what ``cancel`` does and
+    what a data-parallel ``replica`` does; :func:`studio.learn.ray_train.fit_on_ray` runs this on Ray Train)."""
     hand = hand or load_hand()
     mcfg = cfg.model_config()
     task = Task(
@@ -53,4 +55,4 @@ def train(
         metric="mae",
         pairs=lambda: Pairs(cfg, hand, mcfg.resolution, fit=True),
     )
-    return fit(cfg, task, resume=resume, overwrite=overwrite, progress=progress, cancel=cancel)
+    return fit(cfg, task, resume=resume, overwrite=overwrite, progress=progress, cancel=cancel, replica=replica)

@@ -80,20 +80,25 @@ class Pairs:
         for theta, masks in stream:
             yield theta, _fit(masks, self.res) if self.fit else masks
 
-    def _rendered(self, n: int, seed: list[int]) -> Batch:
+    def _rendered(self, n: int, seed: list[int], part: tuple[int, int] = (0, 1)) -> Batch:
+        """``n`` poses drawn from ``seed``, rows ``part[0]::part[1]`` of them rendered."""
         theta, _ = sample_poses(self.hand, n, np.random.default_rng(seed))
+        theta = theta[part[0] :: part[1]]
         masks = self.renderer.render(theta, check=False)
         return torch.from_numpy(theta.astype(np.float32)), torch.from_numpy(masks.astype(np.float32))[:, None]
 
-    def train_batches(self, start_step: int = 0) -> Iterator[Batch]:
+    def train_batches(self, start_step: int = 0, part: tuple[int, int] = (0, 1)) -> Iterator[Batch]:
         """Endless training batches; on the fly, batch ``k`` is drawn from ``(seed, k)`` so a resumed run continues
-        the same stream (shards restart their shuffled epochs)."""
+        the same stream (shards restart their shuffled epochs). ``part (r, W)``: rows ``r::W`` of every batch (a
+        data-parallel replica's share; on the fly only those rows are rendered)."""
+        r, w = part
         if self.cfg.data:
             while True:
-                yield from self._stream("train", True)
+                for theta, masks in self._stream("train", True):
+                    yield theta[r::w], masks[r::w]
         step = start_step
         while True:
-            yield self._rendered(self.cfg.batch_size, [self.cfg.seed, step])
+            yield self._rendered(self.cfg.batch_size, [self.cfg.seed, step], part)
             step += 1
 
     def held_out(self, split: str) -> list[Batch]:
@@ -102,6 +107,38 @@ class Pairs:
             return list(self._stream(split, False))
         theta, masks = self._rendered(self.cfg.eval_size, [self.cfg.seed, 10**9 + {"val": 1, "test": 2}[split]])
         return list(zip(theta.split(256), masks.split(256)))
+
+
+@dataclass(frozen=True)
+class Replica:
+    """This process's place in a data-parallel run (``torch.distributed`` already set up, e.g. by Ray Train's
+    workers, :mod:`studio.learn.ray_train`); the default is a run of one. Replica ``rank`` of ``world`` trains on
+    rows ``rank::world`` of every global batch; DDP averages the gradients, so with equal parts each step is the
+    single process's step on the whole batch (up to float summation order)."""
+
+    rank: int = 0
+    world: int = 1
+
+    @property
+    def main(self) -> bool:
+        """The replica that validates, tests, checkpoints and reports."""
+        return self.rank == 0
+
+    def mean(self, value: float) -> float:
+        """``value`` averaged over the replicas (the batch's loss: each replica's rows weigh the same)."""
+        return value if self.world == 1 else self._sum(value) / self.world
+
+    def any(self, flag: bool) -> bool:
+        """Whether any replica says so (a stop: all stop at the same step)."""
+        return flag if self.world == 1 else self._sum(float(flag)) > 0
+
+    @staticmethod
+    def _sum(value: float) -> float:
+        import torch.distributed as dist
+
+        t = torch.tensor([value], dtype=torch.float64)
+        dist.all_reduce(t)
+        return float(t[0])
 
 
 @dataclass
@@ -123,8 +160,13 @@ def fit(
     overwrite: bool = False,
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
+    replica: Replica | None = None,
 ) -> dict:
     """Train ``task``'s network as ``cfg`` says and checkpoint it to ``cfg.out``; returns its metrics.
+
+    ``replica``: this process's part of a data-parallel run (:class:`Replica`); only the main replica validates,
+    tests, checkpoints, reports progress and returns metrics (the others return ``{}``), and a cancel seen by any
+    replica stops them all at the same step.
 
     Reports stage "train" after every step (step of ``cfg.steps``, the running training loss as best), "val" after
     every validation (the validation metric) and "test" once at the end (the test metric). ``cancel`` stops within a
@@ -142,6 +184,10 @@ def fit(
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     device = torch.device(cfg.device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    rep = replica or Replica()
+    if cfg.batch_size % rep.world:
+        raise StudioError(f"the batch of {cfg.batch_size} does not split evenly over {rep.world} workers: "
+                          "choose a batch size that is a multiple of the worker count")  # fmt: skip
     torch.manual_seed(cfg.seed)
     model = task.build().to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -158,41 +204,56 @@ def fit(
         elapsed = float(ckpt.extra.get("elapsed_s", 0.0))
         log.info("resuming %s at step %d", out, step)
     data = task.pairs()
-    val = data.held_out("val")
-    if step == 0:
+    val = data.held_out("val") if rep.main else []
+    if step == 0 and rep.main:
         metrics[f"initial_val_{m}"] = task.evaluate(model, val)
+    net = model
+    if rep.world > 1:  # gradients averaged over the replicas (the process group is the caller's)
+        from torch.nn.parallel import DistributedDataParallel
+
+        net = DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
+    if not rep.main:
+        progress = None
 
     def checkpoint(resumable: bool) -> None:
+        if not rep.main:
+            return
         extra = task.record | {"step": step, "elapsed_s": elapsed}
         extra |= {"optimizer": opt.state_dict()} if resumable else {}
         save_model(out, model, data.rig, metrics, asdict(cfg), extra)
 
     model.train()
-    batches = data.train_batches(step)
+    batches = data.train_batches(step, (rep.rank, rep.world)) if rep.world > 1 else data.train_batches(step)
     t0 = time.perf_counter() - elapsed
     running = metrics.get(f"train_{m}")
-    while step < cfg.steps and not stopped(cancel):
+    stop = stopped(cancel)
+    while step < cfg.steps and not stop:
         theta, masks = next(batches)
         for g in opt.param_groups:
             g["lr"] = lr_at(step, cfg)
-        loss = task.loss(model, theta.to(device), masks.to(device))
+        loss = task.loss(net, theta.to(device), masks.to(device))
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
         step += 1
-        value = loss.item()
+        value = rep.mean(loss.item())
         if running is None:
             running = metrics[f"first_train_{m}"] = value
         running = 0.98 * running + 0.02 * value
         report(progress, "train", step, cfg.steps, running)
         if step % cfg.eval_every == 0 or step == cfg.steps:
-            metrics |= {f"val_{m}": task.evaluate(model, val), f"train_{m}": running, "steps": step}
+            metrics |= {f"train_{m}": running, "steps": step}
+            if rep.main:
+                metrics[f"val_{m}"] = task.evaluate(model, val)
+                report(progress, "val", step, cfg.steps, metrics[f"val_{m}"])
             model.train()
             elapsed = time.perf_counter() - t0
-            report(progress, "val", step, cfg.steps, metrics[f"val_{m}"])
             if step < cfg.steps:
                 checkpoint(resumable=True)
+        stop = rep.any(stopped(cancel))
     elapsed = time.perf_counter() - t0
+    if not rep.main:
+        return {}
     if step < cfg.steps:  # cancelled: a resumable checkpoint of where it stopped
         metrics |= {f"train_{m}": running, "steps": step} if running is not None else {"steps": step}
         checkpoint(resumable=True)
