@@ -262,6 +262,26 @@ def test_evaluate_cli_writes_table_and_prints_json_last(setup, tmp_path, capsys)
     assert (tmp_path / "out" / "table1.md").is_file() and (tmp_path / "out" / "table1.csv").is_file()
 
 
+@pytest.mark.slow
+def test_evaluate_cli_on_two_worker_processes_gives_the_same_rows(setup, tmp_path, capsys):
+    """`evaluate --workers 2`: every target on a spawned worker with its own models, the same rows (seconds aside)
+    and the same settings as in one process."""
+    (tmp_path / "t").mkdir()
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / "t" / f"{i}.png"), np.roll(ring(64), 4 * i, axis=1) * 255)
+    runs = {}
+    for how in ([], ["--workers", "2"]):
+        assert main(_evaluate_args(setup, tmp_path / f"out{len(how)}", tmp_path / "t") + ["--roll", "0", *how]) == 0
+        runs[len(how)] = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+
+    def rows(summary: dict) -> list[dict]:
+        return [{k: v for k, v in r.items() if not k.startswith("seconds")} for r in summary["rows"]]
+
+    assert rows(runs[2]) == rows(runs[0]) and runs[2]["rows"][0]["targets"] == 3 and not runs[2]["cancelled"]
+    settings = json.loads((tmp_path / "out2" / "settings.json").read_text())
+    assert settings["workers"] == "2 local processes" and settings["refine"]["steps"] == 3
+
+
 def test_evaluate_cli_errors_are_one_line(setup, tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     assert main(_evaluate_args(setup, tmp_path / "out", tmp_path / "empty")) == 2

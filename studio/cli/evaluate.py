@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from dataclasses import asdict
 from pathlib import Path
 
@@ -91,13 +92,19 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
         clip = clip_from_args(args, device=next(model.parameters()).device)  # CLIP sits with the self-model
         imitator = Imitator(model, clip=clip, search=search, refine=refine, config=config, sweep=sweep)
         with imitator, Evaluator(imitator, Path(args.inverse), Path(args.nn_data), eval_cfg) as evaluator:
-            with TqdmBars(disable=args.quiet) as bars:
-                result = evaluator.run(targets, progress=bars)
+            with TqdmBars(disable=args.quiet) as bars, ctrl_c_cancels() as cancel:
+                result = evaluator.run(targets, progress=bars, cancel=cancel)
     paths = write_table(result, Path(args.out))
     if not args.quiet:
         print(Path(paths["markdown"]).read_text())
-    summary = {"files": paths, "clip": getattr(clip, "name", None), "rows": result.rows}  # as every verb says it
+    summary = {"files": paths, "clip": getattr(clip, "name", None), "rows": result.rows,
+               "cancelled": cancel.is_set()}  # as every verb says it  # fmt: skip
     print(json.dumps(summary, allow_nan=False, default=str))
+    if cancel.is_set():
+        done = len({r["target"] for r in result.records})
+        print(f"shadow-studio evaluate: stopped by Ctrl-C; the table holds the {done} target(s) finished",
+              file=sys.stderr)  # fmt: skip
+        return 130
     return 0
 
 
