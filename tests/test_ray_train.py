@@ -3,6 +3,7 @@ batch, a cancelled run that resumes to the same weights, and the verb's flags.""
 
 from __future__ import annotations
 
+import json
 import threading
 from functools import partial
 
@@ -48,9 +49,9 @@ def weights(path) -> dict[str, torch.Tensor]:
     return read_checkpoint(path, "selfmodel").state_dict
 
 
-def test_ray_train_follows_one_process_and_a_cancelled_run_resumes_exactly(tmp_path, hand, local_ray):
+def test_ray_train_follows_one_process_and_a_cancelled_run_resumes_exactly(tmp_path, hand, local_ray, capsys):
     """Two Ray Train workers at the same global batch as one process: the same running loss step by step and the
-    same weights, even when the Ray run is cancelled after a few steps and resumed (with Ray) to the end."""
+    same weights, even when the Ray run is cancelled after a few steps and resumed to the end by `train --ray`."""
     from studio.learn.ray_train import fit_on_ray
 
     whole, seen_whole = tiny(tmp_path / "whole.pt", steps=40), losses()
@@ -66,26 +67,30 @@ def test_ray_train_follows_one_process_and_a_cancelled_run_resumes_exactly(tmp_p
     cut = fit_on_ray(partial(train, parts), parts.out, "selfmodel", parts.steps, ON_RAY, stop_soon, cancel)
     done = read_checkpoint(parts.out, "selfmodel").extra["step"]
     assert cut.get("cancelled") is True and 2 <= done < parts.steps and len(seen_parts[0]) == done
-    resumed = fit_on_ray(partial(train, parts, resume=True), parts.out, "selfmodel", parts.steps, ON_RAY,
-                         seen_parts[1])  # fmt: skip
+    np.testing.assert_allclose(seen_parts[0], seen_whole[0][:done], rtol=1e-3)  # the loss, step by step
+    assert main([*verb(parts.out, parts.steps), "--resume", "--workers", "2", "--ray"]) == 0  # the verb resumes it
+    resumed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert "cancelled" not in resumed and resumed["steps"] == parts.steps
-    assert len(seen_parts[0]) == parts.steps, "worker 0's progress did not come back"
-    np.testing.assert_allclose(seen_parts[0], seen_whole[0], rtol=1e-3)  # the running training loss, step by step
+    assert resumed["train_mae"] == pytest.approx(reference["train_mae"], rel=1e-3)
     assert resumed["test_mae"] == pytest.approx(reference["test_mae"], rel=1e-3)
     for k, w in weights(whole.out).items():
         torch.testing.assert_close(weights(parts.out)[k], w, rtol=1e-3, atol=1e-4)
 
 
-def test_the_train_verb_on_ray_and_its_refusals(tmp_path, capsys, local_ray):
+def verb(out, steps: int) -> list[str]:
+    """`shadow-studio train` with the flags of :func:`tiny`."""
+    return ["train", "--out", str(out), "--resolution", "16", "--steps", str(steps), "--batch-size", "8",
+            "--warmup", "2", "--eval-every", "4", "--eval-size", "16", "--threads", "1", "--device", "cpu",
+            "--quiet"]  # fmt: skip
+
+
+def test_the_train_verbs_refusals_come_before_ray_starts(tmp_path, capsys):
     out = tmp_path / "m.pt"
-    args = ["train", "--out", str(out), "--resolution", "16", "--steps", "4", "--batch-size", "8", "--warmup", "1",
-            "--eval-every", "2", "--eval-size", "8", "--threads", "1", "--quiet"]  # fmt: skip
-    assert main([*args, "--workers", "2"]) == 2  # workers without Ray: one line saying to add --ray
+    assert main([*verb(out, 4), "--workers", "2"]) == 2  # workers without Ray: one line saying to add --ray
     assert "add --ray" in capsys.readouterr().err
-    assert main([*args, "--workers", "3", "--ray"]) == 2  # 8 does not split over 3 workers
+    assert main([*verb(out, 4), "--workers", "3", "--ray"]) == 2  # 8 does not split over 3 workers
     err = capsys.readouterr().err
     assert "does not split evenly over 3 workers" in err and "Traceback" not in err
-    assert main([*args, "--workers", "2", "--ray"]) == 0
-    assert '"test_mae"' in capsys.readouterr().out and read_checkpoint(out, "selfmodel").extra["step"] == 4
-    assert main([*args, "--workers", "2", "--ray"]) == 2  # exists: --resume or --force, said before Ray starts
+    out.write_bytes(b"")
+    assert main([*verb(out, 4), "--workers", "2", "--ray"]) == 2  # exists: --resume or --force
     assert "--resume" in capsys.readouterr().err
