@@ -57,6 +57,7 @@ def bench_evaluate(root: Path, n_targets: int, workers: int) -> dict:
 
     from studio.evaluate.config import EvalConfig
     from studio.evaluate.table1_task import Table1Task, evaluate_spread
+    from studio.evaluate.worker_models import ModelRecipe
     from studio.imitate.config import PRESETS, still_configs
     from studio.imitate.retrieval import cached_index
     from studio.imitate.still import DEFAULT_MODEL, Imitator
@@ -68,8 +69,9 @@ def bench_evaluate(root: Path, n_targets: int, workers: int) -> dict:
     search, refine, config, sweep = still_configs(PRESETS["studio"])
     with Imitator(config=config) as im:
         cached_index(im.renderer, im.retrieval_cfg)  # once per machine: every worker loads it
-    task = Table1Task(str(DEFAULT_MODEL), str(asset("models/inverse_cpu128.pt")), str(root / "collect-local"),
-                      EvalConfig(roll=0), search, refine, config, sweep, device="cpu", use_clip=False)  # fmt: skip
+    models = ModelRecipe(str(DEFAULT_MODEL), device="cpu", use_clip=False)
+    task = Table1Task(models, str(asset("models/inverse_cpu128.pt")), str(root / "collect-local"), EvalConfig(roll=0),
+                      search, refine, config, sweep)  # fmt: skip
     out, records = {}, {}
     for name, how in _ways(workers).items():
         t0 = time.perf_counter()

@@ -13,6 +13,7 @@ import torch
 from studio.evaluate.config import EvalConfig
 from studio.evaluate.table1 import Evaluator
 from studio.evaluate.table1_task import Table1Task, evaluate_spread
+from studio.evaluate.worker_models import ModelRecipe
 from studio.fanout import FanoutConfig, FanoutError, fan_out
 from studio.imitate.config import ImitateConfig, RefineConfig, SearchConfig, SweepConfig
 from studio.imitate.retrieval import RetrievalConfig, cached_index
@@ -97,9 +98,9 @@ def table_task(tmp_path_factory, hand):
     with Imitator(model, retrieval=retrieval) as im:
         cached_index(im.renderer, retrieval)  # built once here; every worker loads it from the cache
     budget = SearchConfig(batch=4, iterations=4), RefineConfig(restarts=2, steps=8), ImitateConfig()
-    files = str(root / "model.pt"), str(root / "inverse.pt"), str(root / "shards")
-    return Table1Task(*files, EvalConfig(seed=3, roll=0), *budget, SweepConfig(starts=0), retrieval=retrieval,
-                      device="cpu", use_clip=False)  # fmt: skip
+    models = ModelRecipe(str(root / "model.pt"), device="cpu", use_clip=False)
+    return Table1Task(models, str(root / "inverse.pt"), str(root / "shards"), EvalConfig(seed=3, roll=0), *budget,
+                      SweepConfig(starts=0), retrieval=retrieval)  # fmt: skip
 
 
 def targets(n: int) -> list[tuple[str, np.ndarray]]:

@@ -231,6 +231,18 @@ def test_evaluate_video_cli_on_a_davis_sequence(shared_targets, tmp_path, capsys
     assert settings["sequence"]["first"]["batch"] == 8 and settings["video"]["hz"] == 4.0
     assert settings["sequences"][0]["frames"] == len(settings["sequences"][0]["assignment"])
 
+    # spread over two worker processes (each with its own model): the same rows, seconds aside
+    spread = tmp_path / "t2-spread"
+    assert main(["evaluate-video", str(shared_targets / "davis" / "blackswan"), "--out", str(spread), "--no-clip",
+                 "--quiet", "--workers", "2", *TINY_FLAGS]) == 0  # fmt: skip
+    again = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+
+    def timeless(rows: list[dict]) -> list[dict]:
+        return [{k: v for k, v in r.items() if "seconds" not in k} for r in rows]
+
+    assert timeless(again["rows"]) == timeless(summary["rows"]) and again["cancelled"] is False
+    assert json.loads((spread / "settings.json").read_text())["workers"] == "2 local processes"
+
     assert main(["evaluate-video", str(tmp_path / "nowhere"), "--out", str(out), "--no-clip"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "not found" in err and "nowhere" in err

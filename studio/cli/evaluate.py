@@ -4,7 +4,9 @@
 ``evaluate-video`` loads every sequence first (sampled frames, expressive masks, keyframes, once for all rows),
 then runs the rows with the studio preset (``--preset paper`` for the paper's sizes; single budget flags override
 either). Ctrl-C stops within a search or refinement step and still writes the table of the finished runs (exit
-code 130)."""
+code 130). ``--workers N`` (local processes) or ``--ray [ADDRESS]`` spread the targets, or Table 2's (sequence,
+row) runs, over workers that each load their own models (:mod:`studio.evaluate.table1_task`,
+:mod:`studio.evaluate.table2_task`): the same rows as in one process."""
 
 from __future__ import annotations
 
@@ -70,21 +72,8 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
     if fanout.workers > 1 or fanout.ray:  # every worker loads its own models (studio.evaluate.table1_task)
         from studio.evaluate.table1_task import Table1Task, evaluate_spread
 
-        task = Table1Task(
-            str(args.model or DEFAULT_MODEL),
-            str(args.inverse),
-            str(args.nn_data),
-            eval_cfg,
-            search,
-            refine,
-            config,
-            sweep,
-            device=args.device,
-            threads=args.threads or 1,
-            clip_weights=args.clip_weights,
-            clip_model=args.clip_model,
-            use_clip=not args.no_clip,
-        )
+        task = Table1Task(models_from_args(args), str(args.inverse), str(args.nn_data), eval_cfg, search, refine,
+                          config, sweep)  # fmt: skip
         clip = clip_from_args(args)  # said once here; each worker finds the same weights
         with TqdmBars(disable=args.quiet) as bars, ctrl_c_cancels() as cancel:
             result = evaluate_spread(task, targets, fanout, progress=bars, cancel=cancel)
@@ -106,6 +95,15 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
               file=sys.stderr)  # fmt: skip
         return 130
     return 0
+
+
+def models_from_args(args: argparse.Namespace):
+    """The self-model and CLIP each worker of a spread table loads, as the flags say."""
+    from studio.evaluate.worker_models import ModelRecipe
+    from studio.imitate.still import DEFAULT_MODEL
+
+    return ModelRecipe(str(args.model or DEFAULT_MODEL), args.device, args.threads or 1, args.clip_weights,
+                       args.clip_model, not args.no_clip)  # fmt: skip
 
 
 def _check_table_folder(out: str, files: tuple[str, ...], inputs: list) -> None:
@@ -158,12 +156,20 @@ def _run_video_evaluation(args: argparse.Namespace) -> int:
             report(loaded, "load", i + 1, len(sources), item=name)
     clip = clip_from_args(args, device=next(model.parameters()).device)
     loss_cfg = LossConfig(use_clip=clip is not None, crop_size=model.cfg.resolution)
+    fanout = fanout_from_args(args)
     with (
         TqdmBars(disable=args.quiet) as bars,
         SequenceImitator(model, cfg, loss_cfg=loss_cfg, clip=clip) as seq,
         ctrl_c_cancels() as cancel,
     ):
-        result = VideoEvaluator(seq, cfg, transition).run(sequences, bars, cancel)
+        evaluator = VideoEvaluator(seq, cfg, transition)
+        if fanout.workers > 1 or fanout.ray:  # every worker loads its own model (studio.evaluate.table2_task)
+            from studio.evaluate.table2_task import Table2Task, evaluate_video_spread
+
+            task = Table2Task(models_from_args(args), cfg, transition, evaluator.rows)
+            result = evaluate_video_spread(evaluator, task, sequences, fanout, bars, cancel)
+        else:
+            result = evaluator.run(sequences, bars, cancel)
     result.settings |= {"model": str(args.model or DEFAULT_MODEL), "preset": args.preset, "video": asdict(video_cfg),
                         "keyframes": asdict(keyframe_cfg), "threads": torch.get_num_threads()}  # fmt: skip
     paths = write_table(result, Path(args.out))
@@ -220,6 +226,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_device_flags(v, zero_threads=True)
     add_quiet_flag(v, "no progress bars and no table on stdout (JSON only)")
     add_clip_arguments(v)
+    add_fanout_flags(v)
     v.set_defaults(func=_evaluate_video)
 
     from studio.cli.train import add_trainer_flags

@@ -19,6 +19,7 @@ import numpy as np
 
 from studio.evaluate.config import EvalConfig
 from studio.evaluate.table1 import EvalResult, summarise, table_notes
+from studio.evaluate.worker_models import ModelRecipe
 from studio.fanout import FanoutConfig, fan_out
 from studio.imitate.config import ImitateConfig, RefineConfig, SearchConfig, SweepConfig
 from studio.imitate.retrieval import RetrievalConfig
@@ -32,7 +33,7 @@ class Table1Task:
     """What a worker needs to evaluate targets (a :mod:`studio.fanout` task): paths and configs, all picklable.
     ``task((index, name, target (R, R)[, score_target (S, S)])) → (records, settings)``."""
 
-    model: str  # self-model checkpoint
+    models: ModelRecipe  # the self-model and CLIP each worker loads
     inverse: str  # inverse-CNN checkpoint
     nn_data: str  # training shards of Random and Nearest Neighbour
     eval_cfg: EvalConfig = field(default_factory=EvalConfig)
@@ -41,29 +42,16 @@ class Table1Task:
     config: ImitateConfig = field(default_factory=ImitateConfig)
     sweep: SweepConfig = field(default_factory=SweepConfig)
     retrieval: RetrievalConfig | None = None  # the retrieval index (None: the imitator's default, cached per machine)
-    device: str | None = None  # torch device (None: CUDA when present)
-    threads: int = 1  # torch CPU threads per worker (0: torch's default)
-    clip_weights: str | None = None  # CLIP: as the command line's --clip-weights
-    clip_model: str = "ViT-B-32"  # CLIP architecture
-    use_clip: bool = True  # False: the CLIP terms off (--no-clip)
     _held: Any = field(default=None, init=False, repr=False, compare=False)  # (imitator, evaluator) once set up
 
     def __getstate__(self) -> dict:  # a worker gets the recipe, never this process's models
         return self.__dict__ | {"_held": None}
 
     def setup(self) -> None:
-        import torch
-
         from studio.evaluate.table1 import Evaluator
-        from studio.imitate.clip_loss import find_clip
         from studio.imitate.still import Imitator
-        from studio.learn.selfmodel import load_selfmodel
 
-        if self.threads:
-            torch.set_num_threads(self.threads)
-        model, _ = load_selfmodel(Path(self.model), device=self.device)
-        clip, _ = find_clip(self.clip_weights, self.clip_model, enabled=self.use_clip,
-                            device=next(model.parameters()).device)  # fmt: skip
+        model, clip = self.models.load()
         imitator = Imitator(model, clip=clip, search=self.search, refine=self.refine, config=self.config,
                             sweep=self.sweep, retrieval=self.retrieval)  # fmt: skip
         self._held = imitator, Evaluator(imitator, Path(self.inverse), Path(self.nn_data), self.eval_cfg)
