@@ -25,7 +25,10 @@ function element(tag, style, attrs = {}) {
 }
 
 function render({ model, el }) {
-  const root = element("div", { display: "inline-flex", flexDirection: "column", gap: "4px", fontSize: "12px" });
+  // flex-start: each row keeps its own width, so the picture never stretches as the label's text changes
+  const root = element("div", {
+    display: "inline-flex", flexDirection: "column", alignItems: "flex-start", gap: "4px", fontSize: "12px",
+  });
   root.className = "show-player";
   const screen = element("canvas", { maxWidth: "100%", background: "#888", imageRendering: "auto" });
   const line = element("canvas", { maxWidth: "100%", cursor: "pointer", height: "24px" });
@@ -35,7 +38,9 @@ function render({ model, el }) {
   const loop = element("input", {}, { type: "checkbox" });
   const speed = element("select", {});
   for (const s of [0.25, 0.5, 1, 1.5, 2]) speed.append(element("option", {}, { value: s, textContent: `${s}×` }));
-  const label = element("span", { minWidth: "14em", fontFamily: "monospace" });
+  const label = element("span", {
+    display: "inline-block", width: "18em", whiteSpace: "nowrap", overflow: "hidden", fontFamily: "monospace",
+  }); // a fixed width: the bar does not change size as the time ticks
   const loopLabel = element("label", {});
   loopLabel.append(loop, " loop");
   bar.append(play, scrub, loopLabel, speed, label);
@@ -93,6 +98,7 @@ function render({ model, el }) {
     if (screen.width !== b.width || screen.height !== b.height) {
       screen.width = b.width;
       screen.height = b.height;
+      bar.style.width = `${b.width}px`; // the controls as wide as the picture (the slider takes what is left)
       drawLine(shown);
     }
     screen.getContext("2d").drawImage(b, 0, 0);
