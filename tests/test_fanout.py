@@ -147,3 +147,21 @@ def test_random_draws_by_target_index_not_by_order(table_task):
         assert not np.array_equal(evaluator.random.query(6).theta, a)
     finally:
         task.close()
+
+
+def test_the_retrieval_index_built_on_processes_and_on_ray_is_the_one_built_here(hand, ray_cluster):
+    """The chunks are drawn here in the same order wherever they are checked, rendered and packed."""
+    from studio.imitate.retrieval import RetrievalIndex
+    from studio.sim.shadow import Rig, ShadowRenderer
+
+    renderer = ShadowRenderer(hand, Rig(resolution=RES))
+    cfg = RetrievalConfig(size=1500, chunk=400, shortlist=8, seed=11)
+    here = RetrievalIndex.build(renderer, cfg)
+    assert len(here.theta) == cfg.size
+    for how in (PROCESSES, ray_cluster):
+        spread = RetrievalIndex.build(renderer, cfg, fanout=how)
+        assert np.array_equal(spread.theta, here.theta) and np.array_equal(spread.bits, here.bits), how.where
+        assert spread.key == here.key
+    cancel = threading.Event()
+    cancel.set()
+    assert RetrievalIndex.build(renderer, cfg, fanout=PROCESSES, cancel=cancel) is None

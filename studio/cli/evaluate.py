@@ -76,6 +76,9 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
                           config, sweep)  # fmt: skip
         clip = clip_from_args(args)  # said once here; each worker finds the same weights
         with TqdmBars(disable=args.quiet) as bars, ctrl_c_cancels() as cancel:
+            if config.retrieve:  # built once, spread, before the workers load it (not once per worker)
+                with Imitator(model, config=config) as im:
+                    im.retrieval_index(bars, cancel, fanout)
             result = evaluate_spread(task, targets, fanout, progress=bars, cancel=cancel)
     else:
         clip = clip_from_args(args, device=next(model.parameters()).device)  # CLIP sits with the self-model
@@ -167,6 +170,7 @@ def _run_video_evaluation(args: argparse.Namespace) -> int:
             from studio.evaluate.table2_task import Table2Task, evaluate_video_spread
 
             task = Table2Task(models_from_args(args), cfg, transition, evaluator.rows)
+            seq.imitator.retrieval_index(bars, cancel, fanout)  # built once, spread, before the workers load it
             result = evaluate_video_spread(evaluator, task, sequences, fanout, bars, cancel)
         else:
             result = evaluator.run(sequences, bars, cancel)

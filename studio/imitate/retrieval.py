@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -28,11 +29,11 @@ import numpy as np
 from numba import njit, prange
 
 from studio.atomic import write_with
+from studio.fanout import FanoutConfig, fan_out
 from studio.home import cache_dir
 from studio.imitate.config import LossConfig
-from studio.imitate.rendered_loss import crop_batch
+from studio.imitate.index_chunks import IndexChunkTask, pack_crops
 from studio.progress import ProgressFn, report, stopped
-from studio.sim.crop import pad_pixels
 from studio.sim.hand import Hand
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import sample_poses
@@ -40,6 +41,7 @@ from studio.sim.shadow import ShadowRenderer
 
 log = logging.getLogger(__name__)
 FORMAT = 1  # bump when the file layout or the build changes
+COLLISION_FREE_SHARE = 0.45  # about this share of sampled poses is collision-free (a spread build's round size)
 
 
 @dataclass(frozen=True)
@@ -70,17 +72,6 @@ class Retrieved:
     seconds: float  # wall time of the query
 
 
-def pack_crops(shadows: np.ndarray, crop: int, pad: float) -> np.ndarray:
-    """Binary shadows ``(B, R, R)`` uint8 → bit-packed aligned crops ``(B, crop²/64)`` uint64 (pixel > 0.5)."""
-    s = np.ascontiguousarray(shadows, dtype=np.uint8)
-    crops = crop_batch(s, pad_pixels(pad, *s.shape[1:]), crop) > 0.5
-    packed = np.packbits(crops.reshape(len(s), -1), axis=1)
-    pad_bytes = (-packed.shape[1]) % 8
-    if pad_bytes:
-        packed = np.pad(packed, ((0, 0), (0, pad_bytes)))
-    return np.ascontiguousarray(packed).view(np.uint64)
-
-
 class RetrievalIndex:
     """Poses ``theta (N, 21)`` float32 and their packed crops ``bits (N, W)`` uint64 (module docstring)."""
 
@@ -102,29 +93,43 @@ class RetrievalIndex:
         world: CollisionWorld | None = None,
         progress: ProgressFn | None = None,
         cancel: threading.Event | None = None,
+        fanout: FanoutConfig | None = None,
     ) -> RetrievalIndex | None:
         """Sample, keep the collision-free, render and pack until ``cfg.size`` poses; stage "index" after every
         chunk (step: poses packed, of ``cfg.size``). ``cancel`` is checked before every chunk: once set, the build
-        stops and returns None."""
+        stops and returns None. ``fanout`` spreads the chunks over local processes or Ray actors
+        (:mod:`studio.fanout`): they are drawn here in the same order, so the index is the same (stage "index" after
+        every round of chunks)."""
         cfg = cfg or RetrievalConfig()
-        hand = renderer.hand
-        own = world is None
-        world = world or CollisionWorld(hand)
+        hand, fanout = renderer.hand, fanout or FanoutConfig()
+        task = IndexChunkTask(hand, renderer.rig, cfg.crop, cfg.pad)
         rng = np.random.default_rng(cfg.seed)
         thetas, bits, done = [], [], 0
-        try:
-            while done < cfg.size:
-                if stopped(cancel):
-                    return None
-                theta = sample_poses(hand, cfg.chunk, rng)[0]
-                theta = theta[~world.in_collision(theta, check=False)][: cfg.size - done]
-                thetas.append(theta.astype(np.float32))
-                bits.append(pack_crops(renderer.render(theta, check=False), cfg.crop, cfg.pad))
-                done += len(theta)
-                report(progress, "index", done, cfg.size)
-        finally:
-            if own:
-                world.close()
+        if fanout.workers == 1 and not fanout.ray:  # in this process: one chunk after another
+            task.setup(world)
+            try:
+                while done < cfg.size:
+                    if stopped(cancel):
+                        return None
+                    kept, packed = task(sample_poses(hand, cfg.chunk, rng)[0])
+                    thetas.append(kept[: cfg.size - done])
+                    bits.append(packed[: cfg.size - done])
+                    done += len(thetas[-1])
+                    report(progress, "index", done, cfg.size)
+            finally:
+                task.close()
+        while done < cfg.size:  # spread: rounds of chunks drawn here in the same order, so the same index
+            need = max(fanout.workers, math.ceil(1.25 * (cfg.size - done) / (cfg.chunk * COLLISION_FREE_SHARE)))
+            chunks = [sample_poses(hand, cfg.chunk, rng)[0] for _ in range(need)]
+            got = fan_out(task, chunks, fanout, cancel=cancel)
+            if stopped(cancel):
+                return None
+            for k in range(len(chunks)):
+                if done < cfg.size:
+                    thetas.append(got[k][0][: cfg.size - done])
+                    bits.append(got[k][1][: cfg.size - done])
+                    done += len(thetas[-1])
+            report(progress, "index", done, cfg.size)
         return cls(np.concatenate(thetas), np.concatenate(bits), cfg, index_key(hand, renderer, cfg))
 
     def rank(self, target: np.ndarray, loss_cfg: LossConfig | None = None) -> np.ndarray:
@@ -259,10 +264,12 @@ def cached_index(
     folder: Path | None = None,
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
+    fanout: FanoutConfig | None = None,
 ) -> RetrievalIndex | None:
     """The index for ``renderer``'s hand and rig: from this process, else from ``folder`` (default
     ``cache_dir()/retrieval``), else built (logged; stage "index", :meth:`RetrievalIndex.build`) and saved there.
-    None when ``cancel`` stopped the build (nothing is saved or kept; the next call builds again)."""
+    None when ``cancel`` stopped the build (nothing is saved or kept; the next call builds again). A build is spread
+    as ``fanout`` says (the same index)."""
     cfg = cfg or RetrievalConfig()
     key = index_key(renderer.hand, renderer, cfg)
     if key in _MEMO:
@@ -272,7 +279,7 @@ def cached_index(
     if index is None:
         log.info("building the retrieval index once: %d collision-free poses → %s", cfg.size, path)
         t0 = time.perf_counter()
-        index = RetrievalIndex.build(renderer, cfg, progress=progress, cancel=cancel)
+        index = RetrievalIndex.build(renderer, cfg, progress=progress, cancel=cancel, fanout=fanout)
         if index is None:
             log.info("retrieval index build cancelled; nothing saved")
             return None

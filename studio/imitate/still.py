@@ -17,6 +17,7 @@ import torch
 
 from studio.assets import asset
 from studio.errors import ClosedError
+from studio.fanout import FanoutConfig
 from studio.imitate.candidates import refine_best, rendered_pool
 from studio.imitate.config import (
     CPU_REFINE,
@@ -128,12 +129,14 @@ class Imitator:
         return ImageLoss(target, self.loss_cfg, self.clip, expressive)
 
     def retrieval_index(
-        self, progress: ProgressFn | None = None, cancel: threading.Event | None = None
-    ) -> RetrievalIndex | None:
+        self, progress: ProgressFn | None = None, cancel: threading.Event | None = None,
+        fanout: FanoutConfig | None = None,
+    ) -> RetrievalIndex | None:  # fmt: skip
         """The retrieval index for this model's hand and rig (loaded or built on first use, then kept: stage "index"
-        while it is built); None when ``cancel`` stopped its build."""
+        while it is built; a build spread as ``fanout`` says); None when ``cancel`` stopped its build."""
         if self._index is None:
-            self._index = cached_index(self.renderer, self.retrieval_cfg, progress=progress, cancel=cancel)
+            self._index = cached_index(self.renderer, self.retrieval_cfg, progress=progress, cancel=cancel,
+                                       fanout=fanout)  # fmt: skip
         return self._index
 
     def imitate(
