@@ -144,6 +144,7 @@ def _on_processes(
     pool = ProcessPoolExecutor(min(workers, len(items)), mp_context=ctx, initializer=_set_up, initargs=(task,))
     flying: dict[Future, int] = {}
     todo = iter(range(len(items)))
+    ok = False  # False when it ends by an error or a cancel: the workers are ended, not waited for
     try:
         for i in todo:
             flying[pool.submit(_run_one, items[i])] = i
@@ -163,11 +164,12 @@ def _on_processes(
                 nxt = next(todo, None)
                 if nxt is not None:
                     flying[pool.submit(_run_one, items[nxt])] = nxt
+        ok = not stopped(cancel)
     finally:
         for f in flying:
             f.cancel()
         processes = list((getattr(pool, "_processes", None) or {}).values())
-        pool.shutdown(wait=not stopped(cancel), cancel_futures=True)
-        if stopped(cancel):
+        pool.shutdown(wait=ok, cancel_futures=True)
+        if not ok:
             for p in processes:  # running items stop now, not at their end (a shard is written atomically)
                 p.terminate()
