@@ -36,7 +36,8 @@ SMALL = CollectConfig(n=120, shard_size=30, resolution=RES)
 @pytest.fixture(scope="module")
 def ray_cluster():
     """One local Ray of two CPUs for the module (a fan-out uses a Ray it finds running and leaves it)."""
-    ray = pytest.importorskip("ray")
+    import ray  # a dependency (pyproject): a missing install fails here, never skips
+
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
     yield FanoutConfig(workers=2, ray="local")
     ray.shutdown()

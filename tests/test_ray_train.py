@@ -9,6 +9,7 @@ from functools import partial
 
 import numpy as np
 import pytest
+import ray  # a dependency (pyproject): a missing install fails here, never skips
 import torch
 
 from studio.cli.main import main
@@ -18,7 +19,6 @@ from studio.learn.config import TrainConfig
 from studio.learn.train import train
 
 pytestmark = pytest.mark.slow
-ray = pytest.importorskip("ray")
 ON_RAY = FanoutConfig(workers=2, ray="local")
 
 
