@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
+import queue
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -33,6 +34,7 @@ from studio.sim.shadow import ShadowRenderer
 
 log = logging.getLogger(__name__)
 Batch = tuple[torch.Tensor, torch.Tensor]  # theta (B, 21) float32 rad, shadows (B, 1, R, R) float32 (1 = shadow)
+PREFETCH = 2  # training batches made ahead in a background thread while the network steps (the renderer is nogil)
 
 
 def lr_at(step: int, cfg: TrainerConfig) -> float:
@@ -80,17 +82,19 @@ class Pairs:
         for theta, masks in stream:
             yield theta, _fit(masks, self.res) if self.fit else masks
 
-    def _rendered(self, n: int, seed: list[int], part: tuple[int, int] = (0, 1)) -> Batch:
-        """``n`` poses drawn from ``seed``, rows ``part[0]::part[1]`` of them rendered."""
+    def _rendered(self, n: int, seed: list[int], part: tuple[int, int] = (0, 1), raw: bool = False) -> Batch:
+        """``n`` poses drawn from ``seed``, rows ``part[0]::part[1]`` of them rendered; ``raw``: the shadows as the
+        renderer's uint8 (a quarter of the bytes to move to the device, cast there), else float32."""
         theta, _ = sample_poses(self.hand, n, np.random.default_rng(seed))
         theta = theta[part[0] :: part[1]]
-        masks = self.renderer.render(theta, check=False)
-        return torch.from_numpy(theta.astype(np.float32)), torch.from_numpy(masks.astype(np.float32))[:, None]
+        masks = torch.from_numpy(self.renderer.render(theta, check=False))[:, None]
+        return torch.from_numpy(theta.astype(np.float32)), masks if raw else masks.float()
 
     def train_batches(self, start_step: int = 0, part: tuple[int, int] = (0, 1)) -> Iterator[Batch]:
         """Endless training batches; on the fly, batch ``k`` is drawn from ``(seed, k)`` so a resumed run continues
         the same stream (shards restart their shuffled epochs). ``part (r, W)``: rows ``r::W`` of every batch (a
-        data-parallel replica's share; on the fly only those rows are rendered)."""
+        data-parallel replica's share; on the fly only those rows are rendered, and their shadows stay uint8 for
+        :func:`fit` to cast on its device)."""
         r, w = part
         if self.cfg.data:
             while True:
@@ -98,7 +102,7 @@ class Pairs:
                     yield theta[r::w], masks[r::w]
         step = start_step
         while True:
-            yield self._rendered(self.cfg.batch_size, [self.cfg.seed, step], part)
+            yield self._rendered(self.cfg.batch_size, [self.cfg.seed, step], part, raw=True)
             step += 1
 
     def held_out(self, split: str) -> list[Batch]:
@@ -107,6 +111,49 @@ class Pairs:
             return list(self._stream(split, False))
         theta, masks = self._rendered(self.cfg.eval_size, [self.cfg.seed, 10**9 + {"val": 1, "test": 2}[split]])
         return list(zip(theta.split(256), masks.split(256)))
+
+
+class _Ahead:
+    """The next ``PREFETCH`` items of ``source`` made in a background thread, in order (the same batches as
+    ``source`` itself); a failure there is raised here at the item it replaced. ``close()`` ends the thread."""
+
+    _END = object()
+
+    def __init__(self, source: Iterator[Batch], depth: int = PREFETCH):
+        self.queue: queue.Queue = queue.Queue(maxsize=depth)
+        self.closed = threading.Event()
+        self.thread = threading.Thread(target=self._fill, args=(source,), name="batches-ahead", daemon=True)
+        self.thread.start()
+
+    def _fill(self, source: Iterator[Batch]) -> None:
+        try:
+            for item in source:
+                if not self._put(item):
+                    return
+        except BaseException as e:  # handed to the consumer, raised there
+            self._put(e)
+        self._put(self._END)
+
+    def _put(self, item) -> bool:
+        while not self.closed.is_set():
+            try:
+                self.queue.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def __next__(self) -> Batch:
+        item = self.queue.get()
+        if item is self._END:
+            raise StopIteration
+        if isinstance(item, BaseException):
+            raise item
+        return item
+
+    def close(self) -> None:
+        self.closed.set()
+        self.thread.join(timeout=5)
 
 
 @dataclass(frozen=True)
@@ -223,34 +270,37 @@ def fit(
         save_model(out, model, data.rig, metrics, asdict(cfg), extra)
 
     model.train()
-    batches = data.train_batches(step, (rep.rank, rep.world)) if rep.world > 1 else data.train_batches(step)
+    batches = _Ahead(data.train_batches(step, (rep.rank, rep.world)) if rep.world > 1 else data.train_batches(step))
     t0 = time.perf_counter() - elapsed
     running = metrics.get(f"train_{m}")
     stop = stopped(cancel)
-    while step < cfg.steps and not stop:
-        theta, masks = next(batches)
-        for g in opt.param_groups:
-            g["lr"] = lr_at(step, cfg)
-        loss = task.loss(net, theta.to(device), masks.to(device))
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        step += 1
-        value = rep.mean(loss.item())
-        if running is None:
-            running = metrics[f"first_train_{m}"] = value
-        running = 0.98 * running + 0.02 * value
-        report(progress, "train", step, cfg.steps, running)
-        if step % cfg.eval_every == 0 or step == cfg.steps:
-            metrics |= {f"train_{m}": running, "steps": step}
-            if rep.main:
-                metrics[f"val_{m}"] = task.evaluate(model, val)
-                report(progress, "val", step, cfg.steps, metrics[f"val_{m}"])
-            model.train()
-            elapsed = time.perf_counter() - t0
-            if step < cfg.steps:
-                checkpoint(resumable=True)
-        stop = rep.any(stopped(cancel))
+    try:
+        while step < cfg.steps and not stop:
+            theta, masks = next(batches)
+            for g in opt.param_groups:
+                g["lr"] = lr_at(step, cfg)
+            loss = task.loss(net, theta.to(device), masks.to(device).float())  # uint8 on the fly: cast here
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            step += 1
+            value = rep.mean(loss.item())
+            if running is None:
+                running = metrics[f"first_train_{m}"] = value
+            running = 0.98 * running + 0.02 * value
+            report(progress, "train", step, cfg.steps, running)
+            if step % cfg.eval_every == 0 or step == cfg.steps:
+                metrics |= {f"train_{m}": running, "steps": step}
+                if rep.main:
+                    metrics[f"val_{m}"] = task.evaluate(model, val)
+                    report(progress, "val", step, cfg.steps, metrics[f"val_{m}"])
+                model.train()
+                elapsed = time.perf_counter() - t0
+                if step < cfg.steps:
+                    checkpoint(resumable=True)
+            stop = rep.any(stopped(cancel))
+    finally:
+        batches.close()
     elapsed = time.perf_counter() - t0
     if not rep.main:
         return {}
