@@ -3,6 +3,8 @@ shared by the module) the same shards and the same Table 1; a failing item is na
 
 from __future__ import annotations
 
+import json
+import shutil
 import threading
 from dataclasses import replace
 
@@ -166,3 +168,39 @@ def test_the_retrieval_index_built_on_processes_and_on_ray_is_the_one_built_here
     cancel = threading.Event()
     cancel.set()
     assert RetrievalIndex.build(renderer, cfg, fanout=PROCESSES, cancel=cancel) is None
+
+
+# --- project run over many sources -------------------------------------------------------------------------------
+TINY_RUN = ["--search-batch", "8", "--search-iterations", "20", "--next-batch", "8", "--next-iterations", "10",
+            "--refine-steps", "30", "--refine-restarts", "2", "--candidates", "1", "--sweep-draws", "96",
+            "--sweep-passes", "1", "--allow-late", "--threads", "1", "--quiet"]  # fmt: skip
+
+
+def test_a_project_runs_its_sources_side_by_side_with_the_poses_of_one_process(tmp_path, hand, ray_cluster, capsys):
+    """``project run --workers 2 --ray``: one source per worker (a chain in order, each keyframe continuing from the
+    one before it and kept within reach on the show's clock), the same poses as the run in this process, the
+    results saved and the show planned."""
+    from studio.assets import asset
+
+    from studio.cli.main import main
+    from studio.project.project import Project
+    from studio.targets.keyframes import KeyframeConfig
+    from studio.targets.video import DEFAULT_VIDEO
+
+    base = Project.create(tmp_path / "base.shadow", sources=[asset("targets/asl_o.jpeg"), DEFAULT_VIDEO],
+                          clustering=KeyframeConfig(tau=0.35))  # fmt: skip
+    base.set_roll(0.0)
+    assert sum(base.frames[kf.representative].source == 1 for kf in base.keyframes) >= 2  # the video: a chain
+    poses, threads = {}, torch.get_num_threads()
+    try:
+        for name, how in {"one": [], "ray": ["--workers", "2", "--ray"]}.items():  # (processes: the same fan_out)
+            folder = tmp_path / f"{name}.shadow"
+            shutil.copytree(base.path, folder)
+            assert main(["project", "run", str(folder), *TINY_RUN, *how]) == 0
+            summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+            project = Project.open(folder)
+            assert summary["show"] == "planned" and project.pending_keyframes() == [] and project.show is not None
+            poses[name] = np.stack([project.results[kf.id].theta(hand.joint_names) for kf in project.keyframes])
+    finally:
+        torch.set_num_threads(threads)
+    assert np.array_equal(poses["ray"], poses["one"])

@@ -36,7 +36,8 @@ import numpy as np
 
 from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
 from studio.jobs import Job, JobEvent
-from studio.project.run import RunConfig, RunReport, source_keyframes
+from studio.project.run import RunConfig, RunReport
+from studio.project.run_spread import source_keyframes
 from widgets.images import Messages, mask_picture, title
 from widgets.index_warmup import IndexWarmup
 from widgets.mount import MountControl, mount_line

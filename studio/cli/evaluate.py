@@ -21,7 +21,7 @@ from studio.cli.device_flags import add_device_flags, torch_threads
 from studio.cli.flags import add_config_flags, config_from_args, ranged
 from studio.cli.progress import add_quiet_flag, ctrl_c_cancels
 from studio.cli.run_flags import add_budget_flags, sequence_from_args
-from studio.cli.scale_flags import add_fanout_flags, fanout_from_args
+from studio.cli.scale_flags import add_fanout_flags, fanout_from_args, models_from_args
 from studio.cli.source_flags import add_source_flags, still_config_from_args
 from studio.imitate.config import still_configs
 from studio.targets.images import gather_targets
@@ -98,15 +98,6 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
               file=sys.stderr)  # fmt: skip
         return 130
     return 0
-
-
-def models_from_args(args: argparse.Namespace):
-    """The self-model and CLIP each worker of a spread table loads, as the flags say."""
-    from studio.evaluate.worker_models import ModelRecipe
-    from studio.imitate.still import DEFAULT_MODEL
-
-    return ModelRecipe(str(args.model or DEFAULT_MODEL), args.device, args.threads or 1, args.clip_weights,
-                       args.clip_model, not args.no_clip)  # fmt: skip
 
 
 def _check_table_folder(out: str, files: tuple[str, ...], inputs: list) -> None:

@@ -35,6 +35,7 @@ from studio.cli.clip_flags import clip_from_args
 from studio.cli.flags import ranged
 from studio.cli.run_flags import add_budget_flags, add_engine_flags, add_show_flags, run_config_from_args
 from studio.cli.runs import print_run, run_with_bars
+from studio.cli.scale_flags import add_fanout_flags, fanout_from_args, models_from_args
 from studio.cli.source_flags import add_source_flags, roll_arg, source_settings_from_args
 
 
@@ -124,13 +125,21 @@ def _run(args: argparse.Namespace) -> int:
         project.reload_sources()
     if args.roll is not None:
         project.set_roll(args.roll)  # another roll: the keyframes are optimised again for it
-    cfg = replace(run_config_from_args(args), device=args.device)
+    cfg = replace(run_config_from_args(args), device=args.device, fanout=fanout_from_args(args))
     clip = clip_from_args(args)
+    models = models_from_args(args) if cfg.spread else None
     forced = None if args.keyframe is None else sorted(set(args.keyframe))
     with torch_threads(args.threads):
         report = run_with_bars(
             lambda progress, **kw: project.run(
-                cfg, clip=clip, model_path=args.model, keyframes=forced, wait=args.wait, **kw
+                cfg,
+                clip=clip,
+                model_path=args.model,
+                keyframes=forced,
+                wait=args.wait,
+                progress=progress,
+                models=models,
+                **kw,
             ),
             args.quiet,
         )
@@ -148,6 +157,7 @@ def _register_run(verbs: argparse._SubParsersAction) -> None:
     add_budget_flags(p)
     add_show_flags(p)
     add_engine_flags(p)
+    add_fanout_flags(p)
     p.add_argument("--reload-sources", action="store_true",
                    help="re-read sources that changed on disk first (their keyframes are then recomputed)")  # fmt: skip
     p.add_argument("--roll", type=roll_arg, default=None, metavar="auto|DEG",

@@ -21,3 +21,12 @@ def add_fanout_flags(parser: argparse.ArgumentParser) -> None:
 def fanout_from_args(args: argparse.Namespace) -> FanoutConfig:
     """The :class:`FanoutConfig` the flags ask for."""
     return config_from_args(args, FanoutConfig, ray=(args.ray or "").strip())
+
+
+def models_from_args(args: argparse.Namespace):
+    """The self-model and CLIP each worker loads (a spread table or project run), as the engine flags say."""
+    from studio.evaluate.worker_models import ModelRecipe
+    from studio.imitate.still import DEFAULT_MODEL
+
+    return ModelRecipe(str(args.model or DEFAULT_MODEL), args.device, args.threads or 1, args.clip_weights,
+                       args.clip_model, not args.no_clip)  # fmt: skip

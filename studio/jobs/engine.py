@@ -23,6 +23,8 @@ from studio.jobs.events import PosePreview, Reporter
 from studio.jobs.queue import Job
 
 if TYPE_CHECKING:
+    import threading
+
     from studio.imitate.config import LossConfig, RefineConfig, SearchConfig, SequenceConfig, SweepConfig
     from studio.motion.plan import Keyframes, PlanConfig
     from studio.motion.show import Show
@@ -128,11 +130,38 @@ def imitate_video_job(
 
 def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg, clip, model_path, preview,
                    previous=None, device=None, roll=0.0, box=None):  # fmt: skip
+    from studio.imitate.sequence import SequenceImitator
+    from studio.imitate.still import Imitator
+
+    with Imitator(None, model_path, loss_cfg, clip, device=device) as im, SequenceImitator(imitator=im) as seq:
+        pv = PosePreview(im.hand, preview, roll=roll) if preview else None
+        return imitate_keyframes(seq, masks, expressive, cfg, previous=previous, roll=roll,
+                                 box_for=None if box is None else lambda k, done: box,
+                                 progress=report.engine_progress(pv), cancel=cancel,
+                                 best_pose=pv.pose if pv else None)  # fmt: skip
+
+
+def imitate_keyframes(
+    seq: Any,
+    masks: np.ndarray,
+    expressive: np.ndarray | None,
+    cfg: SequenceConfig | None,
+    *,
+    previous: np.ndarray | None = None,
+    roll: float = 0.0,
+    box_for: Any = None,
+    progress: Any = None,
+    cancel: threading.Event | None = None,
+    best_pose: Any = None,
+) -> Any:
+    """The one imitation of keyframe targets ``masks (K, S, S)`` (and ``expressive``) with a
+    :class:`~studio.imitate.sequence.SequenceImitator` already holding its models → its ``SequenceResult``: the
+    body of :func:`imitate_video_job`, and of a spread project run's workers (:mod:`studio.project.run_spread`).
+    ``roll`` rad turns the targets into the hand's frame and the shadows back as the rolled mount casts them;
+    ``box_for(k, done)`` as ``SequenceImitator.imitate``."""
     from dataclasses import replace
 
     from studio.imitate.config import CPU_SEQUENCE
-    from studio.imitate.sequence import SequenceImitator
-    from studio.imitate.still import Imitator
     from studio.sim.roll import into_hand_frame
     from studio.sim.shadow import ShadowRenderer
 
@@ -143,15 +172,14 @@ def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg
         turned = [into_hand_frame(m, None if expressive is None else expressive[k], roll) for k, m in enumerate(masks)]
         masks = np.stack([t for t, _ in turned])
         expressive = None if expressive is None else np.stack([e for _, e in turned])
-    with Imitator(None, model_path, loss_cfg, clip, device=device) as im, SequenceImitator(cfg=cfg, imitator=im) as seq:
-        pv = PosePreview(im.hand, preview, roll=roll) if preview else None
-        result = seq.imitate(masks, expressive, report.engine_progress(pv), cancel, best_pose=pv.pose if pv else None,
-                             previous=previous, box_for=None if box is None else lambda k, done: box)  # fmt: skip
-        if roll:  # what the rolled mount casts (the losses were measured in the hand's frame: the same up to aliasing)
-            rolled = ShadowRenderer(im.hand, im.renderer.rig.with_roll(roll))
-            for kr in result.keyframes:
-                kr.shadow = rolled.render_one(kr.theta)
-        return result
+    result = seq.imitate(masks, expressive, progress, cancel, cfg=cfg, best_pose=best_pose, previous=previous,
+                         box_for=box_for)  # fmt: skip
+    if roll:  # what the rolled mount casts (the losses were measured in the hand's frame: the same up to aliasing)
+        im = seq.imitator
+        rolled = ShadowRenderer(im.hand, im.renderer.rig.with_roll(roll))
+        for kr in result.keyframes:
+            kr.shadow = rolled.render_one(kr.theta)
+    return result
 
 
 def choose_roll_job(

@@ -28,14 +28,18 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
+from studio.evaluate.worker_models import ModelRecipe
+from studio.fanout import FanoutConfig
 from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
 from studio.imitate.transitions import TransitionConfig
 from studio.jobs.engine import _plan
 from studio.jobs.events import JobState, Reporter
 from studio.jobs.queue import Job, JobQueue
 from studio.motion.plan import PlanConfig
+from studio.progress import ProgressFn, stopped
 from studio.project.jobs import queue_for, roll_job, video_job
 from studio.project.run_report import RunReport, TooFast
+from studio.project.run_spread import ChainTask, chains_of, keyframe_config, optimise_spread, source_keyframes
 from studio.project.show_timing import ShowLayout, keyframe_box
 from studio.project.state import ProjectError
 from studio.project.status import ProjectHandle, check_sources
@@ -56,6 +60,12 @@ class RunConfig:
     layout: ShowLayout = field(default_factory=ShowLayout)  # how the sources share the show clock
     transitions: TransitionConfig = field(default_factory=TransitionConfig)  # the transition-success test
     device: str | None = None  # where the self-model and CLIP run: "cpu", "cuda" (None: CUDA when present)
+    fanout: FanoutConfig = field(default_factory=FanoutConfig)  # sources side by side on workers (run_spread)
+
+    @property
+    def spread(self) -> bool:
+        """The keyframes run on workers, one source per item (:mod:`studio.project.run_spread`)."""
+        return self.fanout.workers > 1 or bool(self.fanout.ray)
 
 
 def _previous(project: ProjectHandle, k: int) -> tuple[int, int | None]:
@@ -65,20 +75,6 @@ def _previous(project: ProjectHandle, k: int) -> tuple[int, int | None]:
     same = [kf.id for kf in s.keyframes if s.frames[kf.representative].source == src]
     pos = same.index(k)
     return pos, (same[pos - 1] if pos else None)
-
-
-def source_keyframes(project: ProjectHandle, k: int) -> list[int]:
-    """The ids of the keyframes of keyframe ``k``'s source, first-appearance order (the whole video it is in)."""
-    s = project.state
-    src = s.frames[s.keyframe(k).representative].source
-    return [kf.id for kf in s.keyframes if s.frames[kf.representative].source == src]
-
-
-def keyframe_config(cfg: SequenceConfig, position: int) -> SequenceConfig:
-    """``cfg`` with its seeds moved on by ``position`` (a keyframe's place in its source), as a whole sequence
-    seeds its k-th keyframe."""
-    return replace(cfg, first=replace(cfg.first, seed=cfg.first.seed + position),
-                   next=replace(cfg.next, seed=cfg.next.seed + position))  # fmt: skip
 
 
 def _wait(job: Job, cancel: threading.Event | None) -> JobState:
@@ -131,6 +127,8 @@ def run_project(
     keyframes: list[int] | None = None,
     plan: bool = True,
     wait: float = 0.0,
+    progress: ProgressFn | None = None,
+    models: ModelRecipe | None = None,
 ) -> RunReport:
     """Optimise every missing or stale keyframe of ``project`` (or exactly the ids in ``keyframes``, current or not),
     then, with ``plan``, plan its show when missing or stale (module doc) → :class:`RunReport`. ``clip``: a CLIP
@@ -139,13 +137,21 @@ def run_project(
     of each job as it is submitted (``what``: one line, "keyframe 3 (2 of 5)"). Raises SourceMissing or
     SourceChanged before any work, and a ProjectError naming an id that is not a keyframe. The project's write lock
     is held throughout (another writer: :class:`~studio.project.lock.ProjectLocked` before any work, or after
-    waiting up to ``wait`` s)."""
+    waiting up to ``wait`` s). With ``cfg.spread`` the keyframes run on workers, one source each
+    (:mod:`~studio.project.run_spread`: the same poses), reporting to ``progress``; ``models``: what each worker
+    loads (default: ``model_path`` and CLIP as found, on ``cfg.device``)."""
     check_sources(project)
+    cfg = cfg or RunConfig()
+    if cfg.spread and models is None:
+        from studio.imitate.still import DEFAULT_MODEL
+
+        models = ModelRecipe(str(model_path or DEFAULT_MODEL), cfg.device, use_clip=clip is not None)
     with project.writing("project run", wait):
-        return _run(project, cfg or RunConfig(), clip, queue, cancel, model_path, on_job, keyframes, plan)
+        return _run(project, cfg, clip, queue, cancel, model_path, on_job, keyframes, plan, progress, models)
 
 
-def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path, on_job, keyframes, plan) -> RunReport:
+def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path, on_job, keyframes, plan,
+         progress=None, models=None) -> RunReport:  # fmt: skip
     t0 = time.perf_counter()
     queue = queue or queue_for(project)
     report = RunReport(str(project.path))
@@ -170,30 +176,12 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
         if keyframes is None:
             pending = list(project.status().pending)  # a new roll makes the keyframes of another one stale
     report.skipped = [k for k in ids if k not in pending]
-    seq = cfg.sequence
-    for n, k in enumerate(pending):
-        pos, before = _previous(project, k)
-        previous = None
-        if seq.mode == "sequential" and before is not None:
-            previous = project.results[before].theta(_joint_names())
-        box = None
-        if seq.keep_clock:  # within the servos' reach of its posed neighbours at the show's clock
-            box = keyframe_box(project.state, project.status(), k, seq.clock_margin, cfg.layout, cfg.plan.limits)
-        job = video_job(project, [k], cfg=keyframe_config(seq, pos), clip=clip, previous=previous,
-                        model_path=model_path, device=cfg.device, box=box)  # fmt: skip
-        job.meta["of"] = (n + 1, len(pending))
-        queue.submit(job)
-        if on_job is not None:
-            on_job(job, f"keyframe {k} ({n + 1} of {len(pending)})")
-        state = _wait(job, cancel)
-        if state == JobState.DONE:
-            report.optimised.append(k)
-            continue
-        report.cancelled, report.error = state == JobState.CANCELLED, job.error
-        what = "cancelled" if report.cancelled else f"failed ({job.error})"
-        report.message = (
-            f"keyframe {k} {what}; {_count(len(report.optimised), 'keyframe')} finished and saved before it"
-        )
+    status = project.status()
+    settled = {k for k in ids if k in project.results and k not in status.stale and k not in pending}
+    if cfg.spread and pending:
+        if not _optimise_spread(project, cfg, clip, pending, settled, models, progress, cancel, report):
+            return _finish(report, project, cfg, t0)
+    elif not _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, settled, report):
         return _finish(report, project, cfg, t0)
     if not plan:
         report.message = f"optimised {_count(len(report.optimised), 'keyframe')}"
@@ -243,6 +231,64 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
     return _finish(report, project, cfg, t0)
 
 
+def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, settled, report) -> bool:
+    """The pending keyframes one job each on the queue, in order; False when one failed or was cancelled. A
+    keyframe's reach box counts ``settled`` and its own source's keyframes finished before it (run_spread's rule)."""
+    seq = cfg.sequence
+    for n, k in enumerate(pending):
+        pos, before = _previous(project, k)
+        previous = None
+        if seq.mode == "sequential" and before is not None:
+            previous = project.results[before].theta(_joint_names())
+        box = None
+        if seq.keep_clock:  # within the servos' reach of its posed neighbours at the show's clock
+            same = set(source_keyframes(project, k)) & set(report.optimised)
+            box = keyframe_box(project.state, project.status(), k, seq.clock_margin, cfg.layout, cfg.plan.limits,
+                               posed=settled | same)  # fmt: skip
+        job = video_job(project, [k], cfg=keyframe_config(seq, pos), clip=clip, previous=previous,
+                        model_path=model_path, device=cfg.device, box=box)  # fmt: skip
+        job.meta["of"] = (n + 1, len(pending))
+        queue.submit(job)
+        if on_job is not None:
+            on_job(job, f"keyframe {k} ({n + 1} of {len(pending)})")
+        state = _wait(job, cancel)
+        if state == JobState.DONE:
+            report.optimised.append(k)
+            continue
+        report.cancelled, report.error = state == JobState.CANCELLED, job.error
+        what = "cancelled" if report.cancelled else f"failed ({job.error})"
+        report.message = (
+            f"keyframe {k} {what}; {_count(len(report.optimised), 'keyframe')} finished and saved before it"
+        )
+        return False
+    return True
+
+
+def _optimise_spread(project, cfg, clip, pending, settled, models, progress, cancel, report) -> bool:
+    """The pending keyframes on workers, one source each (:mod:`studio.project.run_spread`); False when a worker
+    failed or the run was cancelled (the sources finished before it are saved)."""
+    from studio.project.jobs import project_loss
+
+    chains = chains_of(project, pending, settled, cfg.layout)
+    task = ChainTask(models, project_loss(project, chains[0].masks.shape[-1], clip), cfg.sequence,
+                     project.mount.roll, cfg.plan.limits)  # fmt: skip
+    try:
+        report.optimised = optimise_spread(project, chains, task, cfg.fanout, progress, cancel, report.optimised)
+    except Exception as e:  # a worker's failure: one line, what was saved stays
+        import traceback
+
+        from studio.jobs.events import JobError
+
+        report.error = JobError(type(e).__name__, str(e), traceback.format_exc())
+        report.message = f"a worker failed ({e}); {_count(len(report.optimised), 'keyframe')} finished and saved"
+        return False
+    if stopped(cancel):
+        report.cancelled = True
+        report.message = f"cancelled; {_count(len(report.optimised), 'keyframe')} finished and saved before it"
+        return False
+    return True
+
+
 class Running:
     """``Project.run`` (mixed into :class:`~studio.project.project.Project`): :func:`run_project` on itself."""
 
@@ -258,10 +304,14 @@ class Running:
         keyframes: list[int] | None = None,
         plan: bool = True,
         wait: float = 0.0,
+        progress: ProgressFn | None = None,
+        models: ModelRecipe | None = None,
     ) -> RunReport:
         """Bring this project up to date (:func:`run_project`): optimise what is missing or stale (or ``keyframes``),
-        then plan the show; the jobs run on the project's queue unless ``queue`` is given."""
-        return run_project(self, cfg, clip, queue, cancel, model_path, on_job, keyframes, plan, wait)  # type: ignore[arg-type]
+        then plan the show; the jobs run on the project's queue unless ``queue`` is given (``cfg.spread``: on
+        workers, reporting to ``progress``)."""
+        return run_project(self, cfg, clip, queue, cancel, model_path, on_job, keyframes, plan, wait,  # type: ignore[arg-type]
+                           progress, models)  # fmt: skip
 
 
 def _late(timing, show) -> list[dict]:

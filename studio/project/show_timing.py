@@ -28,6 +28,7 @@ servos.
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -161,21 +162,29 @@ def transition_times(s: ProjectState, layout: ShowLayout | None = None) -> dict[
     return clock_of(vt)
 
 
+def clock_neighbours(
+    s: ProjectState, k: int, layout: ShowLayout | None = None, times: dict[tuple[int, int], float] | None = None
+) -> list[tuple[int, float]]:
+    """``(id, seconds)`` of every move the show makes between keyframe ``k`` and another keyframe, with the shortest
+    time the clock gives it (``times``: :func:`transition_times`, computed when not given)."""
+    times = transition_times(s, layout) if times is None else times
+    return [(b if a == k else a, dt) for (a, b), dt in times.items() if k in (a, b)]
+
+
 def keyframe_box(
     s: ProjectState, status: ProjectStatus, k: int, margin: float = 0.9, layout: ShowLayout | None = None,
-    limits: LimitsConfig | None = None,
+    limits: LimitsConfig | None = None, posed: Collection[int] | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:  # fmt: skip
     """The joint box ``(lower (21,), upper (21,))`` rad keyframe ``k``'s pose must keep so that every move between
-    it and a keyframe already posed (a current result) fits the time the show's clock gives that move
-    (:func:`transition_times`, :func:`~studio.motion.reach.reach_box` with ``margin``); None when no neighbour on
-    the clock is posed yet."""
+    it and a keyframe already posed (a current result; ``posed``: only these ids count) fits the time the show's
+    clock gives that move (:func:`clock_neighbours`, :func:`~studio.motion.reach.reach_box` with ``margin``); None
+    when no neighbour on the clock is posed yet."""
     hand = load_hand()
-    posed = {kf.id for kf in s.keyframes if kf.id in s.results and kf.id not in status.stale and kf.id != k}
-    neighbours = [
-        (s.results[n].theta(hand.joint_names), dt)
-        for (a, b), dt in transition_times(s, layout).items()
-        if k in (a, b) and (n := b if a == k else a) in posed
-    ]
+    current = {kf.id for kf in s.keyframes if kf.id in s.results and kf.id not in status.stale and kf.id != k}
+    if posed is not None:
+        current &= set(posed)
+    names = hand.joint_names
+    neighbours = [(s.results[n].theta(names), dt) for n, dt in clock_neighbours(s, k, layout) if n in current]
     if not neighbours:
         return None
     return reach_box(neighbours, JointLimits.from_hand(hand, limits), margin)

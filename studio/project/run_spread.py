@@ -1,0 +1,173 @@
+"""A project run spread over workers (``project run --workers N`` / ``--ray``): one source per item of a
+:func:`studio.fanout.fan_out`.
+
+A source's pending keyframes form a chain: in ``sequential`` mode each continues from the keyframe before it in
+its source, so a chain runs in order on one worker, while the sources run side by side. Each worker holds one
+:class:`~studio.imitate.sequence.SequenceImitator` (the self-model, CLIP and retrieval index loaded once) and runs
+every keyframe through :func:`studio.jobs.engine.imitate_keyframes`, the body of the one-process run's keyframe
+jobs, with the same seeds (:func:`~studio.project.run.keyframe_config`), the same pose before it and the same reach
+box on the show's clock. The box counts the keyframes that were current when the run started and those of its own
+source finished before it in this run (the one-process run counts the same ones), so where a chain runs never
+changes its poses: the results equal :func:`~studio.project.run.run_project`'s in one process.
+
+A keyframe's place in its source (:func:`source_keyframes`) and the seeds that place gives it
+(:func:`keyframe_config`) live here, for both runs.
+
+The driver saves a source's keyframes (``project.set_result``, one edit each) the moment its chain comes back;
+``cancel`` (Ctrl-C) stops the workers, and the project keeps the sources finished before it.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from studio.evaluate.worker_models import ModelRecipe
+from studio.fanout import FanoutConfig, fan_out
+from studio.imitate.config import LossConfig, SequenceConfig
+from studio.motion.limits import LimitsConfig
+from studio.progress import ProgressFn
+
+if TYPE_CHECKING:
+    from studio.project.status import ProjectHandle
+
+__all__ = ["Chain", "ChainTask", "chains_of", "keyframe_config", "optimise_spread", "source_keyframes"]
+
+
+def source_keyframes(project: ProjectHandle, k: int) -> list[int]:
+    """The ids of the keyframes of keyframe ``k``'s source, first-appearance order (the whole video it is in)."""
+    s = project.state
+    src = s.frames[s.keyframe(k).representative].source
+    return [kf.id for kf in s.keyframes if s.frames[kf.representative].source == src]
+
+
+def keyframe_config(cfg: SequenceConfig, position: int) -> SequenceConfig:
+    """``cfg`` with its seeds moved on by ``position`` (a keyframe's place in its source), as a whole sequence
+    seeds its k-th keyframe."""
+    return replace(cfg, first=replace(cfg.first, seed=cfg.first.seed + position),
+                   next=replace(cfg.next, seed=cfg.next.seed + position))  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Chain:
+    """One source's pending keyframes, and what their runs need from the rest of the project (plain data)."""
+
+    source: str  # the source's file name (progress lines)
+    ids: tuple[int, ...]  # pending keyframe ids, first-appearance order
+    positions: tuple[int, ...]  # each one's place among its source's keyframes (its seeds)
+    before: tuple[int | None, ...]  # the keyframe before each in its source (None: the source's first)
+    masks: np.ndarray  # (n, S, S) uint8 targets
+    expressive: np.ndarray  # (n, S, S) uint8 expressive masks
+    neighbours: tuple[tuple[tuple[int, float], ...], ...]  # per keyframe: (id, s) of its moves on the show's clock
+    poses: dict[int, np.ndarray]  # (21,) rad results of the keyframes outside the chain it refers to
+    settled: frozenset[int]  # ids whose poses count for the reach box (current when the run started)
+
+
+@dataclass
+class ChainTask:
+    """What a worker needs to run chains (a :mod:`studio.fanout` task): paths and configs, all picklable.
+    ``task(chain) → [KeyframeResult]`` in the chain's order."""
+
+    models: ModelRecipe  # the self-model and CLIP each worker loads
+    loss_cfg: LossConfig  # the project's loss weights (its expressive and temporal terms)
+    seq: SequenceConfig  # the run's budgets and mode
+    roll: float  # the mount roll, rad
+    limits: LimitsConfig = field(default_factory=LimitsConfig)  # the servos' limits of the reach box
+    _held: Any = field(default=None, init=False, repr=False, compare=False)  # the SequenceImitator once set up
+
+    def __getstate__(self) -> dict:  # a worker gets the recipe, never this process's models
+        return self.__dict__ | {"_held": None}
+
+    def setup(self) -> None:
+        from studio.imitate.sequence import SequenceImitator
+        from studio.imitate.still import Imitator
+
+        model, clip = self.models.load()
+        self._held = SequenceImitator(imitator=Imitator(model, None, self.loss_cfg, clip))
+
+    def close(self) -> None:
+        if self._held is not None:
+            self._held.imitator.close()
+            self._held = None
+
+    def __call__(self, chain: Chain) -> list:
+        from studio.jobs.engine import imitate_keyframes
+        from studio.motion.limits import JointLimits
+        from studio.motion.reach import reach_box
+
+        if self._held is None:
+            raise RuntimeError("ChainTask.setup() was not called")
+        seq = self._held
+        limits = JointLimits.from_hand(seq.imitator.hand, self.limits)
+        poses, boxed, out = dict(chain.poses), set(chain.settled), []
+        for j, k in enumerate(chain.ids):
+            before = chain.before[j]
+            previous = poses[before] if self.seq.mode == "sequential" and before is not None else None
+            box = None
+            if self.seq.keep_clock:
+                near = [(poses[n], dt) for n, dt in chain.neighbours[j] if n in boxed and n != k]
+                box = reach_box(near, limits, self.seq.clock_margin) if near else None
+            box_for = None if box is None else (lambda i, done, b=box: b)
+            result = imitate_keyframes(seq, chain.masks[j : j + 1], chain.expressive[j : j + 1],
+                                       keyframe_config(self.seq, chain.positions[j]), previous=previous,
+                                       roll=self.roll, box_for=box_for)  # fmt: skip
+            kr = result.keyframes[0]
+            poses[k] = kr.theta
+            boxed.add(k)
+            out.append(kr)
+        return out
+
+
+def chains_of(project: ProjectHandle, pending: list[int], settled: set[int], layout: Any) -> list[Chain]:
+    """The pending keyframes grouped by source, in first-appearance order (module doc)."""
+    from studio.project.show_timing import clock_neighbours, transition_times
+    from studio.sim.hand import load_hand
+
+    s, names = project.state, load_hand().joint_names
+    times = transition_times(s, layout)
+    groups: dict[int, list[int]] = {}
+    for k in pending:
+        groups.setdefault(s.frames[s.keyframe(k).representative].source, []).append(k)
+    chains = []
+    for src, ids in groups.items():
+        name = Path(s.sources[src].path).name
+        same = source_keyframes(project, ids[0])
+        before = tuple(same[same.index(k) - 1] if same.index(k) else None for k in ids)
+        neighbours = tuple(tuple(clock_neighbours(s, k, layout, times)) for k in ids)
+        outside = {b for b in before if b is not None} | {n for nb in neighbours for n, _ in nb}
+        poses = {n: s.results[n].theta(names) for n in outside - set(ids) if n in s.results}
+        pairs = [project.keyframe_masks(k) for k in ids]
+        chains.append(Chain(name, tuple(ids), tuple(same.index(k) for k in ids), before,
+                            np.stack([np.array(t) for t, _ in pairs]), np.stack([np.array(e) for _, e in pairs]),
+                            neighbours, poses, frozenset(settled & set(poses))))  # fmt: skip
+    return chains
+
+
+def optimise_spread(
+    project: ProjectHandle,
+    chains: list[Chain],
+    task: ChainTask,
+    fanout: FanoutConfig,
+    progress: ProgressFn | None = None,
+    cancel: threading.Event | None = None,
+    saved: list[int] | None = None,
+) -> list[int]:
+    """Run ``chains`` on the workers ``fanout`` names, saving each source's keyframes as its chain comes back (their
+    ids appended to ``saved`` at once, so a worker's failure raised here leaves the list of what was kept); the ids
+    saved, in the project's order. Stage "keyframes" as each source finishes (item: the source's name)."""
+    saved = [] if saved is None else saved
+
+    def save(i: int, results: list) -> None:
+        chain = chains[i]
+        for k, kr in zip(chain.ids, results, strict=True):
+            project.set_result(k, kr.theta, kr.loss, kr.shadow, inputs=project.keyframe_inputs(k),
+                               evaluation=kr.evaluation, collision_free=kr.collision_free,
+                               seconds=kr.seconds)  # fmt: skip
+            saved.append(k)
+
+    fan_out(task, chains, fanout, progress, cancel, "keyframes", [c.source for c in chains], on_result=save)
+    return [kf.id for kf in project.keyframes if kf.id in set(saved)]
