@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import socket
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
@@ -29,6 +30,7 @@ __all__ = ["RayUnavailable", "ray_for", "run_on_ray"]
 
 log = logging.getLogger(__name__)
 POLL_S = 0.2  # how often the driver looks at ``cancel`` while items run, s
+CONNECT_S = 5.0  # how long a cluster's HOST:PORT gets to answer before the run is refused, s
 
 
 class RayUnavailable(StudioError):
@@ -53,6 +55,8 @@ def ray_for(address: str, cpus: float, gpus: float) -> Iterator[None]:
         yield
         return
     local = address == "local"
+    if not local:
+        _answers(address)
     try:
         if local:
             ray.init(num_cpus=max(1, round(cpus)), num_gpus=round(gpus) if gpus else None, include_dashboard=False,
@@ -67,6 +71,19 @@ def ray_for(address: str, cpus: float, gpus: float) -> Iterator[None]:
         yield
     finally:
         ray.shutdown()
+
+
+def _answers(address: str) -> None:
+    """Refuse a ``HOST:PORT`` where nothing answers, in one line and within ``CONNECT_S`` (Ray itself would retry
+    for minutes, printing warnings); "auto" and other forms are left to Ray."""
+    host, sep, port = address.rpartition(":")
+    if not sep or not host or not port.isdigit() or "://" in address:
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_S).close()
+    except OSError as e:
+        raise RayUnavailable(f"could not join the Ray cluster at {address}: nothing answers there ({e}); start one "
+                             "with `ray start --head`, or give --ray alone for a local Ray") from e  # fmt: skip
 
 
 def run_on_ray(

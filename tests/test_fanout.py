@@ -69,6 +69,14 @@ def test_a_failing_item_is_named_and_stops_the_run(tmp_path, where, request):
         fan_out(task, range(SMALL.num_shards), how)
 
 
+def test_a_cluster_address_where_nothing_answers_is_refused_at_once():
+    from studio.ray_cluster import RayUnavailable, _answers
+
+    with pytest.raises(RayUnavailable, match=r"127\.0\.0\.1:1: nothing answers there .*ray start --head"):
+        _answers("127.0.0.1:1")  # (Ray itself would retry for minutes)
+    assert _answers("auto") is None  # Ray finds a running cluster itself
+
+
 def test_a_cancel_keeps_the_finished_items(tmp_path, hand):
     cancel, seen = threading.Event(), []
 

@@ -274,13 +274,13 @@ def _optimise_spread(project, cfg, clip, pending, settled, models, progress, can
                      project.mount.roll, cfg.plan.limits)  # fmt: skip
     try:
         report.optimised = optimise_spread(project, chains, task, cfg.fanout, progress, cancel, report.optimised)
-    except Exception as e:  # a worker's failure: one line, what was saved stays
+    except Exception as e:  # a worker's failure, or no Ray to run on: one line, what was saved stays
         import traceback
 
         from studio.jobs.events import JobError
 
         report.error = JobError(type(e).__name__, str(e), traceback.format_exc())
-        report.message = f"a worker failed ({e}); {_count(len(report.optimised), 'keyframe')} finished and saved"
+        report.message = f"the spread run stopped ({e}); {_count(len(report.optimised), 'keyframe')} finished and saved"
         return False
     if stopped(cancel):
         report.cancelled = True
