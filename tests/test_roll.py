@@ -141,6 +141,9 @@ def test_roll_auto_recovers_the_roll_of_a_rendered_reachable_target(small_index,
     assert abs(wrap_deg(choice.deg - deg)) <= 2.0
     assert choice.loss < choice.upright_loss and choice.seconds > 0
     assert len(choice.coarse) == 24
+    (first, first_loss), *others = choice.candidates  # the roll chosen, then the other refined angles, best first
+    assert first == pytest.approx(wrap_deg(choice.deg), abs=0.01) and first_loss == choice.loss
+    assert [v for _, v in others] == sorted(v for _, v in others) and len(others) <= 2
 
 
 def test_roll_auto_keeps_the_upright_rig_for_an_upright_target(small_index, hand):

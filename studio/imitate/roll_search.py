@@ -61,6 +61,8 @@ class RollChoice:
     upright_loss: float  # the same measure at roll 0 (the paper's rig), for the summary
     seconds: float  # wall time of the search
     coarse: dict[float, float] = field(default_factory=dict)  # degrees → mean index pixel loss (the first pass)
+    candidates: list[tuple[float, float]] = field(default_factory=list)  # (degrees, loss): the roll chosen, then
+    # the other refined angles by their exact loss (benchmarks/bench_roll_choice.py imitates each)
 
     @property
     def deg(self) -> float:
@@ -155,8 +157,9 @@ def choose_roll(
             total += float(audience(rolled.render(got.theta, check=False)).min())
         return total / len(fns), poses
 
-    tried = [(d, *exact_at(d)) for d in dict.fromkeys(round(wrap_deg(d), 6) for d in refined)]
-    best_deg, _, poses = min(tried, key=lambda r: r[1])
+    tried = sorted(((d, *exact_at(d)) for d in dict.fromkeys(round(wrap_deg(d), 6) for d in refined)),
+                   key=lambda r: r[1])  # fmt: skip
+    best_deg, _, poses = tried[0]
 
     def held(deg: float) -> float:  # the held poses' loss as the mount rolled by deg casts them
         rolled = _rolled(refiner, deg)
@@ -166,6 +169,8 @@ def choose_roll(
     best_deg = wrap_deg(_halve(lambda ds: [held(d) for d in ds], best_deg, cfg.index_deg / 2, cfg.fine_deg))
     upright = exact_at(0.0)[0]
     loss = held(best_deg)
+    others = tried[1:]
     if upright <= loss:  # the upright rig is as good: keep the paper's rig
-        best_deg, loss = 0.0, upright
-    return RollChoice(math.radians(best_deg), loss, upright, time.perf_counter() - t0, coarse)
+        best_deg, loss, others = 0.0, upright, tried
+    candidates = [(float(best_deg), loss)] + [(float(wrap_deg(d)), v) for d, v, _ in others]
+    return RollChoice(math.radians(best_deg), loss, upright, time.perf_counter() - t0, coarse, candidates)

@@ -1,0 +1,87 @@
+"""Is roll auto's choice what holds the stills back? Each target imitated in full at every one of the roll search's
+best candidate rolls, and three ways of choosing among them compared.
+
+For each target (MPEG-7 animal images by default: the ``--images`` of camel, cattle, deer, dog, elephant, horse, rat
+and turtle), the roll search's refined candidates (:func:`studio.imitate.roll_search.choose_roll`: the chosen roll
+first, then the other refined angles by their exact first-answer loss) are each imitated in full (the target
+turned into the hand's frame; shipped model, no CLIP, one torch thread) and the rolled mount's shadow scored
+against the target as it is. Printed last, as JSON, the mean IoU loss when the roll is:
+
+* ``chosen``: roll auto's choice (what the studio does);
+* ``after_sweep``: the candidate whose best loss after the block sweep is lowest (a choice made later, at the cost
+  of a sweep per candidate);
+* ``oracle``: the candidate whose full imitation scored best (hindsight: the most any choice among them can give).
+
+    python benchmarks/bench_roll_choice.py [--images 3 4] [--top 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+MPEG7 = ROOT.parent / "shared" / "targets" / "mpeg7"
+ANIMALS = ("camel", "cattle", "deer", "dog", "elephant", "horse", "rat", "turtle")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--images", type=int, nargs="+", default=[3, 4], help="which image of each animal (1–20)")
+    ap.add_argument("--top", type=int, default=3, help="candidate rolls imitated in full per target")
+    args = ap.parse_args(argv)
+    if not MPEG7.is_dir():
+        print(f"needs the shared MPEG-7 targets at {MPEG7}", file=sys.stderr)
+        return 2
+
+    import numpy as np
+    import torch
+
+    from studio.evaluate.table1 import score
+    from studio.imitate.roll_search import RollSearchConfig
+    from studio.imitate.still import Imitator
+    from studio.sim.roll import into_hand_frame
+    from studio.sim.shadow import ShadowRenderer
+    from studio.targets.expressive import still_expressive
+
+    torch.set_num_threads(1)
+    numbered = {(a, int(p.stem.rsplit("-", 1)[1])): p for a in ANIMALS for p in MPEG7.glob(f"{a}-*.gif")}  # "-3", "-03"
+    paths = [numbered[a, i] for i in args.images for a in ANIMALS if (a, i) in numbered]
+    per_target = []
+    with Imitator() as im:
+        for path in paths:
+            target = im.load(path)
+            exp = still_expressive(target)
+            loss_fn = im.loss_fn(target, exp)
+            choice = im.choose_roll(target[None], exp[None] if exp is not None and exp.any() else None,
+                                    RollSearchConfig(top=max(3, args.top)))  # fmt: skip
+            rows = []
+            for deg, exact in choice.candidates[: args.top]:
+                roll = math.radians(deg)
+                turned, turned_exp = into_hand_frame(target, exp, roll)
+                got = im.imitate(turned, turned_exp, refine=True)
+                shadow = ShadowRenderer(im.hand, im.renderer.rig.with_roll(roll)).render_one(got.theta)
+                rows.append({"deg": round(deg, 2), "exact_first_answer": round(exact, 4),
+                             "after_sweep": round(float(got.swept.loss[0]), 4) if got.swept is not None else None,
+                             "iou_loss": round(score(loss_fn, shadow)["iou_loss"], 4)})  # fmt: skip
+            rec = {"target": path.name, "candidates": rows}
+            per_target.append(rec)
+            print(json.dumps(rec), flush=True)
+    chosen = [r["candidates"][0]["iou_loss"] for r in per_target]
+    oracle = [min(c["iou_loss"] for c in r["candidates"]) for r in per_target]
+    swept = [min((c for c in r["candidates"] if c["after_sweep"] is not None), key=lambda c: c["after_sweep"],
+                 default=r["candidates"][0])["iou_loss"] for r in per_target]  # fmt: skip
+    out = {"targets": len(per_target), "top": args.top, "iou_loss": {
+        "chosen": round(float(np.mean(chosen)), 4), "after_sweep": round(float(np.mean(swept)), 4),
+        "oracle": round(float(np.mean(oracle)), 4)}}  # fmt: skip
+    out["oracle_gain"] = round(out["iou_loss"]["chosen"] - out["iou_loss"]["oracle"], 4)
+    out["per_target"] = per_target
+    print(json.dumps(out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
