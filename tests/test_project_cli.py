@@ -88,3 +88,12 @@ def test_still_threshold_and_otsu_flags_reach_the_configs(tmp_path, sources):
     assert p.state.still == TargetConfig(threshold=60.0, auto_otsu=False)  # a level asked for is always used
     assert p.state.video.threshold is None and p.state.video.size == 32
     assert os.path.isabs(p.sources[0].absolute)
+
+
+def test_a_repeated_source_flag_adds_sources(tmp_path, in_process, monkeypatch):
+    """``--source a --source b`` is two sources, as ``--source a b`` is (the second flag once replaced the first)."""
+    monkeypatch.chdir(tmp_path)
+    stills = [asset("targets/asl_o.jpeg"), asset("targets/asl_v.jpeg")]
+    r = in_process("project", "new", "two.shadow", "--source", stills[0], "--source", stills[1])
+    assert r.returncode == 0, r.stderr
+    assert [Path(s.path).name for s in Project.open(tmp_path / "two.shadow").sources] == ["asl_o.jpeg", "asl_v.jpeg"]

@@ -197,8 +197,9 @@ def _register_relink(verbs: argparse._SubParsersAction) -> None:
 def _register_new(verbs: argparse._SubParsersAction) -> None:
     p = verbs.add_parser("new", help="make a project from sources: frames, expressive masks and keyframes")
     p.add_argument("name", help="the project folder to make, NAME.shadow")
-    p.add_argument("--source", nargs="+", required=True, metavar="FILE",
-                   help="stills, video files (mp4, GIF, …) or folders of frames (masks or footage)")  # fmt: skip
+    p.add_argument("--source", nargs="+", action="extend", required=True, metavar="FILE",
+                   help="stills, video files (mp4, GIF, …) or folders of frames (masks or footage); "
+                        "given again, more sources follow")  # fmt: skip
     p.add_argument("--title", default=None, help="the project's title (default: NAME)")
     add_source_flags(p, size=True)
     p.set_defaults(func=_new)
