@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import re
 import sys
 import time
 from pathlib import Path
@@ -35,16 +34,11 @@ SHARED = ROOT.parent / "shared" / "targets"
 def _sets(name: str) -> tuple[list[tuple[str, Path]], list[tuple[str, Path]]]:
     """``(gallery, queries)`` as ``(class, path)`` lists."""
     if name == "mpeg7":
-        folder = SHARED / "mpeg7"
+        from studio.targets.images import image_class, image_number
 
-        def number(p: Path) -> int:
-            return int(re.search(r"-(\d+)\.gif$", p.name).group(1))
-
-        def label(p: Path) -> str:
-            return re.sub(r"-\d+\.gif$", "", p.name).lower()
-
-        files = sorted(folder.glob("*.gif"))
-        return [(label(p), p) for p in files if number(p) >= 3], [(label(p), p) for p in files if number(p) == 2]
+        files = sorted((SHARED / "mpeg7").glob("*.gif"))
+        gallery = [(image_class(p), p) for p in files if (image_number(p) or 0) >= 3]
+        return gallery, [(image_class(p), p) for p in files if image_number(p) == 2]
     folder = SHARED / "asl"
     gallery = [(p.parent.name, p) for p in sorted(folder.glob("*/hand1_*"))]
     return gallery, [(p.parent.name, p) for p in sorted(folder.glob("*/hand2_*_bot_*"))]

@@ -46,10 +46,14 @@ def main(argv: list[str] | None = None) -> int:
     from studio.sim.roll import into_hand_frame
     from studio.sim.shadow import ShadowRenderer
     from studio.targets.expressive import still_expressive
+    from studio.targets.images import image_class, image_number
 
     torch.set_num_threads(1)
-    numbered = {(a, int(p.stem.rsplit("-", 1)[1])): p for a in ANIMALS for p in MPEG7.glob(f"{a}-*.gif")}  # "-3", "-03"
+    numbered = {(image_class(p), image_number(p)): p for p in MPEG7.glob("*.gif")}  # "camel-3", "rat-03"
     paths = [numbered[a, i] for i in args.images for a in ANIMALS if (a, i) in numbered]
+    if not paths:
+        print(f"no MPEG-7 animal image numbered {args.images} in {MPEG7} (they run 1–20)", file=sys.stderr)
+        return 2
     per_target = []
     with Imitator() as im:
         for path in paths:

@@ -308,3 +308,14 @@ def test_muybridge_horse_first_frame_loads_with_defaults(shared_targets: Path, t
     assert stats[1:, cv2.CC_STAT_AREA].max() > 0.8 * mask.sum()  # one horse-and-rider piece, not speckle
     assert (c1 - c0) > 0.6 * mask.shape[1] and (r1 - r0) > 0.5 * mask.shape[0]  # the horse spans the frame
     np.testing.assert_array_equal(load_target(gifs[0]), mask)  # the GIF itself loads to the same mask
+
+
+def test_numbered_images_name_their_class_and_number() -> None:
+    """MPEG-7's names, padded or not: the class before the last ``-``, the number after it."""
+    from studio.targets.images import first_per_class, image_class, image_number
+
+    files = ("camel-1.gif", "camel-12.gif", "rat-03.gif", "rat-01.gif", "two-part-name-7.png", "o.jpeg")
+    names = [Path(n) for n in files]
+    assert [image_class(p) for p in names] == ["camel", "camel", "rat", "rat", "two-part-name", "o"]
+    assert [image_number(p) for p in names] == [1, 12, 3, 1, 7, None]
+    assert first_per_class(names, 1) == [names[0], names[2], names[4], names[5]]

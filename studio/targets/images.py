@@ -260,13 +260,24 @@ def find_target_files(folder: str | Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
 
 
+def image_class(path: str | Path) -> str:
+    """A numbered image's class: its name before the last ``-`` (MPEG-7's ``camel-1.gif``, ``rat-01.gif`` → ``camel``,
+    ``rat``); a name without ``-`` is its own class."""
+    return Path(path).stem.rsplit("-", 1)[0]
+
+
+def image_number(path: str | Path) -> int | None:
+    """A numbered image's number within its class (``rat-03.gif`` → 3), None when its name has none."""
+    _, sep, tail = Path(path).stem.rpartition("-")
+    return int(tail) if sep and tail.isdigit() else None
+
+
 def first_per_class(files: Sequence[Path], n: int) -> list[Path]:
-    """The first ``n`` files (in the given order) of each class, the class being the name before its last ``-``
-    (MPEG-7's ``camel-1.gif``, ``rat-01.gif``); a name without ``-`` is its own class."""
+    """The first ``n`` files (in the given order) of each class (:func:`image_class`)."""
     seen: dict[str, int] = {}
     out = []
     for f in files:
-        cls = f.stem.rsplit("-", 1)[0]
+        cls = image_class(f)
         if seen.get(cls, 0) < n:
             seen[cls] = seen.get(cls, 0) + 1
             out.append(f)
