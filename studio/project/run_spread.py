@@ -97,7 +97,7 @@ class ChainTask:
     def __call__(self, chain: Chain) -> list:
         from studio.jobs.engine import imitate_keyframes
         from studio.motion.limits import JointLimits
-        from studio.motion.reach import reach_box
+        from studio.project.show_timing import reach_of
 
         if self._held is None:
             raise RuntimeError("ChainTask.setup() was not called")
@@ -109,8 +109,8 @@ class ChainTask:
             previous = poses[before] if self.seq.mode == "sequential" and before is not None else None
             box = None
             if self.seq.keep_clock:
-                near = [(poses[n], dt) for n, dt in chain.neighbours[j] if n in boxed and n != k]
-                box = reach_box(near, limits, self.seq.clock_margin) if near else None
+                posed = {n: poses[n] for n in boxed if n != k}
+                box = reach_of(chain.neighbours[j], posed, limits, self.seq.clock_margin)
             box_for = None if box is None else (lambda i, done, b=box: b)
             result = imitate_keyframes(seq, chain.masks[j : j + 1], chain.expressive[j : j + 1],
                                        keyframe_config(self.seq, chain.positions[j]), previous=previous,

@@ -28,7 +28,7 @@ servos.
 from __future__ import annotations
 
 import math
-from collections.abc import Collection
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -183,8 +183,16 @@ def keyframe_box(
     current = {kf.id for kf in s.keyframes if kf.id in s.results and kf.id not in status.stale and kf.id != k}
     if posed is not None:
         current &= set(posed)
-    names = hand.joint_names
-    neighbours = [(s.results[n].theta(names), dt) for n, dt in clock_neighbours(s, k, layout) if n in current]
-    if not neighbours:
-        return None
-    return reach_box(neighbours, JointLimits.from_hand(hand, limits), margin)
+    poses = {n: s.results[n].theta(hand.joint_names) for n in current}
+    return reach_of(clock_neighbours(s, k, layout), poses, JointLimits.from_hand(hand, limits), margin)
+
+
+def reach_of(
+    neighbours: Sequence[tuple[int, float]], poses: Mapping[int, np.ndarray], limits: JointLimits, margin: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The joint box ``(lower (21,), upper (21,))`` rad within reach of every posed neighbour: ``neighbours``
+    ``(id, s)`` as :func:`clock_neighbours` gives them, ``poses`` id → ``(21,)`` rad of those that count as posed
+    (the others are left out); None when none is posed. The one rule of :func:`keyframe_box` and of a spread run's
+    workers (:mod:`studio.project.run_spread`), which hold poses but no project."""
+    near = [(poses[n], dt) for n, dt in neighbours if n in poses]
+    return reach_box(near, limits, margin) if near else None
