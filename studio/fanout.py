@@ -10,8 +10,11 @@ and ``__call__(item)`` (one item's result, picklable); ``close()`` is optional. 
 * ``ray``: that many Ray actors (:mod:`studio.ray_cluster`: a local Ray started for the run, or a cluster
   joined), each set up once and fed the next item as soon as it is free.
 
-Results are keyed by the item's index, so callers gather them in order however the work was spread. Progress:
-stage ``stage``, step = items finished (``item``: the item's name when ``names`` is given). ``cancel`` stops
+Results are keyed by the item's index, so callers gather them in order however the work was spread. An item may
+lead to more: what ``on_result`` returns for a finished item joins the work (indices after the items given), so
+work that must run in order (a source's keyframes, each continuing from the one before it) goes out one step at a
+time and each step's result is kept the moment it comes back. Progress: stage ``stage``, step = items finished, of
+``total`` (default: the items known so far; ``item``: the item's name when ``names`` gives one). ``cancel`` stops
 handing out items and ends the workers (on Ray the actors are killed, so running items stop at once); the items
 finished before it are returned. An error in a task is raised here as :class:`FanoutError` naming the item, after
 the other workers are stopped. Nothing imports Ray unless ``cfg.ray`` asks for it (DESIGN §3).
@@ -23,7 +26,7 @@ import multiprocessing
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 from studio.errors import StudioError
@@ -77,45 +80,67 @@ def fan_out(
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     stage: str = "tasks",
-    names: Sequence[str] | None = None,
-    on_result: Callable[[int, Any], None] | None = None,
+    names: Sequence[str] | Callable[[Any], str] | None = None,
+    on_result: Callable[[int, Any], Sequence[Any] | None] | None = None,
+    total: int | None = None,
 ) -> dict[int, Any]:
     """``task`` over ``items`` as ``cfg`` says (module doc); ``{index: result}`` of the items finished.
-    ``on_result(i, result)`` is called in this process as each item finishes (before its progress report)."""
+    ``on_result(i, result)`` is called in this process as each item finishes (before its progress report); the
+    items it returns (if any) are run too. ``names``: one per item given, or ``name(item)``; ``total``: the
+    progress total when follow-ups are expected (default: the items known so far)."""
     cfg = cfg or FanoutConfig()
+    work = Work(list(items))
     done: dict[int, Any] = {}
+
+    def name(i: int) -> str | None:
+        if callable(names):
+            return names(work.items[i])
+        return names[i] if names is not None and i < len(names) else None
 
     def finished(i: int, result: Any) -> None:
         done[i] = result
-        if on_result is not None:
-            on_result(i, result)
-        report(progress, stage, len(done), len(items), item=names[i] if names else None)
+        more = on_result(i, result) if on_result is not None else None
+        work.items.extend(more or ())
+        report(progress, stage, len(done), max(total or 0, len(work.items)), item=name(i))
 
-    report(progress, stage, 0, len(items))
-    if not items or stopped(cancel):
+    report(progress, stage, 0, max(total or 0, len(work.items)))
+    if not work.items or stopped(cancel):
         return done
+    width = min(cfg.workers, len(work.items))  # no more workers than items (a follow-up takes its item's place)
     if cfg.ray:
         from studio.ray_cluster import run_on_ray
 
-        run_on_ray(task, items, cfg, finished, cancel, _failed)
+        run_on_ray(task, work, replace(cfg, workers=width), finished, cancel, _failed)
     elif cfg.workers == 1:
-        _in_process(task, items, finished, cancel)
+        _in_process(task, work, finished, cancel)
     else:
-        _on_processes(task, items, cfg.workers, finished, cancel)
+        _on_processes(task, work, width, finished, cancel)
     return done
+
+
+class Work:
+    """The items of a fan-out, handed out in order; it grows while it runs (follow-ups, module doc)."""
+
+    def __init__(self, items: list[Any]):
+        self.items, self._next = items, 0
+
+    def take(self) -> int | None:
+        """The next item's index, None when every item known so far is handed out."""
+        if self._next >= len(self.items):
+            return None
+        self._next += 1
+        return self._next - 1
 
 
 def _failed(items: Sequence[Any], i: int, e: BaseException) -> FanoutError:
     return FanoutError(f"item {i} ({str(items[i])[:80]}) failed: {type(e).__name__}: {e}")
 
 
-def _in_process(task: Task, items: Sequence[Any], finished: Callable, cancel: threading.Event | None) -> None:
+def _in_process(task: Task, work: Work, finished: Callable, cancel: threading.Event | None) -> None:
     task.setup()
     try:
-        for i, item in enumerate(items):
-            if stopped(cancel):
-                break
-            finished(i, task(item))
+        while not stopped(cancel) and (i := work.take()) is not None:
+            finished(i, task(work.items[i]))
     finally:
         close = getattr(task, "close", None)
         if close is not None:
@@ -136,20 +161,20 @@ def _run_one(item: Any) -> Any:
     return _WORKER_TASK(item)
 
 
-def _on_processes(
-    task: Task, items: Sequence[Any], workers: int, finished: Callable, cancel: threading.Event | None
-) -> None:
-    """At most ``workers`` items in flight on spawned processes, each process set up once."""
+def _on_processes(task: Task, work: Work, workers: int, finished: Callable, cancel: threading.Event | None) -> None:
+    """At most ``2 × workers`` items in flight (a short queue: a cancel leaves little unstarted work behind) on
+    ``workers`` spawned processes, each process set up once."""
     ctx = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(min(workers, len(items)), mp_context=ctx, initializer=_set_up, initargs=(task,))
+    pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_set_up, initargs=(task,))
     flying: dict[Future, int] = {}
-    todo = iter(range(len(items)))
     ok = False  # False when it ends by an error or a cancel: the workers are ended, not waited for
+
+    def top_up() -> None:
+        while len(flying) < 2 * workers and (i := work.take()) is not None:
+            flying[pool.submit(_run_one, work.items[i])] = i
+
     try:
-        for i in todo:
-            flying[pool.submit(_run_one, items[i])] = i
-            if len(flying) >= 2 * workers:  # a short queue: a cancel leaves little unstarted work behind
-                break
+        top_up()
         while flying:
             ready, _ = wait(flying, timeout=POLL_S, return_when=FIRST_COMPLETED)
             if stopped(cancel):
@@ -159,11 +184,9 @@ def _on_processes(
                 try:
                     result = f.result()
                 except Exception as e:
-                    raise _failed(items, i, e) from e
+                    raise _failed(work.items, i, e) from e
                 finished(i, result)
-                nxt = next(todo, None)
-                if nxt is not None:
-                    flying[pool.submit(_run_one, items[nxt])] = nxt
+            top_up()
         ok = not stopped(cancel)
     finally:
         for f in flying:

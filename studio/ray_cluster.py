@@ -19,12 +19,15 @@ import logging
 import socket
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import ray
 
 from studio.errors import StudioError
 from studio.progress import stopped
+
+if TYPE_CHECKING:
+    from studio.fanout import Work
 
 __all__ = ["RayUnavailable", "ray_for", "run_on_ray"]
 
@@ -88,24 +91,28 @@ def _answers(address: str) -> None:
 
 def run_on_ray(
     task: Any,
-    items: Sequence[Any],
+    work: Work,
     cfg: Any,
     finished: Callable[[int, Any], None],
     cancel: threading.Event | None,
     failed: Callable[[Sequence[Any], int, BaseException], Exception],
 ) -> None:
-    """``task`` over ``items`` on ``cfg.workers`` actors (module doc); ``finished(i, result)`` as each returns."""
-    n = min(cfg.workers, len(items))
+    """``task`` over ``work`` (:class:`studio.fanout.Work`: the items, growing as results bring follow-ups) on
+    ``cfg.workers`` actors (module doc); ``finished(i, result)`` as each returns, then every idle actor is fed."""
+    n = cfg.workers
     with ray_for(cfg.ray, n * cfg.cpus_per_worker, n * cfg.gpus_per_worker):
         host = ray.remote(num_cpus=cfg.cpus_per_worker, num_gpus=cfg.gpus_per_worker)(_Host)
         actors = [host.remote(task) for _ in range(n)]
         flying: dict[Any, tuple[int, Any]] = {}
-        todo = iter(range(len(items)))
+        idle = list(actors)
+
+        def feed() -> None:
+            while idle and (i := work.take()) is not None:
+                actor = idle.pop(0)
+                flying[actor.run.remote(work.items[i])] = (i, actor)
+
         try:
-            for actor in actors:
-                i = next(todo, None)
-                if i is not None:
-                    flying[actor.run.remote(items[i])] = (i, actor)
+            feed()
             while flying and not stopped(cancel):
                 ready, _ = ray.wait(list(flying), num_returns=1, timeout=POLL_S)
                 for ref in ready:
@@ -114,11 +121,10 @@ def run_on_ray(
                         result = ray.get(ref)
                     except ray.exceptions.RayError as e:
                         cause = getattr(e, "cause", None) or e
-                        raise failed(items, i, cause) from e
+                        raise failed(work.items, i, cause) from e
                     finished(i, result)
-                    nxt = next(todo, None)
-                    if nxt is not None:
-                        flying[actor.run.remote(items[nxt])] = (nxt, actor)
+                    idle.append(actor)
+                feed()
         finally:
             for actor in actors:
                 ray.kill(actor)

@@ -60,6 +60,30 @@ def test_collect_makes_the_same_shards_in_process_on_processes_and_on_ray(tmp_pa
     assert again["written"] == 0 and again["skipped"] == 4 and shard_bytes(tmp_path / "ray") == made["local"]
 
 
+@pytest.mark.parametrize("where", ["local", "processes", "ray"])
+def test_follow_ups_run_after_the_item_that_brings_them(tmp_path, where, request):
+    """Two chains of shards (0 → 1, 2 → 3): each follow-up goes out only once the item before it has finished and
+    run; the same shards are written whichever way the work ran, and progress counts towards the total given."""
+    how = {"local": LOCAL, "processes": PROCESSES}.get(where) or request.getfixturevalue("ray_cluster")
+    items, written, seen = [0, 2], [], []  # items: the fan-out's, follow-ups appended after the items given
+
+    def then(i: int, result: tuple[int, bool]) -> list[int]:
+        k = items[i]
+        assert result == (30, True) and (tmp_path / f"shard_{k:05d}.npz").exists()  # it ran before its follow-up
+        written.append(k)
+        more = [k + 1] if k % 2 == 0 else []
+        items.extend(more)
+        return more
+
+    done = fan_out(ShardTask(tmp_path, SMALL, SamplerConfig()), list(items), how, progress=seen.append,
+                   stage="shards", names=lambda k: f"shard {k}", on_result=then, total=4)  # fmt: skip
+    assert set(done) == {0, 1, 2, 3} and sorted(written) == [0, 1, 2, 3] and sorted(items) == [0, 1, 2, 3]
+    assert written.index(1) > written.index(0) and written.index(3) > written.index(2)
+    assert [p.total for p in seen] == [4] * 5 and [p.step for p in seen] == list(range(5))
+    assert {p.item for p in seen[1:]} == {"shard 0", "shard 1", "shard 2", "shard 3"}
+    assert len(list_shards(tmp_path)) == 4
+
+
 @pytest.mark.parametrize("where", ["processes", "ray"])
 def test_a_failing_item_is_named_and_stops_the_run(tmp_path, where, request):
     how = PROCESSES if where == "processes" else request.getfixturevalue("ray_cluster")
@@ -212,3 +236,43 @@ def test_a_project_runs_its_sources_side_by_side_with_the_poses_of_one_process(t
     finally:
         torch.set_num_threads(threads)
     assert np.array_equal(poses["ray"], poses["one"])
+
+
+def test_a_cancelled_spread_run_keeps_every_keyframe_finished(tmp_path, hand, ray_cluster):
+    """A spread run cancelled once its first keyframe came back: that keyframe is saved (the rest of its source's
+    chain is not lost with it), the others stay pending, and the report says so."""
+    from studio.cli.main import build_parser
+    from studio.cli.run_flags import run_config_from_args
+    from studio.evaluate.worker_models import ModelRecipe
+    from studio.imitate.still import DEFAULT_MODEL
+    from studio.project.project import Project
+    from studio.project.run import run_project
+    from studio.targets.keyframes import KeyframeConfig
+    from studio.targets.video import DEFAULT_VIDEO
+
+    project = Project.create(tmp_path / "cut.shadow", sources=[DEFAULT_VIDEO], clustering=KeyframeConfig(tau=0.35))
+    project.set_roll(0.0)
+    n = len(project.keyframes)
+    assert n >= 2  # one chain: without keyframe saves it would lose everything
+    args = build_parser().parse_args(["project", "run", str(project.path), *TINY_RUN])
+    cfg = replace(run_config_from_args(args), fanout=ray_cluster)
+    cancel, seen = threading.Event(), []
+
+    def progress(p):
+        if p.stage == "keyframes":
+            seen.append((p.step, p.total, p.item))
+            if p.step >= 1:
+                cancel.set()
+
+    threads = torch.get_num_threads()
+    try:
+        report = run_project(project, cfg, cancel=cancel, progress=progress,
+                             models=ModelRecipe(str(DEFAULT_MODEL), "cpu", use_clip=False))  # fmt: skip
+    finally:
+        torch.set_num_threads(threads)
+    assert report.cancelled and report.optimised == [project.keyframes[0].id], report.message
+    assert "1 keyframe finished and saved" in report.message
+    assert seen[0][:2] == (0, n) and seen[1] == (1, n, DEFAULT_VIDEO.name)
+    again = Project.open(project.path)
+    assert list(again.results) == [project.keyframes[0].id]
+    assert again.pending_keyframes() == [kf.id for kf in project.keyframes[1:]]

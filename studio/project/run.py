@@ -39,7 +39,7 @@ from studio.motion.plan import PlanConfig
 from studio.progress import ProgressFn, stopped
 from studio.project.jobs import queue_for, roll_job, video_job
 from studio.project.run_report import RunReport, TooFast
-from studio.project.run_spread import ChainTask, chains_of, keyframe_config, optimise_spread, source_keyframes
+from studio.project.run_spread import KeyframeTask, chains_of, keyframe_config, optimise_spread, source_keyframes
 from studio.project.show_timing import ShowLayout, keyframe_box
 from studio.project.state import ProjectError
 from studio.project.status import ProjectHandle, check_sources
@@ -60,11 +60,11 @@ class RunConfig:
     layout: ShowLayout = field(default_factory=ShowLayout)  # how the sources share the show clock
     transitions: TransitionConfig = field(default_factory=TransitionConfig)  # the transition-success test
     device: str | None = None  # where the self-model and CLIP run: "cpu", "cuda" (None: CUDA when present)
-    fanout: FanoutConfig = field(default_factory=FanoutConfig)  # sources side by side on workers (run_spread)
+    fanout: FanoutConfig = field(default_factory=FanoutConfig)  # keyframes on workers, sources side by side
 
     @property
     def spread(self) -> bool:
-        """The keyframes run on workers, one source per item (:mod:`studio.project.run_spread`)."""
+        """The keyframes run on workers, the sources side by side (:mod:`studio.project.run_spread`)."""
         return self.fanout.workers > 1 or bool(self.fanout.ray)
 
 
@@ -137,8 +137,8 @@ def run_project(
     of each job as it is submitted (``what``: one line, "keyframe 3 (2 of 5)"). Raises SourceMissing or
     SourceChanged before any work, and a ProjectError naming an id that is not a keyframe. The project's write lock
     is held throughout (another writer: :class:`~studio.project.lock.ProjectLocked` before any work, or after
-    waiting up to ``wait`` s). With ``cfg.spread`` the keyframes run on workers, one source each
-    (:mod:`~studio.project.run_spread`: the same poses), reporting to ``progress``; ``models``: what each worker
+    waiting up to ``wait`` s). With ``cfg.spread`` the keyframes run on workers, the sources side
+    by side (:mod:`~studio.project.run_spread`: the same poses), reporting to ``progress``; ``models``: what each worker
     loads (default: ``model_path`` and CLIP as found, on ``cfg.device``)."""
     check_sources(project)
     cfg = cfg or RunConfig()
@@ -265,13 +265,13 @@ def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, se
 
 
 def _optimise_spread(project, cfg, clip, pending, settled, models, progress, cancel, report) -> bool:
-    """The pending keyframes on workers, one source each (:mod:`studio.project.run_spread`); False when a worker
-    failed or the run was cancelled (the sources finished before it are saved)."""
+    """The pending keyframes on workers, the sources side by side (:mod:`studio.project.run_spread`); False when a
+    worker failed or the run was cancelled (the keyframes finished before it are saved)."""
     from studio.project.jobs import project_loss
 
     chains = chains_of(project, pending, settled, cfg.layout)
-    task = ChainTask(models, project_loss(project, chains[0].masks.shape[-1], clip), cfg.sequence,
-                     project.mount.roll, cfg.plan.limits)  # fmt: skip
+    task = KeyframeTask(models, project_loss(project, chains[0].masks.shape[-1], clip), cfg.sequence,
+                        project.mount.roll, cfg.plan.limits)  # fmt: skip
     try:
         report.optimised = optimise_spread(project, chains, task, cfg.fanout, progress, cancel, report.optimised)
     except Exception as e:  # a worker's failure, or no Ray to run on: one line, what was saved stays

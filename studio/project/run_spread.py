@@ -1,20 +1,21 @@
-"""A project run spread over workers (``project run --workers N`` / ``--ray``): one source per item of a
-:func:`studio.fanout.fan_out`.
+"""A project run spread over workers (``project run --workers N`` / ``--ray``): one keyframe per item of a
+:func:`studio.fanout.fan_out`, the sources side by side.
 
 A source's pending keyframes form a chain: in ``sequential`` mode each continues from the keyframe before it in
-its source, so a chain runs in order on one worker, while the sources run side by side. Each worker holds one
+its source, so a chain goes out one keyframe at a time (the next as a follow-up of the one before it, whichever
+worker is free), while the chains of the sources run side by side. Each worker holds one
 :class:`~studio.imitate.sequence.SequenceImitator` (the self-model, CLIP and retrieval index loaded once) and runs
 every keyframe through :func:`studio.jobs.engine.imitate_keyframes`, the body of the one-process run's keyframe
-jobs, with the same seeds (:func:`~studio.project.run.keyframe_config`), the same pose before it and the same reach
-box on the show's clock. The box counts the keyframes that were current when the run started and those of its own
-source finished before it in this run (the one-process run counts the same ones), so where a chain runs never
-changes its poses: the results equal :func:`~studio.project.run.run_project`'s in one process.
+jobs, with the same seeds (:func:`keyframe_config`), the same pose before it and the same reach box on the show's
+clock. The box counts the keyframes that were current when the run started and those of its own source finished
+before it in this run (the one-process run counts the same ones), so where a keyframe runs never changes its pose:
+the results equal :func:`~studio.project.run.run_project`'s in one process.
 
 A keyframe's place in its source (:func:`source_keyframes`) and the seeds that place gives it
 (:func:`keyframe_config`) live here, for both runs.
 
-The driver saves a source's keyframes (``project.set_result``, one edit each) the moment its chain comes back;
-``cancel`` (Ctrl-C) stops the workers, and the project keeps the sources finished before it.
+The driver saves each keyframe (``project.set_result``, one edit) the moment it comes back, and progress counts
+keyframes; ``cancel`` (Ctrl-C) stops the workers, and the project keeps every keyframe finished before it.
 """
 
 from __future__ import annotations
@@ -35,7 +36,9 @@ from studio.progress import ProgressFn
 if TYPE_CHECKING:
     from studio.project.status import ProjectHandle
 
-__all__ = ["Chain", "ChainTask", "chains_of", "keyframe_config", "optimise_spread", "source_keyframes"]
+__all__ = [
+    "Chain", "KeyframeStep", "KeyframeTask", "chains_of", "keyframe_config", "optimise_spread", "source_keyframes",
+]  # fmt: skip
 
 
 def source_keyframes(project: ProjectHandle, k: int) -> list[int]:
@@ -54,7 +57,8 @@ def keyframe_config(cfg: SequenceConfig, position: int) -> SequenceConfig:
 
 @dataclass(frozen=True)
 class Chain:
-    """One source's pending keyframes, and what their runs need from the rest of the project (plain data)."""
+    """One source's pending keyframes, and what their runs need from the rest of the project (plain data; the
+    driver's: a worker gets one :class:`KeyframeStep` of it at a time)."""
 
     source: str  # the source's file name (progress lines)
     ids: tuple[int, ...]  # pending keyframe ids, first-appearance order
@@ -66,11 +70,34 @@ class Chain:
     poses: dict[int, np.ndarray]  # (21,) rad results of the keyframes outside the chain it refers to
     settled: frozenset[int]  # ids whose poses count for the reach box (current when the run started)
 
+    def step(self, j: int, poses: dict[int, np.ndarray], boxed: set[int], sequential: bool) -> KeyframeStep:
+        """Keyframe ``j`` of the chain as a worker runs it, given ``poses`` id → ``(21,)`` rad (the chain's outside
+        poses and its keyframes finished so far) and ``boxed`` (the ids that count for the reach box)."""
+        k, before = self.ids[j], self.before[j]
+        return KeyframeStep(self.source, k, self.positions[j], self.masks[j], self.expressive[j],
+                            poses[before] if sequential and before is not None else None, self.neighbours[j],
+                            {n: poses[n] for n, _ in self.neighbours[j] if n in boxed and n != k})  # fmt: skip
+
+
+@dataclass(frozen=True)
+class KeyframeStep:
+    """One keyframe as a worker runs it (plain data): its target and the poses it continues from and keeps within
+    reach of."""
+
+    source: str  # its source's file name (progress lines)
+    id: int  # the keyframe's id
+    position: int  # its place among its source's keyframes (its seeds)
+    mask: np.ndarray  # (S, S) uint8 target
+    expressive: np.ndarray  # (S, S) uint8 expressive mask
+    previous: np.ndarray | None  # (21,) rad the pose it continues from (sequential mode), None: from scratch
+    neighbours: tuple[tuple[int, float], ...]  # (id, s) of its moves on the show's clock
+    posed: dict[int, np.ndarray]  # id → (21,) rad of the neighbours whose poses count for its reach box
+
 
 @dataclass
-class ChainTask:
-    """What a worker needs to run chains (a :mod:`studio.fanout` task): paths and configs, all picklable.
-    ``task(chain) → [KeyframeResult]`` in the chain's order."""
+class KeyframeTask:
+    """What a worker needs to run keyframes (a :mod:`studio.fanout` task): paths and configs, all picklable.
+    ``task(step) → (the keyframe's id, its KeyframeResult)``."""
 
     models: ModelRecipe  # the self-model and CLIP each worker loads
     loss_cfg: LossConfig  # the project's loss weights (its expressive and temporal terms)
@@ -94,32 +121,22 @@ class ChainTask:
             self._held.imitator.close()
             self._held = None
 
-    def __call__(self, chain: Chain) -> list:
+    def __call__(self, step: KeyframeStep) -> tuple[int, Any]:
         from studio.jobs.engine import imitate_keyframes
         from studio.motion.limits import JointLimits
         from studio.project.show_timing import reach_of
 
         if self._held is None:
-            raise RuntimeError("ChainTask.setup() was not called")
+            raise RuntimeError("KeyframeTask.setup() was not called")
         seq = self._held
-        limits = JointLimits.from_hand(seq.imitator.hand, self.limits)
-        poses, boxed, out = dict(chain.poses), set(chain.settled), []
-        for j, k in enumerate(chain.ids):
-            before = chain.before[j]
-            previous = poses[before] if self.seq.mode == "sequential" and before is not None else None
-            box = None
-            if self.seq.keep_clock:
-                posed = {n: poses[n] for n in boxed if n != k}
-                box = reach_of(chain.neighbours[j], posed, limits, self.seq.clock_margin)
-            box_for = None if box is None else (lambda i, done, b=box: b)
-            result = imitate_keyframes(seq, chain.masks[j : j + 1], chain.expressive[j : j + 1],
-                                       keyframe_config(self.seq, chain.positions[j]), previous=previous,
-                                       roll=self.roll, box_for=box_for)  # fmt: skip
-            kr = result.keyframes[0]
-            poses[k] = kr.theta
-            boxed.add(k)
-            out.append(kr)
-        return out
+        box = None
+        if self.seq.keep_clock:
+            box = reach_of(step.neighbours, step.posed, JointLimits.from_hand(seq.imitator.hand, self.limits),
+                           self.seq.clock_margin)  # fmt: skip
+        result = imitate_keyframes(seq, step.mask[None], step.expressive[None],
+                                   keyframe_config(self.seq, step.position), previous=step.previous, roll=self.roll,
+                                   box_for=None if box is None else (lambda i, done: box))  # fmt: skip
+        return step.id, result.keyframes[0]
 
 
 def chains_of(project: ProjectHandle, pending: list[int], settled: set[int], layout: Any) -> list[Chain]:
@@ -150,24 +167,34 @@ def chains_of(project: ProjectHandle, pending: list[int], settled: set[int], lay
 def optimise_spread(
     project: ProjectHandle,
     chains: list[Chain],
-    task: ChainTask,
+    task: KeyframeTask,
     fanout: FanoutConfig,
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     saved: list[int] | None = None,
 ) -> list[int]:
-    """Run ``chains`` on the workers ``fanout`` names, saving each source's keyframes as its chain comes back (their
-    ids appended to ``saved`` at once, so a worker's failure raised here leaves the list of what was kept); the ids
-    saved, in the project's order. Stage "keyframes" as each source finishes (item: the source's name)."""
+    """Run ``chains`` on the workers ``fanout`` names, one keyframe at a time per chain, saving each keyframe as it
+    comes back (its id appended to ``saved`` at once, so a worker's failure raised here leaves the list of what
+    was kept); the ids saved, in the project's order. Stage "keyframes" as each finishes (item: its source)."""
     saved = [] if saved is None else saved
+    sequential = task.seq.mode == "sequential"
+    chain_of = {k: i for i, c in enumerate(chains) for k in c.ids}
+    poses = [dict(c.poses) for c in chains]  # per chain: id → (21,) rad, its outside poses and those finished
+    boxed = [set(c.settled) for c in chains]  # per chain: the ids whose poses count for the reach box
 
-    def save(i: int, results: list) -> None:
-        chain = chains[i]
-        for k, kr in zip(chain.ids, results, strict=True):
-            project.set_result(k, kr.theta, kr.loss, kr.shadow, inputs=project.keyframe_inputs(k),
-                               evaluation=kr.evaluation, collision_free=kr.collision_free,
-                               seconds=kr.seconds)  # fmt: skip
-            saved.append(k)
+    def save(_: int, done: tuple[int, Any]) -> list[KeyframeStep]:
+        k, kr = done
+        project.set_result(k, kr.theta, kr.loss, kr.shadow, inputs=project.keyframe_inputs(k),
+                           evaluation=kr.evaluation, collision_free=kr.collision_free,
+                           seconds=kr.seconds)  # fmt: skip
+        saved.append(k)
+        i = chain_of[k]
+        poses[i][k] = kr.theta
+        boxed[i].add(k)
+        j = chains[i].ids.index(k) + 1  # the chain's next keyframe follows this one
+        return [chains[i].step(j, poses[i], boxed[i], sequential)] if j < len(chains[i].ids) else []
 
-    fan_out(task, chains, fanout, progress, cancel, "keyframes", [c.source for c in chains], on_result=save)
+    first = [c.step(0, poses[i], boxed[i], sequential) for i, c in enumerate(chains)]
+    fan_out(task, first, fanout, progress, cancel, "keyframes", names=lambda step: step.source, on_result=save,
+            total=sum(len(c.ids) for c in chains))  # fmt: skip
     return [kf.id for kf in project.keyframes if kf.id in set(saved)]
