@@ -43,7 +43,8 @@ class RollSearchConfig:
     top: int = 3  # best coarse angles refined on the index and compared exactly [1, ∞)
     index_deg: float = 1.875  # index refinement stops at this step, degrees (0, coarse_deg]
     fine_deg: float = 0.25  # exact refinement (rendered loss, poses held) stops at this step, degrees (0, ∞)
-    exact_k: int = 1  # best distinct index poses per target scored exactly at each refined angle [1, ∞)
+    exact_k: int = 4  # best distinct index poses per target scored exactly at each refined angle [1, ∞); 1 let an
+    # angle whose single best index pose happened to look good win (a half turn off on a rolled reachable target)
 
     def __post_init__(self) -> None:
         if not 0 < self.coarse_deg <= 90 or not 0 < self.index_deg <= self.coarse_deg or self.fine_deg <= 0:
