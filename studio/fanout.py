@@ -110,7 +110,7 @@ def fan_out(
     if cfg.ray:
         from studio.ray_cluster import run_on_ray
 
-        run_on_ray(task, work, replace(cfg, workers=width), finished, cancel, _failed)
+        run_on_ray(task, work.items, work.take, replace(cfg, workers=width), finished, cancel, _failed)
     elif cfg.workers == 1:
         _in_process(task, work, finished, cancel)
     else:

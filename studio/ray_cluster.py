@@ -19,15 +19,12 @@ import logging
 import socket
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import ray
 
 from studio.errors import StudioError
 from studio.progress import stopped
-
-if TYPE_CHECKING:
-    from studio.fanout import Work
 
 __all__ = ["RayUnavailable", "ray_for", "run_on_ray"]
 
@@ -91,14 +88,16 @@ def _answers(address: str) -> None:
 
 def run_on_ray(
     task: Any,
-    work: Work,
+    items: list[Any],
+    take: Callable[[], int | None],
     cfg: Any,
     finished: Callable[[int, Any], None],
     cancel: threading.Event | None,
     failed: Callable[[Sequence[Any], int, BaseException], Exception],
 ) -> None:
-    """``task`` over ``work`` (:class:`studio.fanout.Work`: the items, growing as results bring follow-ups) on
-    ``cfg.workers`` actors (module doc); ``finished(i, result)`` as each returns, then every idle actor is fed."""
+    """``task`` over ``items`` (growing as results bring follow-ups; ``take()`` hands out the next one's index, None
+    when none is left now) on ``cfg.workers`` actors (module doc); ``finished(i, result)`` as each returns, then
+    every idle actor is fed."""
     n = cfg.workers
     with ray_for(cfg.ray, n * cfg.cpus_per_worker, n * cfg.gpus_per_worker):
         host = ray.remote(num_cpus=cfg.cpus_per_worker, num_gpus=cfg.gpus_per_worker)(_Host)
@@ -107,9 +106,9 @@ def run_on_ray(
         idle = list(actors)
 
         def feed() -> None:
-            while idle and (i := work.take()) is not None:
+            while idle and (i := take()) is not None:
                 actor = idle.pop(0)
-                flying[actor.run.remote(work.items[i])] = (i, actor)
+                flying[actor.run.remote(items[i])] = (i, actor)
 
         try:
             feed()
@@ -121,7 +120,7 @@ def run_on_ray(
                         result = ray.get(ref)
                     except ray.exceptions.RayError as e:
                         cause = getattr(e, "cause", None) or e
-                        raise failed(work.items, i, cause) from e
+                        raise failed(items, i, cause) from e
                     finished(i, result)
                     idle.append(actor)
                 feed()

@@ -36,15 +36,13 @@ from studio.jobs.engine import _plan
 from studio.jobs.events import JobState, Reporter
 from studio.jobs.queue import Job, JobQueue
 from studio.motion.plan import PlanConfig
-from studio.progress import ProgressFn, stopped
+from studio.progress import ProgressFn
 from studio.project.jobs import queue_for, roll_job, video_job
-from studio.project.run_report import RunReport, TooFast
-from studio.project.run_spread import KeyframeTask, chains_of, keyframe_config, optimise_spread, source_keyframes
+from studio.project.run_report import RunReport, TooFast, counted, late_transitions, plural
+from studio.project.run_spread import keyframe_config, run_spread, source_keyframes
 from studio.project.show_timing import ShowLayout, keyframe_box
 from studio.project.state import ProjectError
 from studio.project.status import ProjectHandle, check_sources
-from studio.project.summary import project_transitions
-from studio.sim.roll import roll_deg
 
 if TYPE_CHECKING:
     from studio.motion.plan import Keyframes
@@ -166,12 +164,12 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
     if project.mount.auto and not project.mount.chosen and (pending or project.results):
         job = queue.submit(roll_job(project, model_path=model_path))
         if on_job is not None:
-            on_job(job, f"the mount roll for {_count(len(ids), 'keyframe')}")
+            on_job(job, f"the mount roll for {counted(len(ids), 'keyframe')}")
         state = _wait(job, cancel)
         if state != JobState.DONE or not project.mount.chosen:
             report.cancelled, report.error = state == JobState.CANCELLED, job.error
             report.message = "choosing the mount roll " + ("cancelled" if report.cancelled else f"failed: {job.error}")
-            return _finish(report, project, cfg, t0)
+            return report.finish(project, cfg.transitions, t0)
         report.roll_chosen = True
         if keyframes is None:
             pending = list(project.status().pending)  # a new roll makes the keyframes of another one stale
@@ -179,31 +177,32 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
     status = project.status()
     settled = {k for k in ids if k in project.results and k not in status.stale and k not in pending}
     if cfg.spread and pending:
-        if not _optimise_spread(project, cfg, clip, pending, settled, models, progress, cancel, report):
-            return _finish(report, project, cfg, t0)
+        if not run_spread(project, pending, settled, cfg.sequence, cfg.layout, cfg.plan.limits, cfg.fanout, clip,
+                          models, progress, cancel, report):  # fmt: skip
+            return report.finish(project, cfg.transitions, t0)
     elif not _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, settled, report):
-        return _finish(report, project, cfg, t0)
+        return report.finish(project, cfg.transitions, t0)
     if not plan:
-        report.message = f"optimised {_count(len(report.optimised), 'keyframe')}"
-        return _finish(report, project, cfg, t0)
+        report.message = f"optimised {counted(len(report.optimised), 'keyframe')}"
+        return report.finish(project, cfg.transitions, t0)
     status = project.status()
     if status.missing or status.stale:
-        done = _count(len(report.optimised), "keyframe")
+        done = counted(len(report.optimised), "keyframe")
         report.message = (
             f"optimised {done}; the show needs every keyframe current (still to optimise: {list(status.pending)})"
         )
-        return _finish(report, project, cfg, t0)
+        return report.finish(project, cfg.transitions, t0)
     colliding = [k for k in ids if not project.results[k].collision_free]
     if colliding:
         n = len(colliding)
         them = "it" if n == 1 else "them"
-        report.message = (f"no show: the pose of {_plural('keyframe', n)} {colliding} {_plural('collides', n)} with "
+        report.message = (f"no show: the pose of {plural('keyframe', n)} {colliding} {plural('collides', n)} with "
                           f"itself; optimise {them} again with refinement on, then plan the show")  # fmt: skip
-        return _finish(report, project, cfg, t0)
+        return report.finish(project, cfg.transitions, t0)
     if project.show is not None and not status.show_stale:
-        report.show, report.message = "current", _nothing(report)
-        report.late = _late(project.show_timing(cfg.layout), project.show)
-        return _finish(report, project, cfg, t0)
+        report.show, report.message = "current", report.nothing_done()
+        report.late = late_transitions(project.show_timing(cfg.layout), project.show)
+        return report.finish(project, cfg.transitions, t0)
     timing = project.show_timing(cfg.layout)
     plan_cfg = replace(cfg.plan, timing=replace(cfg.plan.timing, allow_late=cfg.allow_late))
     job = queue.submit(plan_project_job(project, timing.keyframes, plan_cfg))
@@ -213,22 +212,22 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
     if state != JobState.DONE:
         report.cancelled, report.error = state == JobState.CANCELLED, job.error
         report.message = "planning the show " + ("cancelled" if report.cancelled else f"failed: {job.error}")
-        return _finish(report, project, cfg, t0)
+        return report.finish(project, cfg.transitions, t0)
     if isinstance(job.result, TooFast):
         report.late = timing.late_transitions(job.result.segments, job.result.home_added)
         report.too_fast = True
         report.message = (
-            f"no show: {_count(len(report.late), 'transition')} too fast for the servos at the show's clock; allow "
+            f"no show: {counted(len(report.late), 'transition')} too fast for the servos at the show's clock; allow "
             "late transitions to stretch them (the show then runs longer), or give those keyframes more time"
         )
-        return _finish(report, project, cfg, t0)
+        return report.finish(project, cfg.transitions, t0)
     planned = job.result
-    report.late = _late(timing, planned.show)
+    report.late = late_transitions(timing, planned.show)
     report.show = "planned"
-    stretched = f", {_count(len(report.late), 'late transition')} stretched" if report.late else ""
-    report.message = (f"optimised {_count(len(report.optimised), 'keyframe')}, skipped {len(report.skipped)} current; "
+    stretched = f", {counted(len(report.late), 'late transition')} stretched" if report.late else ""
+    report.message = (f"optimised {counted(len(report.optimised), 'keyframe')}, skipped {len(report.skipped)} current; "
                       f"planned a {planned.show.duration:.2f} s show{stretched}")  # fmt: skip
-    return _finish(report, project, cfg, t0)
+    return report.finish(project, cfg.transitions, t0)
 
 
 def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, settled, report) -> bool:
@@ -258,33 +257,8 @@ def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, se
         report.cancelled, report.error = state == JobState.CANCELLED, job.error
         what = "cancelled" if report.cancelled else f"failed ({job.error})"
         report.message = (
-            f"keyframe {k} {what}; {_count(len(report.optimised), 'keyframe')} finished and saved before it"
+            f"keyframe {k} {what}; {counted(len(report.optimised), 'keyframe')} finished and saved before it"
         )
-        return False
-    return True
-
-
-def _optimise_spread(project, cfg, clip, pending, settled, models, progress, cancel, report) -> bool:
-    """The pending keyframes on workers, the sources side by side (:mod:`studio.project.run_spread`); False when a
-    worker failed or the run was cancelled (the keyframes finished before it are saved)."""
-    from studio.project.jobs import project_loss
-
-    chains = chains_of(project, pending, settled, cfg.layout)
-    task = KeyframeTask(models, project_loss(project, chains[0].masks.shape[-1], clip), cfg.sequence,
-                        project.mount.roll, cfg.plan.limits)  # fmt: skip
-    try:
-        report.optimised = optimise_spread(project, chains, task, cfg.fanout, progress, cancel, report.optimised)
-    except Exception as e:  # a worker's failure, or no Ray to run on: one line, what was saved stays
-        import traceback
-
-        from studio.jobs.events import JobError
-
-        report.error = JobError(type(e).__name__, str(e), traceback.format_exc())
-        report.message = f"the spread run stopped ({e}); {_count(len(report.optimised), 'keyframe')} finished and saved"
-        return False
-    if stopped(cancel):
-        report.cancelled = True
-        report.message = f"cancelled; {_count(len(report.optimised), 'keyframe')} finished and saved before it"
         return False
     return True
 
@@ -314,50 +288,7 @@ class Running:
                            progress, models)  # fmt: skip
 
 
-def _late(timing, show) -> list[dict]:
-    """The late transitions a planned show was stretched by (its planner provenance), named by frame."""
-    from studio.motion.errors import SegmentTiming
-
-    late = [SegmentTiming(**d) for d in show.provenance.get("late_segments", [])]
-    return timing.late_transitions(late, bool(show.provenance.get("home_added", False)))
-
-
-def _nothing(report: RunReport) -> str:
-    if report.optimised:
-        return f"optimised {_count(len(report.optimised), 'keyframe')}; the show is current"
-    every = "all " if len(report.skipped) > 1 else ""
-    return f"nothing to do: {every}{_count(len(report.skipped), 'keyframe')} and the show are current"
-
-
-def _plural(word: str, n: int) -> str:
-    """``word`` agreeing with a count of ``n`` (``keyframe`` / ``keyframes``; a verb: ``collides`` / ``collide``)."""
-    if n == 1:
-        return word
-    return word[:-1] if word.endswith("des") else word + "s"
-
-
-def _count(n: int, word: str) -> str:
-    """``1 keyframe``, ``3 keyframes``: every message of a run counts in words that agree with the number."""
-    return f"{n} {_plural(word, n)}"
-
-
 def _joint_names() -> list[str]:
     from studio.sim.hand import load_hand
 
     return load_hand().joint_names
-
-
-def _finish(report: RunReport, project: ProjectHandle, cfg: RunConfig, t0: float) -> RunReport:
-    report.roll = project.mount.roll
-    if report.roll_chosen:
-        report.message = f"chose the mount roll {roll_deg(report.roll):+.1f}° (auto); {report.message}"
-    if project.show is not None and report.show is not None:
-        report.show_seconds = round(project.show.duration, 4)
-    report.transitions = project_transitions(project.state, cfg.transitions)
-    report.transitions_literal = project_transitions(project.state, replace(cfg.transitions, total="image"))
-    n = report.transitions.get("transitions", 0)
-    if n and report.show is not None:
-        report.message += (f"; transitions {report.transitions['success']}/{n} (L_base), "
-                           f"{report.transitions_literal['success']}/{n} (L_base + L_expr, the paper's)")  # fmt: skip
-    report.seconds = time.perf_counter() - t0
-    return report

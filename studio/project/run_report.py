@@ -1,12 +1,20 @@
 """What a project run did (plain data): :class:`RunReport`, the CLI's JSON summary and the notebook's message, and
-:class:`TooFast`, what the plan step returns when a transition is too fast for the servos."""
+:class:`TooFast`, what the plan step returns when a transition is too fast for the servos; the words its messages
+count in (:func:`counted`) and the run's last step (:meth:`RunReport.finish`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import time
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 from studio.jobs.events import JobError
+from studio.project.summary import project_transitions
 from studio.sim.roll import mount_text, roll_deg
+
+if TYPE_CHECKING:
+    from studio.imitate.transitions import TransitionConfig
+    from studio.project.status import ProjectHandle
 
 
 @dataclass
@@ -56,3 +64,47 @@ class RunReport:
             "roll_deg": roll_deg(self.roll), "mount": mount_text(self.roll),
             "seconds": round(self.seconds, 2),
         }  # fmt: skip
+
+    def finish(self, project: ProjectHandle, transitions: TransitionConfig, t0: float) -> RunReport:
+        """The run's last step: the roll, the show's length, both readings of transition success (in the message
+        too) and the wall time since ``t0`` (``time.perf_counter()``)."""
+        self.roll = project.mount.roll
+        if self.roll_chosen:
+            self.message = f"chose the mount roll {roll_deg(self.roll):+.1f}° (auto); {self.message}"
+        if project.show is not None and self.show is not None:
+            self.show_seconds = round(project.show.duration, 4)
+        self.transitions = project_transitions(project.state, transitions)
+        self.transitions_literal = project_transitions(project.state, replace(transitions, total="image"))
+        n = self.transitions.get("transitions", 0)
+        if n and self.show is not None:
+            self.message += (f"; transitions {self.transitions['success']}/{n} (L_base), "
+                             f"{self.transitions_literal['success']}/{n} (L_base + L_expr, the paper's)")  # fmt: skip
+        self.seconds = time.perf_counter() - t0
+        return self
+
+    def nothing_done(self) -> str:
+        """The message of a run that planned no show because the show is current."""
+        if self.optimised:
+            return f"optimised {counted(len(self.optimised), 'keyframe')}; the show is current"
+        every = "all " if len(self.skipped) > 1 else ""
+        return f"nothing to do: {every}{counted(len(self.skipped), 'keyframe')} and the show are current"
+
+
+def late_transitions(timing, show) -> list[dict]:
+    """The late transitions a planned show was stretched by (its planner provenance), named by frame."""
+    from studio.motion.errors import SegmentTiming
+
+    late = [SegmentTiming(**d) for d in show.provenance.get("late_segments", [])]
+    return timing.late_transitions(late, bool(show.provenance.get("home_added", False)))
+
+
+def plural(word: str, n: int) -> str:
+    """``word`` agreeing with a count of ``n`` (``keyframe`` / ``keyframes``; a verb: ``collides`` / ``collide``)."""
+    if n == 1:
+        return word
+    return word[:-1] if word.endswith("des") else word + "s"
+
+
+def counted(n: int, word: str) -> str:
+    """``1 keyframe``, ``3 keyframes``: every message of a run counts in words that agree with the number."""
+    return f"{n} {plural(word, n)}"

@@ -31,13 +31,15 @@ from studio.evaluate.worker_models import ModelRecipe
 from studio.fanout import FanoutConfig, fan_out
 from studio.imitate.config import LossConfig, SequenceConfig
 from studio.motion.limits import LimitsConfig
-from studio.progress import ProgressFn
+from studio.progress import ProgressFn, stopped
 
 if TYPE_CHECKING:
+    from studio.project.run_report import RunReport
     from studio.project.status import ProjectHandle
 
 __all__ = [
-    "Chain", "KeyframeStep", "KeyframeTask", "chains_of", "keyframe_config", "optimise_spread", "source_keyframes",
+    "Chain", "KeyframeStep", "KeyframeTask", "chains_of", "keyframe_config", "optimise_spread", "run_spread",
+    "source_keyframes",
 ]  # fmt: skip
 
 
@@ -198,3 +200,34 @@ def optimise_spread(
     fan_out(task, first, fanout, progress, cancel, "keyframes", names=lambda step: step.source, on_result=save,
             total=sum(len(c.ids) for c in chains))  # fmt: skip
     return [kf.id for kf in project.keyframes if kf.id in set(saved)]
+
+
+def run_spread(
+    project: ProjectHandle, pending: list[int], settled: set[int], seq: SequenceConfig, layout: Any,
+    limits: LimitsConfig, fanout: FanoutConfig, clip: Any, models: ModelRecipe, progress: ProgressFn | None,
+    cancel: threading.Event | None, report: RunReport,
+) -> bool:  # fmt: skip
+    """A run's ``pending`` keyframes on workers (``fanout``), the sources side by side on the show's clock
+    (``layout``, a :class:`~studio.project.show_timing.ShowLayout`), with the run's budgets ``seq`` and the servos'
+    ``limits`` (module doc), into ``report``; False when a worker failed or the run was cancelled (the keyframes
+    finished before it are saved)."""
+    import traceback
+
+    from studio.jobs.events import JobError
+    from studio.project.jobs import project_loss
+    from studio.project.run_report import counted
+
+    chains = chains_of(project, pending, settled, layout)
+    task = KeyframeTask(models, project_loss(project, chains[0].masks.shape[-1], clip), seq, project.mount.roll, limits)
+    try:
+        report.optimised = optimise_spread(project, chains, task, fanout, progress, cancel, report.optimised)
+    except Exception as e:  # a worker's failure, or no Ray to run on: one line, what was saved stays
+        report.error = JobError(type(e).__name__, str(e), traceback.format_exc())
+        done = counted(len(report.optimised), "keyframe")
+        report.message = f"the spread run stopped ({e}); {done} finished and saved"
+        return False
+    if stopped(cancel):
+        report.cancelled = True
+        report.message = f"cancelled; {counted(len(report.optimised), 'keyframe')} finished and saved before it"
+        return False
+    return True
