@@ -12,7 +12,7 @@ The preview runs on the **show clock** at ``fps``:
   a keyframe with no result leaves the shadow blank) on the project's clock (:func:`.show_timing.project_timing`).
 
 Ticks mark where each keyframe's pose is reached, coloured by its result's status (missing, stale, current); the
-late transitions are the run report's (:func:`studio.project.run._late`), on the show clock.
+late transitions are the run report's (:func:`studio.project.run_report.late_transitions`), on the show clock.
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ def preview_clock(inp: PreviewInputs, fps: float, home: float | None = None) -> 
     """The preview's clock of the project ``inp`` at ``fps`` (module doc); ``home``: rad/s of the move from home
     shown before a show that starts with a still (None: not shown). A
     :class:`~studio.project.state.ProjectError` when the artist's keyframe times do not fit together."""
-    from studio.project.run import _late  # the run report's late transitions: one way to name them
+    from studio.project.run_report import late_transitions  # the run report's: one way to name them
 
     s, status = inp.state, inp.status
     names = list(inp.joint_names)
@@ -86,7 +86,7 @@ def preview_clock(inp: PreviewInputs, fps: float, home: float | None = None) -> 
     frame = _frames_at(timing, remap(np.maximum(t, 0.0), marks, asked))
     ticks = _ticks(timing, status, remap(timing.keyframes.times, asked, marks))
     late = [(float(remap(d["t_start"], asked, marks)), float(remap(d["t_end"], asked, marks)))
-            for d in _late(timing, show)]  # fmt: skip
+            for d in late_transitions(timing, show)]  # fmt: skip
     note = "the planned show" + (f", after the move from home ({-t[0]:.2f} s)" if t[0] < 0 else "")
     if late:
         note += f"; {len(late)} late transition(s), stretched (shaded red)"
