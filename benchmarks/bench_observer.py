@@ -8,9 +8,9 @@ and the outline's Fourier magnitudes). Per set:
 * ``mpeg7``: the queries are the second image of each MPEG-7 class (``*-2.gif``), the gallery images 3–20;
 * ``asl``: the queries are signer 2's ``bot`` image of each letter, the gallery signer 1's five images a letter.
 
-Each query is imitated as the studio does by default (roll auto: the roll chosen, the target turned into the
-hand's frame and imitated, the shadow rendered as the rolled mount casts it; shipped 128² model, no CLIP, one torch
-thread); ``--upright`` adds the paper's rig (roll 0). The JSON (last line) has, per set and descriptor, how often
+Each query is imitated as the studio does by default (roll auto: the roll chosen, the target imitated as the
+rolled mount casts it, :class:`studio.imitate.framing.Framed`; shipped 128² model, no CLIP, one torch thread);
+``--upright`` adds the paper's rig (roll 0). The JSON (last line) has, per set and descriptor, how often
 the observer names the class of the targets and of the shadows, and ``shadow_over_target`` (the goal: 1.0), plus
 each query's names and IoU loss.
 
@@ -60,8 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     from studio.evaluate.observer import DESCRIPTORS, Observer, ObserverConfig
     from studio.evaluate.table1 import score
     from studio.imitate.still import Imitator
-    from studio.sim.roll import file_deg, into_hand_frame
-    from studio.sim.shadow import ShadowRenderer
+    from studio.sim.roll import file_deg
     from studio.targets.expressive import still_expressive
     from studio.targets.images import load_target
 
@@ -86,9 +85,8 @@ def main(argv: list[str] | None = None) -> int:
                 if row == "roll auto":
                     choice = im.choose_roll(target[None], exp[None] if exp is not None and exp.any() else None)
                     roll = choice.roll
-                turned, turned_exp = into_hand_frame(target, exp, roll)
-                got = im.imitate(turned, turned_exp, refine=True)
-                shadow = ShadowRenderer(im.hand, im.renderer.rig.with_roll(roll)).render_one(got.theta)
+                got = im.imitate(target, exp, refine=True, roll=roll)
+                shadow = got.shadow  # as the (rolled) mount casts it
                 rec[row] = {"named": {d: o.name(shadow) for d, o in observers.items()},
                             "iou_loss": round(score(loss_fn, shadow)["iou_loss"], 4), "roll_deg": file_deg(roll),
                             "collision_free": bool(got.collision_free),

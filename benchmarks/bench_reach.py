@@ -38,7 +38,7 @@ from studio.imitate.config import (
     SweepConfig,
 )
 from studio.imitate.still import Imitator
-from studio.sim.roll import into_hand_frame, wrap_deg
+from studio.sim.roll import wrap_deg
 from studio.sim.shadow import ShadowRenderer
 from studio.targets.expressive import still_expressive
 
@@ -54,7 +54,7 @@ ROLL_FOUND_DEG = 2.0  # a roll within this of the true one counts as found
 
 def run_method(name: str, theta: np.ndarray, targets: np.ndarray, rolls: np.ndarray | None = None) -> dict:
     """One method over the targets; with ``rolls (N,)`` rad the targets are rolled and the roll is chosen first
-    (roll auto), the pose then imitated in the hand's frame and scored as the rolled mount casts it."""
+    (roll auto), the pose then imitated and scored as the rolled mount casts it."""
     search, refine, config, sweep = METHODS[name]
     losses, floors, seconds, collides, errors = [], [], [], [], []
     with Imitator(search=search, refine=refine, config=config, sweep=sweep) as im:
@@ -70,10 +70,9 @@ def run_method(name: str, theta: np.ndarray, targets: np.ndarray, rolls: np.ndar
                 has = expressive is not None and expressive.any()
                 choice = im.choose_roll(target[None], expressive[None] if has else None)
                 errors.append(abs(wrap_deg(choice.deg - math.degrees(rolls[i]))))
-                result = im.imitate(*into_hand_frame(target, expressive, choice.roll))
-                rolled = ShadowRenderer(im.hand, im.renderer.rig.with_roll(choice.roll))
+                result = im.imitate(target, expressive, roll=choice.roll)
                 truth_rolled = ShadowRenderer(im.hand, im.renderer.rig.with_roll(float(rolls[i])))
-                loss = float(score(loss_fn, rolled.render_one(result.theta))["iou_loss"])
+                loss = float(score(loss_fn, result.shadow)["iou_loss"])
                 floor = score(loss_fn, truth_rolled.render_one(truth))["iou_loss"]
             losses.append(loss)
             floors.append(float(floor))

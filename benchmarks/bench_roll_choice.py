@@ -3,9 +3,9 @@ best candidate rolls, and three ways of choosing among them compared.
 
 For each target (MPEG-7 animal images by default: the ``--images`` of camel, cattle, deer, dog, elephant, horse, rat
 and turtle), the roll search's refined candidates (:func:`studio.imitate.roll_search.choose_roll`: the chosen roll
-first, then the other refined angles by their exact first-answer loss) are each imitated in full (the target
-turned into the hand's frame; shipped model, no CLIP, one torch thread) and the rolled mount's shadow scored
-against the target as it is. Printed last, as JSON, the mean IoU loss when the roll is:
+first, then the other refined angles by their exact first-answer loss) are each imitated in full (as that
+rolled mount casts it; shipped model, no CLIP, one torch thread) and the rolled mount's shadow scored against the
+target as it is. Printed last, as JSON, the mean IoU loss when the roll is:
 
 * ``chosen``: roll auto's choice (what the studio does);
 * ``after_sweep``: the candidate whose best loss after the block sweep is lowest (a choice made later, at the cost
@@ -43,8 +43,6 @@ def main(argv: list[str] | None = None) -> int:
     from studio.evaluate.table1 import score
     from studio.imitate.roll_search import RollSearchConfig
     from studio.imitate.still import Imitator
-    from studio.sim.roll import into_hand_frame
-    from studio.sim.shadow import ShadowRenderer
     from studio.targets.expressive import still_expressive
     from studio.targets.images import image_class, image_number
 
@@ -65,9 +63,8 @@ def main(argv: list[str] | None = None) -> int:
             rows = []
             for deg, exact in choice.candidates[: args.top]:
                 roll = math.radians(deg)
-                turned, turned_exp = into_hand_frame(target, exp, roll)
-                got = im.imitate(turned, turned_exp, refine=True)
-                shadow = ShadowRenderer(im.hand, im.renderer.rig.with_roll(roll)).render_one(got.theta)
+                got = im.imitate(target, exp, refine=True, roll=roll)
+                shadow = got.shadow  # as the rolled mount casts it
                 rows.append({"deg": round(deg, 2), "exact_first_answer": round(exact, 4),
                              "after_sweep": round(float(got.swept.loss[0]), 4) if got.swept is not None else None,
                              "iou_loss": round(score(loss_fn, shadow)["iou_loss"], 4)})  # fmt: skip

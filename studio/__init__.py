@@ -62,7 +62,7 @@ _API: dict[str, str] = {
     "PRESETS": "studio.imitate.config",
     "Imitator": "studio.imitate.still",
     "ImitationResult": "studio.imitate.still",
-    "imitate_still": "studio.imitate.still",
+    "imitate_still": "studio.imitate.one_still",
     "imitate_sequence": "studio.imitate.sequence",
     "find_clip": "studio.imitate.clip_loss",
     "choose_roll": "studio.imitate.roll_search",

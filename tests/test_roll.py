@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+import torch
 
 from studio.imitate.config import LossConfig
 from studio.imitate.losses import ImageLoss
@@ -152,6 +153,33 @@ def test_roll_auto_keeps_the_upright_rig_for_an_upright_target(small_index, hand
     target = ShadowRenderer(hand, Rig(resolution=R)).render_one(index.theta[11].astype(np.float64))
     choice = choose_roll(index, refiner, target[None], None, lambda t, e: ImageLoss(t, lc, None, e))
     assert abs(choice.deg) <= 2.0
+
+
+def test_a_rolled_imitation_is_scored_as_the_rolled_mount_casts_it(small_index, hand):
+    """``imitate(target, roll=…)``: the target stays as the audience sees it; the index ranks by the turned target,
+    and every rendered score is the rolled mount's shadow against the target itself, so the pose that cast the
+    target is found exactly (turning a 128² target would blur it), and the result's shadow and losses are the
+    audience's."""
+    from studio.imitate.config import RefineConfig, SearchConfig, SweepConfig
+    from studio.imitate.still import Imitator
+
+    index, _ = small_index
+    roll = math.radians(-100.0)
+    theta = index.theta[700].astype(np.float64)
+    rolled = ShadowRenderer(hand, Rig(resolution=R, roll=roll))
+    target = rolled.render_one(theta)
+    tiny = dict(search=SearchConfig(batch=4, iterations=3), sweep=SweepConfig(starts=1, draws=16, wrist_draws=8,
+                passes=1), refine=RefineConfig(method="cmaes", restarts=1, steps=3, popsize=4))  # fmt: skip
+    with Imitator(retrieval=index, **tiny) as im:
+        got = im.imitate(target, None, roll=roll)
+        upright = im.imitate(into_hand_frame(target, None, roll)[0], None)  # the old way: the target turned
+    assert np.array_equal(got.first.theta[0], theta) and got.first.loss[0] < 1e-6  # found exactly
+    assert np.array_equal(got.shadow, rolled.render_one(got.theta)) and np.array_equal(got.target, target)
+    exact = ImageLoss(target, LossConfig(use_clip=False, crop_size=R))
+    assert got.loss["total"] == pytest.approx(float(exact(torch.from_numpy(got.shadow[None]).float())[0][0]),
+                                              abs=1e-5)  # fmt: skip
+    assert got.loss["iou_loss"] < 1e-6 and got.collision_free
+    assert upright.first.loss[0] > 0.01  # turned, the same pose no longer matches exactly
 
 
 def test_show_files_with_and_without_a_roll_validate(tmp_path, hand):

@@ -28,7 +28,7 @@ from studio.imitate.losses import ImageLoss
 from studio.imitate.still import Imitator
 from studio.learn.inverse import InverseCNN
 from studio.progress import ProgressFn, report, staged, stopped
-from studio.sim.roll import file_deg, into_hand_frame
+from studio.sim.roll import file_deg
 from studio.sim.shadow import ShadowRenderer
 from studio.targets.expressive import still_expressive
 
@@ -180,8 +180,8 @@ class Evaluator:
 
     def _rolled(self, target, expressive, progress, cancel) -> dict[str, BaselineOutput]:
         """Ours on the rolled mount (``cfg.roll``: chosen by ``--roll auto`` for this target, or given): the target
-        turned into the hand's frame, imitated, and every shadow rendered as that mount casts it. Seconds include
-        choosing the roll."""
+        imitated as that mount casts it (:class:`~studio.imitate.framing.Framed`), every shadow rendered so. Seconds
+        include choosing the roll."""
         t0 = time.perf_counter()
         im = self.imitator
         if self.cfg.roll == "auto":
@@ -191,12 +191,11 @@ class Evaluator:
         else:
             roll = math.radians(float(self.cfg.roll))
         t_roll = time.perf_counter() - t0
-        turned, turned_exp = into_hand_frame(target, expressive, roll)
-        got = im.imitate(turned, turned_exp, refine=True, progress=progress, cancel=cancel)
+        got = im.imitate(target, expressive, refine=True, progress=progress, cancel=cancel, roll=roll)
         rolled = self._renderer(roll, im.resolution)
         names = [m.format(roll=self.cfg.roll_rows) for m in ROLLED]
-        out = {names[1]: BaselineOutput(got.theta, rolled.render_one(got.theta), not got.collision_free,
-                                        t_roll + got.seconds, roll=roll)}  # fmt: skip
+        out = {names[1]: BaselineOutput(got.theta, got.shadow, not got.collision_free, t_roll + got.seconds,
+                                        roll=roll)}  # fmt: skip
         if got.first is not None:
             theta = got.first.theta[0]
             collides = bool(im.refiner.world.in_collision(theta)[0])
@@ -297,8 +296,9 @@ def table_notes(rows: list[dict], st: dict, cfg: EvalConfig) -> list[str]:
                "renderer), its time in the seconds" if cfg.roll == "auto" else "the given roll")  # fmt: skip
         notes.append(
             f"Ours, {cfg.roll_rows}: the hand's mount rolled about the light axis ({how}); the target is "
-            "turned into the hand's frame and imitated as above, and the shadow the rolled mount casts is scored "
-            "against the target as it is. The rows above are the paper's upright rig (roll 0)."
+            "imitated as above, every pose rendered as the rolled mount casts it and scored against the target "
+            "as it is (only the self-model's search sees the target turned into the hand's frame). The rows "
+            "above are the paper's upright rig (roll 0)."
         )
     if not st["losses"]["use_clip"]:
         notes.append(

@@ -39,7 +39,7 @@ from studio.motion.reach import clock_boxes
 from studio.motion.video_timing import transition_times, video_end, video_keyframes
 from studio.path_checks import check_text
 from studio.progress import ProgressFn, report, staged, stopped
-from studio.sim.roll import into_hand_frame, roll_deg
+from studio.sim.roll import roll_deg
 from studio.targets.expressive import expressive_masks
 from studio.targets.footage import VIDEO_SUFFIXES
 from studio.targets.images import IMAGE_SUFFIXES
@@ -221,18 +221,18 @@ class VideoEvaluator:
         steps = staged(progress, "", item=name)
         t0 = time.perf_counter()
         masks, expressive, roll = s.masks, s.expressive, 0.0
-        if row.roll:  # one mount for the whole sequence: every keyframe target turned into the hand's frame
+        if row.roll:  # one mount for the whole sequence, its shadows scored as it casts them
             choice = self.seq.imitator.choose_roll(s.masks, s.expressive, progress=steps, cancel=cancel)
             if choice is None:
                 return None
             roll = choice.roll
-            turned = [into_hand_frame(m, e, roll) for m, e in zip(s.masks, s.expressive, strict=True)]
-            masks, expressive = np.stack([m for m, _ in turned]), np.stack([e for _, e in turned])
         box_for = None
         if row.clock:
             limits = JointLimits.from_hand(self.seq.imitator.hand, self.limits)
             box_for = clock_boxes(transition_times(self._timing(s)), limits, self.cfg.clock_margin)
-        result = self.seq.imitate(masks, expressive, steps, cancel, cfg=row.config(self.cfg), box_for=box_for)
+        result = self.seq.imitate(
+            masks, expressive, steps, cancel, cfg=row.config(self.cfg), box_for=box_for, roll=roll
+        )
         if result.cancelled:
             return None
         seconds = time.perf_counter() - t0  # choosing the roll and the poses (planning the check below is not in it)
@@ -353,7 +353,7 @@ class VideoEvaluator:
         if any(r.clock or r.roll for r in self.rows):
             notes.append(
                 f"{STUDIO_ROW.name}: the studio's method. One mount roll per sequence chosen by roll auto on the "
-                "keyframe targets (the targets turned into the hand's frame); every keyframe kept within the "
+                "keyframe targets, every pose scored as that mount casts it; every keyframe kept within the "
                 f"servos' rest-to-rest reach of its posed neighbours in {cfg.clock_margin:g} × the time each "
                 "transition has (studio.motion.reach), in retrieval, sweep, search and refinement. The six rows "
                 "above are the paper's: upright rig, poses chosen without the clock."

@@ -96,6 +96,16 @@ class Refiner:
         finally:
             self.box = before
 
+    def with_roll(self, roll: float) -> Refiner:
+        """A refiner that renders and scores poses as a mount rolled by ``roll`` rad casts them (the shadows of the
+        audience's frame), on this one's collision world (a roll changes no collision) and with its box; itself
+        when ``roll`` is 0. Closing it leaves the world to this one."""
+        if not roll:
+            return self
+        rolled = Refiner(ShadowRenderer(self.hand, self.renderer.rig.with_roll(roll)), self.world)
+        rolled.box = self.box
+        return rolled
+
     def close(self) -> None:
         """Disconnect the collision world if this refiner made it (idempotent)."""
         if self._owns_world:

@@ -148,6 +148,7 @@ class SequenceImitator:
         best_pose: Callable[[np.ndarray], None] | None = None,
         previous: np.ndarray | None = None,
         box_for: BoxFn | None = None,
+        roll: float = 0.0,
     ) -> SequenceResult:
         """Keyframe targets ``masks (K, S, S)`` uint8 (1 = shadow) in first-appearance order (all N frames work too:
         each is then its own keyframe), their expressive masks ``(K, S, S)`` or None → :class:`SequenceResult`.
@@ -165,6 +166,8 @@ class SequenceImitator:
         ``box_for(k, done)`` → ``(lower (21,), upper (21,))`` rad or None: the box keyframe ``k``'s pose must keep
         given the poses ``done`` so far (e.g. its reach on the show's clock from its posed neighbours,
         :func:`~studio.motion.reach.reach_box`): retrieval, sweep, search and refinement all stay inside it.
+        ``roll`` rad: the mount's roll; the masks are as the audience sees them, and every shadow and loss is the
+        rolled mount's (:class:`~studio.imitate.framing.Framed`).
         """
         if self.refiner.closed:
             raise ClosedError("this SequenceImitator was closed; make a new one (or imitate inside its `with` block)")
@@ -194,7 +197,7 @@ class SequenceImitator:
             exp_k = None if expressive is None else expressive[k]
             box = None if box_for is None else box_for(k, [d.theta for d in done])
             with self.refiner.bounded(box):
-                r = self._keyframe(cfg, k, n, masks[k], exp_k, prev, progress, cancel, best_pose)
+                r = self._keyframe(cfg, k, n, masks[k], exp_k, prev, progress, cancel, best_pose, roll)
             if r is None:  # cancelled half-way
                 break
             done.append(r)
@@ -210,26 +213,29 @@ class SequenceImitator:
         cancelled = len(done) < n
         return SequenceResult(done, cfg, n, time.perf_counter() - t0, cancelled)
 
-    def _keyframe(self, cfg, k, n, target, expressive, prev, progress, cancel, best_pose=None) -> KeyframeResult | None:
+    def _keyframe(
+        self, cfg, k, n, target, expressive, prev, progress, cancel, best_pose=None, roll=0.0
+    ) -> KeyframeResult | None:
         t0 = time.perf_counter()
-        loss_fn = ImageLoss(target, self.loss_cfg, self.imitator.clip, expressive if cfg.expressive else None)
+        framed = self.imitator.framed(target, expressive if cfg.expressive else None, roll)
+        loss_fn, refiner = framed.exact, framed.refiner
         prev_t = prev if (cfg.temporal and prev is not None) else None  # the temporal term's θ*_{k−1}
         inherit = cfg.mode == "sequential" and prev is not None
         search_cfg = replace(cfg.next if inherit else cfg.first, seed=(cfg.next if inherit else cfg.first).seed + k)
         stages = progress if n == 1 else staged(progress, f"keyframe {k + 1}/{n}: ")  # "keyframe 2/5: search"
-        live = LiveBest(self.refiner, loss_fn, stages, best_pose, prev_t)  # what is shown: only ever better
+        live = LiveBest(refiner, loss_fn, stages, best_pose, prev_t)  # what is shown: only ever better
         seeds, seed_s = None, 0.0
         if cfg.retrieve and not inherit:  # retrieval's first answer, then the block sweep of its best poses
             t_seed = time.perf_counter()
-            seeds = self.imitator.seed(loss_fn, target, prev_t, live.report, cancel, live.pose, k=search_cfg.batch,
-                                       sweep=cfg.sweep)  # fmt: skip
+            seeds = self.imitator.seed(loss_fn, framed.ranking, prev_t, live.report, cancel, live.pose,
+                                       k=search_cfg.batch, sweep=cfg.sweep, refiner=refiner)  # fmt: skip
             if stopped(cancel):
                 return None
             seed_s = time.perf_counter() - t_seed
         t_search = time.perf_counter()
         search = gradient_search(
-            self.model, loss_fn, search_cfg, prev if inherit else None, prev_t, live.report, cancel, live.pose,
-            starts=None if seeds is None else seeds.best.theta, box=self.refiner.box,
+            self.model, framed.model, search_cfg, prev if inherit else None, prev_t, live.report, cancel, live.pose,
+            starts=None if seeds is None else seeds.best.theta, box=refiner.box,
         )  # fmt: skip
         t1 = time.perf_counter()
         if search.cancelled:
@@ -237,30 +243,30 @@ class SequenceImitator:
         pool_theta, pool_loss, theta = search.batch_theta, search.batch_loss, search.theta
         if seeds is not None:  # ranked on the renderer, the seeds and the poses shown kept: never worse than those
             pool_theta, pool_loss, theta = rendered_pool(
-                self.refiner, loss_fn, search.batch_theta, search.theta, seeds.best, prev_t, live.shown()
+                refiner, loss_fn, search.batch_theta, search.theta, seeds.best, prev_t, live.shown()
             )
         if cfg.refine_enabled:
-            best = refine_best(self.refiner, loss_fn, pool_theta, pool_loss, cfg.candidates, cfg.refine,
+            best = refine_best(refiner, loss_fn, pool_theta, pool_loss, cfg.candidates, cfg.refine,
                                live.report, cancel, prev_t, live.pose)  # fmt: skip
             if stopped(cancel):
                 return None
             if best is not None and best.collision_free:
                 theta = best.theta
         t2 = time.perf_counter()
-        _, comps = self.refiner.score(loss_fn, theta[None], prev_t)
+        _, comps = refiner.score(loss_fn, theta[None], prev_t)
         eval_fn = (
             loss_fn
             if (expressive is None or cfg.expressive)
             else ImageLoss(target, self.loss_cfg, self.imitator.clip, expressive)
         )
-        _, evaluation = self.refiner.score(eval_fn, theta[None], prev)
+        _, evaluation = refiner.score(eval_fn, theta[None], prev)
         return KeyframeResult(
             index=k,
             theta=np.asarray(theta, dtype=np.float64),
-            shadow=self.renderer.render_one(theta),
+            shadow=refiner.renderer.render_one(theta),
             loss=_components(comps),
             evaluation=_components(evaluation),
-            collision_free=not bool(self.refiner.world.in_collision(theta)[0]),
+            collision_free=not bool(refiner.world.in_collision(theta)[0]),
             search_loss=search.loss,
             seconds=t2 - t0,
             timings={"seed": seed_s, "search": t1 - t_search, "refine": t2 - t1},

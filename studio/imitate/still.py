@@ -28,6 +28,7 @@ from studio.imitate.config import (
     SearchConfig,
     SweepConfig,
 )
+from studio.imitate.framing import Framed, Framer
 from studio.imitate.live_best import LiveBest
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner, RefineResult
@@ -39,7 +40,6 @@ from studio.learn.checkpoint import model_rig
 from studio.learn.selfmodel import SelfModel, load_selfmodel
 from studio.progress import ProgressFn, report, stopped
 from studio.sim.shadow import ShadowRenderer
-from studio.targets.expressive import still_expressive
 from studio.targets.images import TargetConfig, load_target
 
 DEFAULT_MODEL = asset("models/selfmodel_cpu128.pt", must_exist=False)  # the shipped 128² CPU self-model
@@ -49,16 +49,16 @@ DEFAULT_MODEL = asset("models/selfmodel_cpu128.pt", must_exist=False)  # the shi
 class ImitationResult:
     """Everything one imitation produced (plain data)."""
 
-    target: np.ndarray  # (R, R) uint8 target mask in the model's frame, 1 = shadow
+    target: np.ndarray  # (R, R) uint8 target mask at the model's resolution, as the audience sees it, 1 = shadow
     search: SearchResult  # gradient search through the self-model
-    predicted: np.ndarray  # (R, R) float self-model image of the searched pose
+    predicted: np.ndarray  # (R, R) float self-model image of the searched pose (the upright hand's frame)
     unrefined_theta: np.ndarray  # (21,) rad the pose before refinement (ImitateConfig.select: how it is picked)
-    unrefined_shadow: np.ndarray  # (R, R) uint8 rendered shadow of the searched pose
+    unrefined_shadow: np.ndarray  # (R, R) uint8 rendered shadow of the searched pose (as the mount casts it)
     unrefined_loss: dict[str, float]  # rendered-shadow loss components of the searched pose
     unrefined_collides: bool  # the searched pose penetrates itself
     refine: RefineResult | None  # hill climbing (None when skipped)
     theta: np.ndarray  # (21,) rad final pose (refined when refinement ran and found a free pose)
-    shadow: np.ndarray  # (R, R) uint8 rendered shadow of the final pose
+    shadow: np.ndarray  # (R, R) uint8 rendered shadow of the final pose (as the mount, rolled or not, casts it)
     loss: dict[str, float]  # rendered-shadow loss components of the final pose
     collision_free: bool  # the final pose does not penetrate itself
     seconds: float  # wall time of search + refinement
@@ -105,6 +105,7 @@ class Imitator:
         self.refiner = Refiner(self.renderer)
         self._index = retrieval if isinstance(retrieval, RetrievalIndex) else None
         self._warmed = False  # torch's first-use start-up is done (run beside the first sweep)
+        self._framer = Framer(self.refiner, self.loss_fn)  # targets on a rolled mount (keeps its refiner)
         self.retrieval_cfg = self._index.cfg if self._index is not None else retrieval or RetrievalConfig()
 
     @property
@@ -128,6 +129,11 @@ class Imitator:
     def loss_fn(self, target: np.ndarray, expressive: np.ndarray | None = None) -> ImageLoss:
         return ImageLoss(target, self.loss_cfg, self.clip, expressive)
 
+    def framed(self, target: np.ndarray, expressive: np.ndarray | None, roll: float) -> Framed:
+        """``target (R, R)`` and its expressive mask as the audience sees them, on a mount rolled by ``roll`` rad
+        (:class:`~studio.imitate.framing.Framed`: which loss scores what)."""
+        return self._framer(target, expressive, roll)
+
     def retrieval_index(
         self, progress: ProgressFn | None = None, cancel: threading.Event | None = None,
         fanout: FanoutConfig | None = None,
@@ -147,8 +153,11 @@ class Imitator:
         progress: ProgressFn | None = None,
         cancel: threading.Event | None = None,
         best_pose: Callable[[np.ndarray], None] | None = None,
+        roll: float = 0.0,
     ) -> ImitationResult:
-        """Retrieve, search, then (optionally) refine. Reports :class:`~studio.progress.Progress` with stages
+        """Retrieve, search, then (optionally) refine ``target (R, R)`` as the audience sees it, on a mount rolled
+        by ``roll`` rad (:class:`Framed`: the shadows and losses are the rolled mount's, against the target as it
+        is). Reports :class:`~studio.progress.Progress` with stages
         "index" (building the retrieval index, once per machine), "retrieve" (the first answer), "sweep" (the block
         sweep of the best retrieved poses), "search" and "refine"; ``best_pose(θ (21,) rad)`` gets each pose that is
         collision-free and better than every one before it (the first answer, then the sweep's, the search's and the
@@ -161,40 +170,42 @@ class Imitator:
         if self.refiner.closed:
             raise ClosedError("this Imitator was closed; make a new one (or imitate inside its `with` block)")
         t0 = time.perf_counter()
-        loss_fn = self.loss_fn(target, expressive)
-        live = LiveBest(self.refiner, loss_fn, progress, best_pose)  # what is shown: only ever better
+        framed = self.framed(target, expressive, roll)
+        loss_fn, refiner = framed.exact, framed.refiner
+        live = LiveBest(refiner, loss_fn, progress, best_pose)  # what is shown: only ever better
         timings: dict[str, float] = {}
-        seeds = self.seed(loss_fn, target, progress=live.report, cancel=cancel, best_pose=live.pose)
+        seeds = self.seed(loss_fn, framed.ranking, progress=live.report, cancel=cancel, best_pose=live.pose,
+                          refiner=refiner)  # fmt: skip
         if seeds is not None:
             timings |= seeds.timings  # index, first_answer, sweep
         first, swept = (seeds.first, seeds.swept) if seeds is not None else (None, None)
         t_s = time.perf_counter()
         search = gradient_search(
-            self.model, loss_fn, self.search_cfg, progress=live.report, cancel=cancel, best_pose=live.pose,
+            self.model, framed.model, self.search_cfg, progress=live.report, cancel=cancel, best_pose=live.pose,
             starts=None if seeds is None else seeds.best.theta,
         )  # fmt: skip
-        pool_theta, pool_loss, unrefined = self._select(loss_fn, search, seeds, live)
+        pool_theta, pool_loss, unrefined = self._select(loss_fn, search, seeds, live, refiner)
         t1 = time.perf_counter()
         timings["search"] = t1 - t_s
         with torch.no_grad():
             device = next(self.model.parameters()).device
             predicted = self.model(torch.tensor(unrefined[None], dtype=torch.float32, device=device))
-        shadow0 = self.renderer.render_one(unrefined)
-        _, comps0 = self.refiner.score(loss_fn, unrefined[None])
-        collides0 = bool(self.refiner.world.in_collision(unrefined)[0])
+        shadow0 = refiner.renderer.render_one(unrefined)
+        _, comps0 = refiner.score(loss_fn, unrefined[None])
+        collides0 = bool(refiner.world.in_collision(unrefined)[0])
         result = None
         theta, shadow, comps = unrefined, shadow0, {k: float(v[0]) for k, v in comps0.items()}
         cancelled = search.cancelled
         if refine and not cancelled:
-            result = refine_best(self.refiner, loss_fn, pool_theta, pool_loss, self.candidates, self.refine_cfg,
+            result = refine_best(refiner, loss_fn, pool_theta, pool_loss, self.candidates, self.refine_cfg,
                                  live.report, cancel, best_pose=live.pose)  # fmt: skip
             if result is not None and result.collision_free:
                 theta, comps = result.theta, result.components
-                shadow = self.renderer.render_one(theta)
+                shadow = refiner.renderer.render_one(theta)
         t2 = time.perf_counter()
         timings["refine"] = t2 - t1
         cancelled = cancelled or stopped(cancel)
-        collision_free = not bool(self.refiner.world.in_collision(theta)[0])
+        collision_free = not bool(refiner.world.in_collision(theta)[0])
         return ImitationResult(
             target=np.asarray(target, dtype=np.uint8),
             search=search,
@@ -244,12 +255,15 @@ class Imitator:
         best_pose: Callable[[np.ndarray], None] | None = None,
         k: int | None = None,
         sweep: SweepConfig | None = None,
+        refiner: Refiner | None = None,
     ) -> Seeds | None:
         """The seeds of a search from scratch for ``target (R, R)`` under ``loss_fn`` (+ the temporal term against
         ``theta_prev (21,)`` rad): the retrieval's ``k`` best distinct poses (None: this imitator's search batch;
         stage "retrieve", the first answer), swept by ``sweep`` (None: ``self.sweep_cfg``; stage "sweep"); stage
-        "index" while the index is built, once per machine. None when ``config.retrieve`` is off (the paper's
-        sampled batch) or ``cancel`` stopped the index build. ``timings`` has "index" too."""
+        "index" while the index is built, once per machine; the shortlist and the sweep scored on ``refiner``
+        (default this imitator's: a rolled one scores what a rolled mount casts, :class:`Framed`, while ``target``
+        is what the index ranks by). None when ``config.retrieve`` is off (the paper's sampled batch) or ``cancel``
+        stopped the index build. ``timings`` has "index" too."""
         if not self.cfg.retrieve:
             return None
         t0 = time.perf_counter()
@@ -258,8 +272,8 @@ class Imitator:
             return None
         t_index = time.perf_counter() - t0
         seeds = seed_poses(
-            index, self.refiner, sweep or self.sweep_cfg, loss_fn, target, k or self.search_cfg.batch, theta_prev,
-            progress, cancel, best_pose, beside_sweep=None if self._warmed else self._warm_model,
+            index, refiner or self.refiner, sweep or self.sweep_cfg, loss_fn, target, k or self.search_cfg.batch,
+            theta_prev, progress, cancel, best_pose, beside_sweep=None if self._warmed else self._warm_model,
         )  # fmt: skip
         seeds.timings["index"] = t_index
         return seeds
@@ -275,7 +289,7 @@ class Imitator:
         self._warmed = True
 
     def _select(
-        self, loss_fn: ImageLoss, search: SearchResult, seeds: Seeds | None, live: LiveBest
+        self, loss_fn: ImageLoss, search: SearchResult, seeds: Seeds | None, live: LiveBest, refiner: Refiner
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The refinement's candidate pool ``(P, 21)`` with its losses ``(P,)``, and the unrefined pose ``(21,)``.
 
@@ -285,47 +299,5 @@ class Imitator:
         the first answer or any pose the caller was shown)."""
         if self.cfg.select == "model":
             return search.batch_theta, search.batch_loss, search.theta
-        return rendered_pool(self.refiner, loss_fn, search.batch_theta, search.theta,
+        return rendered_pool(refiner, loss_fn, search.batch_theta, search.theta,
                              None if seeds is None else seeds.best, shown=live.shown())  # fmt: skip
-
-
-def imitate_still(
-    target: np.ndarray | str | Path,
-    model_path: Path | None = None,
-    search: SearchConfig | None = None,
-    refine: RefineConfig | None = None,
-    target_cfg: TargetConfig | None = None,
-    device: str | None = None,
-    progress: ProgressFn | None = None,
-    cancel: threading.Event | None = None,
-    threads: int | None = 1,
-) -> ImitationResult:
-    """One still target end to end with the shipped model (or ``model_path``), CLIP off, holes as expressive region;
-    ``progress`` and ``cancel`` as :meth:`Imitator.imitate` (its stages, its partial result).
-
-    ``target`` is an image path (loaded with ``target_cfg``) or a mask ``(R, R)`` framed at the model's resolution
-    (``load_target(path, size=R)``). ``threads``: torch CPU threads for this call, restored after (1 is far faster
-    on shared cores, DESIGN §6; None leaves torch's setting). For many targets keep an :class:`Imitator` instead: it
-    loads the model once.
-    """
-    before = torch.get_num_threads()
-    if threads:
-        torch.set_num_threads(threads)
-    try:
-        return _imitate_still(target, model_path, search, refine, target_cfg, device, progress, cancel)
-    finally:
-        torch.set_num_threads(before)
-
-
-def _imitate_still(target, model_path, search, refine, target_cfg, device, progress, cancel) -> ImitationResult:
-    with Imitator(model_path=model_path, search=search, refine=refine, device=device) as imitator:
-        if isinstance(target, (str, Path)):
-            mask = imitator.load(Path(target), target_cfg)
-        else:
-            mask = np.asarray(target)
-            r = imitator.resolution
-            if mask.shape != (r, r):
-                raise ValueError(
-                    f"target mask is {mask.shape}; this model works at ({r}, {r}): load_target(path, size={r})"
-                )
-        return imitator.imitate(mask, still_expressive(mask), progress=progress, cancel=cancel)

@@ -115,10 +115,10 @@ def imitate_video_job(
     Stages are "keyframe k/K: search" and "keyframe k/K: refine", after "keyframe k/K: retrieve" and ".. : sweep"
     for a keyframe seeded from scratch (``cfg.retrieve``). ``clip`` as for :func:`imitate_keyframe_job`;
     ``previous (21,) rad``: the pose before the first of these keyframes (continuing a sequence), None: none;
-    ``device``: where the self-model runs (None: CUDA when present); ``roll``: the mount roll, rad (the targets turn
-    into the hand's frame, :func:`studio.sim.roll.into_hand_frame`; the shadows and previews come back as the rolled
-    mount casts them); ``box``: ``(lower, upper) (21,)`` rad every keyframe's pose keeps (its reach on the show's
-    clock)."""
+    ``device``: where the self-model runs (None: CUDA when present); ``roll``: the mount roll, rad (the targets are as
+    the audience sees them; every shadow, loss and preview is the rolled mount's, and only the self-model's search
+    sees them turned into the hand's frame, :class:`studio.imitate.framing.Framed`); ``box``: ``(lower, upper)
+    (21,)`` rad every keyframe's pose keeps (its reach on the show's clock)."""
     run = functools.partial(
         _imitate_video, masks=np.asarray(masks), expressive=None if expressive is None else np.asarray(expressive),
         cfg=cfg, loss_cfg=loss_cfg, clip=clip, model_path=model_path, preview=preview,
@@ -157,29 +157,17 @@ def imitate_keyframes(
     """The one imitation of keyframe targets ``masks (K, S, S)`` (and ``expressive``) with a
     :class:`~studio.imitate.sequence.SequenceImitator` already holding its models → its ``SequenceResult``: the
     body of :func:`imitate_video_job`, and of a spread project run's workers (:mod:`studio.project.run_spread`).
-    ``roll`` rad turns the targets into the hand's frame and the shadows back as the rolled mount casts them;
+    ``roll`` rad: the mount's roll (every shadow and loss is the rolled mount's against the targets as they are);
     ``box_for(k, done)`` as ``SequenceImitator.imitate``."""
     from dataclasses import replace
 
     from studio.imitate.config import CPU_SEQUENCE
-    from studio.sim.roll import into_hand_frame
-    from studio.sim.shadow import ShadowRenderer
 
     cfg = cfg or CPU_SEQUENCE
     if expressive is None and cfg.expressive:
         cfg = replace(cfg, expressive=False)  # no masks given: the base loss alone
-    if roll:
-        turned = [into_hand_frame(m, None if expressive is None else expressive[k], roll) for k, m in enumerate(masks)]
-        masks = np.stack([t for t, _ in turned])
-        expressive = None if expressive is None else np.stack([e for _, e in turned])
-    result = seq.imitate(masks, expressive, progress, cancel, cfg=cfg, best_pose=best_pose, previous=previous,
-                         box_for=box_for)  # fmt: skip
-    if roll:  # what the rolled mount casts (the losses were measured in the hand's frame: the same up to aliasing)
-        im = seq.imitator
-        rolled = ShadowRenderer(im.hand, im.renderer.rig.with_roll(roll))
-        for kr in result.keyframes:
-            kr.shadow = rolled.render_one(kr.theta)
-    return result
+    return seq.imitate(masks, expressive, progress, cancel, cfg=cfg, best_pose=best_pose, previous=previous,
+                       box_for=box_for, roll=roll)  # fmt: skip
 
 
 def choose_roll_job(

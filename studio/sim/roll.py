@@ -3,7 +3,9 @@
 A mount rolled by ``roll`` rad about the light axis turns every shadow by ``roll`` about the image centre
 (counter-clockwise as the audience sees the backdrop, image row 0 at the top), and changes nothing else: the
 self-model, renderer, collision world and retrieval index all work in the unrolled hand's frame, and only the target
-turns into it (by ``-roll``). Two operations, both pure compute on ``(…, S, S)`` images:
+turns into it (by ``-roll``) for what works on images of the unrolled hand (the self-model's search, the index's
+ranking); what the audience will see is rendered by the rolled rig itself (``Rig.with_roll``) and scored against
+the target as it is (:class:`studio.imitate.framing.Framed`). Two operations, both pure compute on ``(…, S, S)`` images:
 
 - :func:`turn` turns images about the image centre (what the rolled mount shows: ``turn(render(θ), roll)`` equals
   the rolled renderer's shadow up to edge aliasing; the rig window holds every rolled shadow).

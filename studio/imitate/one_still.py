@@ -1,0 +1,60 @@
+"""One still target end to end in one call (``studio.imitate_still``): the notebook's and the README's first step.
+
+For many targets keep an :class:`~studio.imitate.still.Imitator`: it loads the model once.
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from studio.imitate.config import RefineConfig, SearchConfig
+from studio.imitate.still import ImitationResult, Imitator
+from studio.progress import ProgressFn
+from studio.targets.expressive import still_expressive
+from studio.targets.images import TargetConfig
+
+
+def imitate_still(
+    target: np.ndarray | str | Path,
+    model_path: Path | None = None,
+    search: SearchConfig | None = None,
+    refine: RefineConfig | None = None,
+    target_cfg: TargetConfig | None = None,
+    device: str | None = None,
+    progress: ProgressFn | None = None,
+    cancel: threading.Event | None = None,
+    threads: int | None = 1,
+) -> ImitationResult:
+    """One still target end to end with the shipped model (or ``model_path``), CLIP off, holes as expressive region;
+    ``progress`` and ``cancel`` as :meth:`Imitator.imitate` (its stages, its partial result).
+
+    ``target`` is an image path (loaded with ``target_cfg``) or a mask ``(R, R)`` framed at the model's resolution
+    (``load_target(path, size=R)``). ``threads``: torch CPU threads for this call, restored after (1 is far faster
+    on shared cores, DESIGN §6; None leaves torch's setting). For many targets keep an :class:`Imitator` instead: it
+    loads the model once.
+    """
+    before = torch.get_num_threads()
+    if threads:
+        torch.set_num_threads(threads)
+    try:
+        return _imitate_still(target, model_path, search, refine, target_cfg, device, progress, cancel)
+    finally:
+        torch.set_num_threads(before)
+
+
+def _imitate_still(target, model_path, search, refine, target_cfg, device, progress, cancel) -> ImitationResult:
+    with Imitator(model_path=model_path, search=search, refine=refine, device=device) as imitator:
+        if isinstance(target, (str, Path)):
+            mask = imitator.load(Path(target), target_cfg)
+        else:
+            mask = np.asarray(target)
+            r = imitator.resolution
+            if mask.shape != (r, r):
+                raise ValueError(
+                    f"target mask is {mask.shape}; this model works at ({r}, {r}): load_target(path, size={r})"
+                )
+        return imitator.imitate(mask, still_expressive(mask), progress=progress, cancel=cancel)
