@@ -16,6 +16,9 @@ from hardware.calibration import load_calibration
 from hardware.camera import Camera
 from hardware.playback_log import StopReason
 from hardware.session import ServoSession
+from studio.imitate.config import LivePoseConfig, LossConfig
+from studio.imitate.live_pose import LivePoser
+from studio.imitate.losses import ImageLoss
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex
 from studio.imitate.still import Imitator
 from studio.motion.plan import load_keyframes
@@ -61,6 +64,22 @@ def frames(tmp_path_factory) -> Path:
 @pytest.fixture
 def cal(hand):
     return load_calibration(None, hand)
+
+
+def test_a_live_pose_on_a_rolled_mount_is_scored_as_the_audience_sees_it(imitator):
+    """On a mount rolled by 67° the backdrop shows the held pose's rolled shadow: the live pose keeps that pose and
+    scores it 0 (rendered as the rolled mount casts it, compared with the target as it is); turning the target
+    into the hand's frame instead would cost the resampling of a turned 128² image."""
+    roll = np.radians(67.0)
+    theta = imitator.retrieval_index().theta[5].astype(np.float64)
+    target = imitator.refiner.with_roll(roll).renderer.render_one(theta)
+    poser = LivePoser(imitator.retrieval_index(), imitator.refiner, LivePoseConfig(budget_s=0.2), roll=roll)
+    poser.previous = theta.copy()
+    got = poser.pose(target)
+    assert got.path_free and got.loss < 1e-6 and np.allclose(got.theta, theta), (got.loss, got.theta - theta)
+    assert np.array_equal(poser.refiner.renderer.render_one(got.theta), target)
+    turned = ImageLoss(poser.turned(target), LossConfig(use_clip=False, crop_size=imitator.resolution))
+    assert imitator.refiner.score(turned, theta[None])[0][0] > 0.01  # the turned frame's blur the audience never sees
 
 
 def test_live_follows_a_file_camera_on_the_emulator(imitator, frames, cal, hand, tmp_path):

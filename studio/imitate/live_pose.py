@@ -16,8 +16,10 @@ cores. :class:`LivePoser` answers each within ``budget_s``:
    (``from_theta``) to it, checked at ``path_checks`` points; otherwise the next best collision-free candidate whose
    path is free is taken, and when none is, :attr:`LivePose.path_free` is False (the caller holds).
 
-The search works in the unrolled hand's frame (:mod:`studio.sim.roll`): a target seen on a backdrop lit through a
-mount rolled by ``roll`` is turned into it by ``-roll`` first. Pure compute over an index and a refiner; the
+On a mount rolled by ``roll`` (DESIGN §1) the target is scored as the audience sees it, as offline
+(:class:`studio.imitate.framing.Framed`): only the index's ranking sees it turned into the unrolled hand's frame
+(:mod:`studio.sim.roll`); every rendered score renders the pose as the rolled mount casts it and compares it with the
+target as it is, so turning a hole or a thin part does not blur it. Pure compute over an index and a refiner; the
 refiner's collision world belongs to the thread that calls :meth:`LivePoser.pose`.
 """
 
@@ -41,7 +43,7 @@ class LivePose:
     """One frame's answer (plain data)."""
 
     theta: np.ndarray  # (21,) rad, the pose to move to (unrolled hand frame; the mount's roll turns its shadow)
-    loss: float  # rendered base loss of its shadow against the (turned) target, temporal term left out
+    loss: float  # rendered base loss of its shadow (as the rolled mount casts it) against the target, no temporal
     total: float  # the objective: loss + w_temporal·‖θ − θ_prev‖² (= loss for the first frame)
     first_loss: float  # base loss of the best retrieved candidate before refinement
     path_free: bool  # the straight path from the commanded pose to theta is collision-free
@@ -71,7 +73,9 @@ class LivePoser:
         roll: float = 0.0,
         box: tuple[np.ndarray, np.ndarray] | None = None,
     ):
-        self.index, self.refiner = index, refiner
+        self.roll = float(roll)  # rad, the mount's roll about the light axis
+        self.index = index
+        self.refiner = refiner.with_roll(self.roll)  # renders as the rolled mount casts (the world is ``refiner``'s)
         self.box = (
             box  # (lower (21,), upper (21,)) rad the answers stay in (e.g. the servos' soft limits); None: joints
         )
@@ -79,7 +83,6 @@ class LivePoser:
         res = refiner.renderer.rig.resolution
         base = loss_cfg or LossConfig(use_clip=False, crop_size=res)
         self.loss_cfg = replace(base, use_clip=False, w_temporal=self.cfg.w_temporal)
-        self.roll = float(roll)  # rad, the mount's roll about the light axis
         self.previous: np.ndarray | None = None  # (21,) rad, the last answer
         self._rng = np.random.default_rng(self.cfg.seed)
 
@@ -103,9 +106,8 @@ class LivePoser:
     def _pose(self, target: np.ndarray, from_theta: np.ndarray | None, cancel: threading.Event | None) -> LivePose:
         t0 = time.perf_counter()
         cfg, prev = self.cfg, self.previous
-        turned = self.turned(target)
-        loss_fn = ImageLoss(turned, self.loss_cfg)
-        rank = self.index.rank(turned, self.loss_cfg)
+        loss_fn = ImageLoss(np.asarray(target, np.uint8), self.loss_cfg)  # the target as the audience sees it
+        rank = self.index.rank(self.turned(target), self.loss_cfg)
         m = min(cfg.shortlist, len(self.index))
         cands = np.clip(self.index.theta[np.argpartition(rank, m - 1)[:m]], self.refiner.lower, self.refiner.upper)
         if prev is not None:
@@ -150,7 +152,10 @@ class LivePoser:
 
 def offline_first_answer(index: RetrievalIndex, refiner: Refiner, target: np.ndarray, roll: float = 0.0) -> float:
     """The base loss of the retrieval's first answer for ``target (R, R)`` (as the offline search starts from: the
-    index's full shortlist, no temporal term): the reference a live pose is measured against."""
+    index's full shortlist, no temporal term; on a mount rolled by ``roll`` scored as :class:`LivePoser` scores): the
+    reference a live pose is measured against."""
     turned = into_hand_frame(target, None, roll)[0] if roll else np.asarray(target, np.uint8)
-    loss_fn = ImageLoss(turned, LossConfig(use_clip=False, crop_size=refiner.renderer.rig.resolution))
-    return float(index.query(turned, lambda th: refiner.score(loss_fn, th)[0], 1).loss[0])
+    rolled = refiner.with_roll(roll)
+    cfg = LossConfig(use_clip=False, crop_size=rolled.renderer.rig.resolution)
+    loss_fn = ImageLoss(np.asarray(target, np.uint8), cfg)  # the target as the audience sees it
+    return float(index.query(turned, lambda th: rolled.score(loss_fn, th)[0], 1).loss[0])

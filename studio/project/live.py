@@ -42,7 +42,6 @@ from studio.imitate.live_pose import LivePose, LivePoser
 from studio.motion.limits import JointLimits
 from studio.project.live_config import LiveConfig
 from studio.project.live_ticks import LiveTicks
-from studio.sim.roll import turn
 from studio.targets.backdrop import BackdropNotFound, find_backdrop
 from studio.targets.live_target import LiveTargetConfig, LiveTargets
 
@@ -222,8 +221,7 @@ class LiveSession:
         lat = self.ticks.latencies
         shadow = None
         if pose is not None:
-            shadow = self.im.renderer.render_one(pose.theta)
-            shadow = turn(shadow, self.roll) if self.roll else shadow
+            shadow = self.poser.refiner.renderer.render_one(pose.theta)  # as the rolled mount casts it
         image = np.zeros((1, 1, 3), np.uint8) if frame is None else np.asarray(frame.image)
         self.on_update(LiveUpdate(
             t=(time.monotonic() if frame is None else frame.t) - self.t0,
