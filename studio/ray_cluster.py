@@ -1,7 +1,8 @@
 """The Ray side of :func:`studio.fanout.fan_out`: a Ray to run on, and one actor per worker fed item by item.
 
 The only module that imports Ray (DESIGN §3), and only when a fan-out asks for it. ``cfg.ray == "local"`` starts a
-Ray on this machine for the run (``num_cpus`` = what the actors reserve; no dashboard; bound to 127.0.0.1) and
+Ray on this machine for the run (``num_cpus`` = what the actors reserve; no dashboard; Ray 2.60's own servers listen
+on every interface whatever the node address, README "The network") and
 shuts it down after; an address (``"auto"``, ``"10.0.0.5:6379"``) joins a running cluster (``ray start --head`` on
 one machine, ``ray start --address HEAD:6379`` on the others) and leaves it running. A Ray already initialised in
 this process (a notebook, the tests' shared local Ray) is used as it is and left running.
