@@ -18,7 +18,7 @@ from studio.imitate.config import RefineConfig, SearchConfig, SequenceConfig
 from studio.motion.show import load_show
 from studio.project.project import Project, ProjectError
 from studio.project.run import RunConfig, run_project
-from studio.project.show_timing import ShowLayout
+from studio.project.show_timing import ShowLayout, seams_out_of_reach
 from studio.targets.keyframes import KeyframeConfig
 from studio.targets.video import DEFAULT_VIDEO
 
@@ -87,6 +87,33 @@ def test_show_timing_plays_sources_one_after_another(tmp_path, hand):
     project.set_weights(w_iou=0.5)
     with pytest.raises(ProjectError, match="stale result"):
         project.show_timing(layout)
+
+
+def test_a_move_between_sources_too_fast_for_the_servos_names_one_keyframe_to_optimise_again(tmp_path, hand):
+    """A run keeps each keyframe within reach of its own source's: the move from the still to the horse is checked
+    after. Too fast for the servos, it names the keyframe every neighbour leaves room for (the still, held alone;
+    the horse's first keyframe is tied to the next), or the horse's when only the horse was optimised; a far move
+    within the horse is its own chain's, and a move that fits names nothing."""
+    project = Project.create(tmp_path / "two.shadow", sources=[STILL, DEFAULT_VIDEO])
+    fake_results(project, hand)
+    still = [kf.id for kf in project.keyframes if project.frames[kf.representative].source == 0]
+    horse = [kf.id for kf in project.keyframes if project.frames[kf.representative].source == 1]
+    assert len(still) == 1 and len(horse) >= 2
+    layout, every = ShowLayout(gap_s=0.2), [kf.id for kf in project.keyframes]
+    assert seams_out_of_reach(project.state, every, layout) == []
+    j = int(np.argmax(hand.upper - hand.lower))  # the joint with the widest range: end to end takes over 0.2 s
+    far, near = hand.rest_pose().copy(), hand.rest_pose().copy()
+    far[j], near[j] = hand.upper[j], hand.lower[j]
+    empty = np.zeros((8, 8), np.uint8)
+    project.set_result(still[0], near, {"total": 0.5, "base": 0.2}, empty)
+    for k in horse:
+        project.set_result(k, far, {"total": 0.5, "base": 0.2}, empty)
+    assert seams_out_of_reach(project.state, every, layout) == still
+    assert seams_out_of_reach(project.state, horse, layout) == horse[:1]
+    assert seams_out_of_reach(project.state, still, ShowLayout(gap_s=60.0)) == []  # a minute is time enough
+    project.set_result(still[0], far, {"total": 0.5, "base": 0.2}, empty)
+    project.set_result(horse[1], near, {"total": 0.5, "base": 0.2}, empty)
+    assert seams_out_of_reach(project.state, every, layout) == []  # within the horse: its chain's reach
 
 
 # ------------------------------------------------------------------------------------------ project run
@@ -170,6 +197,18 @@ def test_too_fast_without_allow_late_keeps_the_keyframes_and_lists_the_transitio
     rc, summary, text = run_cli(capsys, "project", "run", str(kept), *TINY)
     assert rc == 0 and summary["show"] == "planned" and summary["late_transitions"] == [], text
     assert summary["show_seconds"] == pytest.approx(Project.open(kept).show_timing().end_s)
+
+
+@pytest.mark.slow
+def test_a_still_then_a_video_on_a_short_gap_plays_without_a_late_transition(tmp_path, capsys):
+    """0.3 s from the still to the horse: each source's keyframes are kept within their own reach, and the move
+    between them is checked after and mended (the still optimised again within reach of the horse's first pose),
+    so the show plans without --allow-late and lasts exactly as long as the clock."""
+    path = tmp_path / "two.shadow"
+    Project.create(path, sources=[STILL, DEFAULT_VIDEO]).set_roll(0.0)
+    rc, summary, text = run_cli(capsys, "project", "run", str(path), *TINY, "--gap-s", "0.3")
+    assert rc == 0 and summary["show"] == "planned" and summary["late_transitions"] == [], text
+    assert summary["show_seconds"] == pytest.approx(Project.open(path).show_timing(ShowLayout(gap_s=0.3)).end_s)
 
 
 def test_a_cancel_keeps_only_the_keyframes_finished_before_it(tmp_path):

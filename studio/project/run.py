@@ -40,7 +40,7 @@ from studio.progress import ProgressFn
 from studio.project.jobs import queue_for, roll_job, video_job
 from studio.project.run_report import RunReport, TooFast, counted, late_transitions, plural
 from studio.project.run_spread import keyframe_config, run_spread, source_keyframes
-from studio.project.show_timing import ShowLayout, keyframe_box
+from studio.project.show_timing import ShowLayout, keyframe_box, seams_out_of_reach
 from studio.project.state import ProjectError
 from studio.project.status import ProjectHandle, check_sources
 
@@ -182,6 +182,13 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
             return report.finish(project, cfg.transitions, t0)
     elif not _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, settled, report):
         return report.finish(project, cfg.transitions, t0)
+    # a move between two sources too fast for the servos: one of its keyframes again, within reach of its neighbours
+    seams = seams_out_of_reach(project.state, report.optimised, cfg.layout, cfg.plan.limits, cfg.sequence.clock_margin)
+    if cfg.sequence.keep_clock and seams:
+        done = _optimise(project, cfg, clip, queue, cancel, model_path, on_job, seams, set(ids), report)
+        report.optimised = list(dict.fromkeys(report.optimised))
+        if not done:
+            return report.finish(project, cfg.transitions, t0)
     if not plan:
         report.message = f"optimised {counted(len(report.optimised), 'keyframe')}"
         return report.finish(project, cfg.transitions, t0)

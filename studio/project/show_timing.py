@@ -36,7 +36,7 @@ import numpy as np
 
 from studio.motion.limits import JointLimits, LimitsConfig
 from studio.motion.plan import Keyframes
-from studio.motion.reach import reach_box
+from studio.motion.reach import reach_box, rest_to_rest_time
 from studio.motion.video_timing import VideoTiming, runs_of, video_end, video_keyframes
 from studio.motion.video_timing import transition_times as clock_of
 from studio.project.state import ProjectError, ProjectState, ResultsNeeded
@@ -196,3 +196,40 @@ def reach_of(
     workers (:mod:`studio.project.run_spread`), which hold poses but no project."""
     near = [(poses[n], dt) for n, dt in neighbours if n in poses]
     return reach_box(near, limits, margin) if near else None
+
+
+def seams_out_of_reach(
+    s: ProjectState,
+    optimised: Collection[int],
+    layout: ShowLayout | None = None,
+    limits: LimitsConfig | None = None,
+    margin: float = 0.9,
+) -> list[int]:
+    """Keyframes of ``optimised`` (a run's) to optimise again, in keyframe order: one for each move the show makes
+    between keyframes of *two sources* faster than the servos can move rest to rest
+    (:func:`~studio.motion.reach.rest_to_rest_time`, every joint). A run keeps each keyframe within reach of its
+    own source's posed keyframes and of those current before it, but not of another source's optimised in the same
+    run (side by side in a spread run, so both faces follow one rule): a move between sources (a still, then a
+    video) may ask for more than the clock gives it. Of the move's two keyframes (those of ``optimised``) the one
+    named is one that every posed neighbour leaves room for (its :func:`reach_of` box, ``margin``, crosses on no
+    joint: a still, held alone, rather than a video keyframe tied to the next), else the later; optimised again
+    within that box, the move fits."""
+    hand = load_hand()
+    lim = JointLimits.from_hand(hand, limits)
+    order = [kf.id for kf in s.keyframes]
+    source = {kf.id: s.frames[kf.representative].source for kf in s.keyframes}
+    poses = {k: r.theta(hand.joint_names) for k, r in s.results.items()}
+    times = transition_times(s, layout)
+
+    def room(k: int) -> bool:  # every posed neighbour of k leaves room on every joint
+        box = reach_of(clock_neighbours(s, k, layout, times), {n: p for n, p in poses.items() if n != k}, lim, margin)
+        return box is None or not bool(np.any(box[1] - box[0] < 1e-9))
+
+    again: set[int] = set()
+    for (a, b), dt in times.items():
+        if source[a] == source[b] or a not in poses or b not in poses:
+            continue
+        mine = [k for k in (a, b) if k in optimised]
+        if mine and float(rest_to_rest_time(poses[a] - poses[b], lim).max()) > dt:
+            again.add(max(mine, key=lambda k: (room(k), order.index(k))))
+    return [k for k in order if k in again]
