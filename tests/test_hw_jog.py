@@ -19,7 +19,8 @@ from hardware.serial_bus import BusConfig, SerialServoBus
 @pytest.fixture
 def jog(hand):
     cal = default_calibration(hand)
-    with ServoEmulator(cal.ids) as emu, SerialServoBus(BusConfig(emu.port, timeout_s=0.01)) as bus:
+    # 50 ms per answer: with the other core busy the emulator thread once missed 10 ms × every retry (a flake)
+    with ServoEmulator(cal.ids) as emu, SerialServoBus(BusConfig(emu.port, timeout_s=0.05)) as bus:
         yield emu, Jog(bus, cal, config=JogConfig(speed_rad_s=20.0, min_move_s=0.0), home_pose=hand.rest_pose())
 
 

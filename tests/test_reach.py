@@ -8,7 +8,7 @@ import pytest
 from ruckig import InputParameter, Ruckig, Trajectory
 
 from studio.motion.limits import JointLimits
-from studio.motion.reach import reach, reach_box, rest_to_rest_time
+from studio.motion.reach import clock_boxes, reach, reach_box, reach_distances, rest_to_rest_time
 
 
 @pytest.fixture(scope="module")
@@ -57,6 +57,22 @@ def test_a_box_keeps_the_reach_of_every_neighbour(limits, hand):
     far[7] = a[7] + 3 * r[7]  # further apart than two reaches: pinned between them
     lo, hi = reach_box([(a, 0.5), (far, 0.5)], limits, margin=1.0)
     assert lo[7] == hi[7] == pytest.approx((a[7] + far[7]) / 2)
+
+
+def test_a_box_from_the_whole_clock_leaves_room_for_the_keyframes_after_it(limits, hand):
+    """A → B (0.3 s) → C (0.2 s) → A (0.2 s), posed in order, B as far from A as its box lets it: C still has a pose
+    within reach of both (with B boxed by its direct neighbour A alone, B took the reach C needs and C's box
+    crossed), and the distance that bounds B is the shortest chain of moves: min(reach(0.3), 2 reach(0.2))."""
+    times = {(0, 1): 0.3, (1, 2): 0.2, (2, 0): 0.2}
+    far = reach_distances(times, limits, margin=1.0)
+    assert far[0][1] == pytest.approx(np.minimum(reach(0.3, limits), 2 * reach(0.2, limits)))
+    box_for = clock_boxes(times, limits, margin=1.0)
+    a = hand.rest_pose()
+    b = box_for(1, [a])[1]  # as far as it may go
+    lo, hi = box_for(2, [a, b])
+    c = (lo + hi) / 2
+    for x, y, dt in ((a, b, 0.3), (b, c, 0.2), (c, a, 0.2)):
+        assert rest_to_rest_time(x - y, limits).max() <= dt * (1 + 1e-6)
 
 
 @pytest.mark.slow

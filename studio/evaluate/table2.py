@@ -354,8 +354,9 @@ class VideoEvaluator:
             notes.append(
                 f"{STUDIO_ROW.name}: the studio's method. One mount roll per sequence chosen by roll auto on the "
                 "keyframe targets, every pose scored as that mount casts it; every keyframe kept within the "
-                f"servos' rest-to-rest reach of its posed neighbours in {cfg.clock_margin:g} × the time each "
-                "transition has (studio.motion.reach), in retrieval, sweep, search and refinement. The six rows "
+                f"servos' rest-to-rest reach of every posed keyframe in {cfg.clock_margin:g} × the time each "
+                "transition on the way between them has (studio.motion.reach.reach_distances), in retrieval, "
+                "sweep, search and refinement. The six rows "
                 "above are the paper's: upright rig, poses chosen without the clock."
             )
         if not lc.use_clip:

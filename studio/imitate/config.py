@@ -140,7 +140,7 @@ class SequenceConfig:
     refine_enabled: bool = True  # False: keep the searched poses (no rendered-shadow refinement)
     retrieve: bool = False  # a keyframe searched from scratch starts from retrieval + block sweep (the still method)
     sweep: SweepConfig = SweepConfig()  # the block sweep of those seeds (retrieve; starts=0: retrieval alone)
-    keep_clock: bool = True  # keep each keyframe within the servos' reach of its posed neighbours at the show's clock
+    keep_clock: bool = True  # keep each keyframe within the servos' reach of every posed one at the show's clock
     clock_margin: float = 0.9  # share of a transition's time the reach is computed for (room for the planner) (0, 1]
 
     def __post_init__(self) -> None:

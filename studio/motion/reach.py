@@ -4,9 +4,12 @@ A transition of the show (:mod:`studio.motion.video_timing`) leaves one keyframe
 next within the time the video gives it. Per joint, the fastest rest-to-rest move over a distance ``d`` under the
 velocity, acceleration and jerk limits of :class:`~studio.motion.limits.JointLimits` (the planner's, Ruckig's
 time-optimal profile) takes :func:`rest_to_rest_time`; its inverse :func:`reach` is the largest distance a joint can
-cover in ``dt``. A keyframe whose neighbours on the show's timeline are already posed must stay inside the box
-:func:`reach_box` of every one of them, so every transition is one the servos can make at the video's clock
-(``margin`` keeps room for the planner's spline and detours).
+cover in ``dt``. A keyframe must stay inside the box :func:`reach_box` of every keyframe already posed, so every
+transition is one the servos can make at the video's clock (``margin`` keeps room for the planner's spline and
+detours). Not only its direct neighbours: per joint, :func:`reach_distances` gives how far apart two keyframes may
+be along the shortest chain of moves between them (the sum of each move's reach; difference constraints), so a
+keyframe placed now never leaves one placed later without room (on a return A → B → C → A, B keeps what C needs to
+reach both).
 
 Closed form of the profile (``τ = a/j``): no acceleration plateau, ``T = (32 d / j)^(1/3)``; with one,
 ``d = a (τ + t_a)(2τ + t_a)``, ``T = 4τ + 2 t_a``; with a cruise at ``v``, ``T = 2 t_v + (d − v t_v) / v`` where
@@ -60,30 +63,58 @@ def reach_box(
     neighbours: Sequence[tuple[np.ndarray, float]], limits: JointLimits, margin: float = 0.9
 ) -> tuple[np.ndarray, np.ndarray]:
     """The joint box ``(lower (J,), upper (J,))`` rad a pose must keep to reach, and be reached from, every
-    neighbour ``(θ_n (J,) rad, dt_n s)`` in ``margin · dt_n``, within the joint limits. Where neighbours ask for
-    more than any pose can give (two far apart with little time), that joint is pinned to the middle of the two
-    bounds that cross: the nearest the servos get to both."""
+    neighbour ``(θ_n (J,) rad, dt_n s)`` in ``margin · dt_n``: :func:`distance_box` at :func:`reach`."""
+    return distance_box([(theta, reach(margin * float(dt), limits)) for theta, dt in neighbours], limits)
+
+
+def distance_box(
+    neighbours: Sequence[tuple[np.ndarray, np.ndarray]], limits: JointLimits
+) -> tuple[np.ndarray, np.ndarray]:
+    """The joint box ``(lower (J,), upper (J,))`` rad within ``d_n (J,)`` rad of every neighbour ``(θ_n (J,) rad,
+    d_n)``, within the joint limits. Where neighbours ask for more than any pose can give (two far apart with
+    little time), that joint is pinned to the middle of the two bounds that cross: the nearest the servos get to
+    both."""
     lo, hi = np.asarray(limits.lower, float).copy(), np.asarray(limits.upper, float).copy()
-    for theta, dt in neighbours:
-        r = reach(margin * float(dt), limits)
-        lo = np.maximum(lo, np.asarray(theta, float) - r)
-        hi = np.minimum(hi, np.asarray(theta, float) + r)
+    for theta, d in neighbours:
+        lo = np.maximum(lo, np.asarray(theta, float) - d)
+        hi = np.minimum(hi, np.asarray(theta, float) + d)
     crossed = lo > hi
     mid = (lo + hi) / 2.0
     lo, hi = np.where(crossed, mid, lo), np.where(crossed, mid, hi)
     return np.clip(lo, limits.lower, limits.upper), np.clip(hi, limits.lower, limits.upper)
 
 
+def reach_distances(
+    times: Mapping[tuple[int, int], float], limits: JointLimits, margin: float = 0.9
+) -> dict[int, dict[int, np.ndarray]]:
+    """``k → n → (J,)`` rad: per joint, how far apart keyframes ``k`` and ``n`` may be so that every move on the
+    way between them can be made: the shortest chain of moves ``times`` ((a, b) → s, either way) weighted by each
+    move's :func:`reach` in ``margin · dt`` (Floyd–Warshall per joint). Boxing each keyframe by every posed one at
+    these distances keeps every later box from crossing. Pairs with no chain between them are left out."""
+    ids = sorted({i for pair in times for i in pair})
+    at = {k: i for i, k in enumerate(ids)}
+    n = len(ids)
+    dist = np.full((n, n, len(limits.velocity)), np.inf)
+    dist[np.arange(n), np.arange(n)] = 0.0
+    for (a, b), dt in times.items():
+        r = reach(margin * float(dt), limits)
+        dist[at[a], at[b]] = dist[at[b], at[a]] = np.minimum(dist[at[a], at[b]], r)
+    for m in range(n):
+        dist = np.minimum(dist, dist[:, m : m + 1] + dist[m : m + 1, :])
+    return {a: {b: dist[at[a], at[b]] for b in ids if b != a and np.isfinite(dist[at[a], at[b]]).all()} for a in ids}
+
+
 def clock_boxes(
     times: Mapping[tuple[int, int], float], limits: JointLimits, margin: float = 0.9
 ) -> Callable[[int, list], tuple[np.ndarray, np.ndarray] | None]:
     """For a sequence optimised in keyframe order: ``box_for(k, done)`` → keyframe ``k``'s box from the poses
-    ``done`` of keyframes ``0 … k−1`` it moves to or from on the clock (``times``: :func:`transition_times
-    <studio.motion.video_timing.transition_times>`), None when none of them is a neighbour."""
+    ``done`` of keyframes ``0 … k−1`` at their :func:`reach_distances` on the clock (``times``:
+    :func:`transition_times <studio.motion.video_timing.transition_times>`), None when no chain of moves joins it
+    to any of them."""
+    far = reach_distances(times, limits, margin)
 
     def box_for(k: int, done: list) -> tuple[np.ndarray, np.ndarray] | None:
-        neighbours = [(done[n], dt) for (a, b), dt in times.items() if k in (a, b)
-                      for n in (b if a == k else a,) if n < len(done)]  # fmt: skip
-        return reach_box(neighbours, limits, margin) if neighbours else None
+        near = [(done[n], d) for n, d in far.get(k, {}).items() if n < len(done)]
+        return distance_box(near, limits) if near else None
 
     return box_for

@@ -247,7 +247,7 @@ def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, se
         if seq.mode == "sequential" and before is not None:
             previous = project.results[before].theta(_joint_names())
         box = None
-        if seq.keep_clock:  # within the servos' reach of its posed neighbours at the show's clock
+        if seq.keep_clock:  # within the servos' reach of the posed keyframes at the show's clock
             same = set(source_keyframes(project, k)) & set(report.optimised)
             box = keyframe_box(project.state, project.status(), k, seq.clock_margin, cfg.layout, cfg.plan.limits,
                                posed=settled | same)  # fmt: skip

@@ -68,7 +68,7 @@ class Chain:
     before: tuple[int | None, ...]  # the keyframe before each in its source (None: the source's first)
     masks: np.ndarray  # (n, S, S) uint8 targets
     expressive: np.ndarray  # (n, S, S) uint8 expressive masks
-    neighbours: tuple[tuple[tuple[int, float], ...], ...]  # per keyframe: (id, s) of its moves on the show's clock
+    clock: dict[tuple[int, int], float]  # the show clock's moves: (id, id) → s (show_timing.transition_times)
     poses: dict[int, np.ndarray]  # (21,) rad results of the keyframes outside the chain it refers to
     settled: frozenset[int]  # ids whose poses count for the reach box (current when the run started)
 
@@ -77,8 +77,8 @@ class Chain:
         poses and its keyframes finished so far) and ``boxed`` (the ids that count for the reach box)."""
         k, before = self.ids[j], self.before[j]
         return KeyframeStep(self.source, k, self.positions[j], self.masks[j], self.expressive[j],
-                            poses[before] if sequential and before is not None else None, self.neighbours[j],
-                            {n: poses[n] for n, _ in self.neighbours[j] if n in boxed and n != k})  # fmt: skip
+                            poses[before] if sequential and before is not None else None, self.clock,
+                            {n: p for n, p in poses.items() if n in boxed and n != k})  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -92,8 +92,8 @@ class KeyframeStep:
     mask: np.ndarray  # (S, S) uint8 target
     expressive: np.ndarray  # (S, S) uint8 expressive mask
     previous: np.ndarray | None  # (21,) rad the pose it continues from (sequential mode), None: from scratch
-    neighbours: tuple[tuple[int, float], ...]  # (id, s) of its moves on the show's clock
-    posed: dict[int, np.ndarray]  # id → (21,) rad of the neighbours whose poses count for its reach box
+    clock: dict[tuple[int, int], float]  # the show clock's moves: (id, id) → s (show_timing.transition_times)
+    posed: dict[int, np.ndarray]  # id → (21,) rad of the keyframes whose poses count for its reach box
 
 
 @dataclass
@@ -133,7 +133,7 @@ class KeyframeTask:
         seq = self._held
         box = None
         if self.seq.keep_clock:
-            box = reach_of(step.neighbours, step.posed, JointLimits.from_hand(seq.imitator.hand, self.limits),
+            box = reach_of(step.clock, step.id, step.posed, JointLimits.from_hand(seq.imitator.hand, self.limits),
                            self.seq.clock_margin)  # fmt: skip
         result = imitate_keyframes(seq, step.mask[None], step.expressive[None],
                                    keyframe_config(self.seq, step.position), previous=step.previous, roll=self.roll,
@@ -143,7 +143,7 @@ class KeyframeTask:
 
 def chains_of(project: ProjectHandle, pending: list[int], settled: set[int], layout: Any) -> list[Chain]:
     """The pending keyframes grouped by source, in first-appearance order (module doc)."""
-    from studio.project.show_timing import clock_neighbours, transition_times
+    from studio.project.show_timing import transition_times
     from studio.sim.hand import load_hand
 
     s, names = project.state, load_hand().joint_names
@@ -156,13 +156,12 @@ def chains_of(project: ProjectHandle, pending: list[int], settled: set[int], lay
         name = Path(s.sources[src].path).name
         same = source_keyframes(project, ids[0])
         before = tuple(same[same.index(k) - 1] if same.index(k) else None for k in ids)
-        neighbours = tuple(tuple(clock_neighbours(s, k, layout, times)) for k in ids)
-        outside = {b for b in before if b is not None} | {n for nb in neighbours for n, _ in nb}
+        outside = {b for b in before if b is not None} | {n for pair in times for n in pair}
         poses = {n: s.results[n].theta(names) for n in outside - set(ids) if n in s.results}
         pairs = [project.keyframe_masks(k) for k in ids]
         chains.append(Chain(name, tuple(ids), tuple(same.index(k) for k in ids), before,
                             np.stack([np.array(t) for t, _ in pairs]), np.stack([np.array(e) for _, e in pairs]),
-                            neighbours, poses, frozenset(settled & set(poses))))  # fmt: skip
+                            times, poses, frozenset(settled & set(poses))))  # fmt: skip
     return chains
 
 

@@ -28,7 +28,7 @@ servos.
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,7 +36,7 @@ import numpy as np
 
 from studio.motion.limits import JointLimits, LimitsConfig
 from studio.motion.plan import Keyframes
-from studio.motion.reach import reach_box, rest_to_rest_time
+from studio.motion.reach import distance_box, reach_distances, rest_to_rest_time
 from studio.motion.video_timing import VideoTiming, runs_of, video_end, video_keyframes
 from studio.motion.video_timing import transition_times as clock_of
 from studio.project.state import ProjectError, ProjectState, ResultsNeeded
@@ -162,40 +162,36 @@ def transition_times(s: ProjectState, layout: ShowLayout | None = None) -> dict[
     return clock_of(vt)
 
 
-def clock_neighbours(
-    s: ProjectState, k: int, layout: ShowLayout | None = None, times: dict[tuple[int, int], float] | None = None
-) -> list[tuple[int, float]]:
-    """``(id, seconds)`` of every move the show makes between keyframe ``k`` and another keyframe, with the shortest
-    time the clock gives it (``times``: :func:`transition_times`, computed when not given)."""
-    times = transition_times(s, layout) if times is None else times
-    return [(b if a == k else a, dt) for (a, b), dt in times.items() if k in (a, b)]
-
-
 def keyframe_box(
     s: ProjectState, status: ProjectStatus, k: int, margin: float = 0.9, layout: ShowLayout | None = None,
     limits: LimitsConfig | None = None, posed: Collection[int] | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:  # fmt: skip
-    """The joint box ``(lower (21,), upper (21,))`` rad keyframe ``k``'s pose must keep so that every move between
-    it and a keyframe already posed (a current result; ``posed``: only these ids count) fits the time the show's
-    clock gives that move (:func:`clock_neighbours`, :func:`~studio.motion.reach.reach_box` with ``margin``); None
-    when no neighbour on the clock is posed yet."""
+    """The joint box ``(lower (21,), upper (21,))`` rad keyframe ``k``'s pose must keep so that every move on the
+    show's clock between it and a keyframe already posed (a current result; ``posed``: only these ids count), and
+    every chain of moves through keyframes not posed yet, fits the time the clock gives it (:func:`reach_of` with
+    ``margin``); None when no keyframe joined to it on the clock is posed yet."""
     hand = load_hand()
     current = {kf.id for kf in s.keyframes if kf.id in s.results and kf.id not in status.stale and kf.id != k}
     if posed is not None:
         current &= set(posed)
     poses = {n: s.results[n].theta(hand.joint_names) for n in current}
-    return reach_of(clock_neighbours(s, k, layout), poses, JointLimits.from_hand(hand, limits), margin)
+    return reach_of(transition_times(s, layout), k, poses, JointLimits.from_hand(hand, limits), margin)
 
 
 def reach_of(
-    neighbours: Sequence[tuple[int, float]], poses: Mapping[int, np.ndarray], limits: JointLimits, margin: float
+    times: Mapping[tuple[int, int], float],
+    k: int,
+    poses: Mapping[int, np.ndarray],
+    limits: JointLimits,
+    margin: float,
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """The joint box ``(lower (21,), upper (21,))`` rad within reach of every posed neighbour: ``neighbours``
-    ``(id, s)`` as :func:`clock_neighbours` gives them, ``poses`` id → ``(21,)`` rad of those that count as posed
-    (the others are left out); None when none is posed. The one rule of :func:`keyframe_box` and of a spread run's
-    workers (:mod:`studio.project.run_spread`), which hold poses but no project."""
-    near = [(poses[n], dt) for n, dt in neighbours if n in poses]
-    return reach_box(near, limits, margin) if near else None
+    """The joint box ``(lower (21,), upper (21,))`` rad keyframe ``k`` keeps from every posed keyframe at their
+    :func:`~studio.motion.reach.reach_distances` over the show clock's moves ``times`` (:func:`transition_times`):
+    ``poses`` id → ``(21,)`` rad of those that count as posed (the others are left out); None when none joined to
+    ``k`` is posed. The one rule of :func:`keyframe_box` and of a spread run's workers
+    (:mod:`studio.project.run_spread`), which hold poses but no project."""
+    near = [(poses[n], d) for n, d in reach_distances(times, limits, margin).get(k, {}).items() if n in poses]
+    return distance_box(near, limits) if near else None
 
 
 def seams_out_of_reach(
@@ -222,7 +218,7 @@ def seams_out_of_reach(
     times = transition_times(s, layout)
 
     def room(k: int) -> bool:  # every posed neighbour of k leaves room on every joint
-        box = reach_of(clock_neighbours(s, k, layout, times), {n: p for n, p in poses.items() if n != k}, lim, margin)
+        box = reach_of(times, k, {n: p for n, p in poses.items() if n != k}, lim, margin)
         return box is None or not bool(np.any(box[1] - box[0] < 1e-9))
 
     again: set[int] = set()
