@@ -183,8 +183,10 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
     elif not _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, settled, report):
         return report.finish(project, cfg.transitions, t0)
     # a move between two sources too fast for the servos: one of its keyframes again, within reach of its neighbours
-    seams = seams_out_of_reach(project.state, report.optimised, cfg.layout, cfg.plan.limits, cfg.sequence.clock_margin)
-    if cfg.sequence.keep_clock and seams:
+    seq, seams = cfg.sequence, []
+    if seq.keep_clock:  # the paper's way (no clock) leaves late moves to the planner, as within a source
+        seams = seams_out_of_reach(project.state, report.optimised, cfg.layout, cfg.plan.limits, seq.clock_margin)
+    if seams:
         done = _optimise(project, cfg, clip, queue, cancel, model_path, on_job, seams, set(ids), report)
         report.optimised = list(dict.fromkeys(report.optimised))
         if not done:

@@ -126,6 +126,7 @@ class KeyframeTask:
     def __call__(self, step: KeyframeStep) -> tuple[int, Any]:
         from studio.jobs.engine import imitate_keyframes
         from studio.motion.limits import JointLimits
+        from studio.motion.reach import reach_distances
         from studio.project.show_timing import reach_of
 
         if self._held is None:
@@ -133,8 +134,8 @@ class KeyframeTask:
         seq = self._held
         box = None
         if self.seq.keep_clock:
-            box = reach_of(step.clock, step.id, step.posed, JointLimits.from_hand(seq.imitator.hand, self.limits),
-                           self.seq.clock_margin)  # fmt: skip
+            lim = JointLimits.from_hand(seq.imitator.hand, self.limits)
+            box = reach_of(reach_distances(step.clock, lim, self.seq.clock_margin).get(step.id, {}), step.posed, lim)
         result = imitate_keyframes(seq, step.mask[None], step.expressive[None],
                                    keyframe_config(self.seq, step.position), previous=step.previous, roll=self.roll,
                                    box_for=None if box is None else (lambda i, done: box))  # fmt: skip

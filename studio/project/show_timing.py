@@ -175,22 +175,19 @@ def keyframe_box(
     if posed is not None:
         current &= set(posed)
     poses = {n: s.results[n].theta(hand.joint_names) for n in current}
-    return reach_of(transition_times(s, layout), k, poses, JointLimits.from_hand(hand, limits), margin)
+    lim = JointLimits.from_hand(hand, limits)
+    return reach_of(reach_distances(transition_times(s, layout), lim, margin).get(k, {}), poses, lim)
 
 
 def reach_of(
-    times: Mapping[tuple[int, int], float],
-    k: int,
-    poses: Mapping[int, np.ndarray],
-    limits: JointLimits,
-    margin: float,
+    far: Mapping[int, np.ndarray], poses: Mapping[int, np.ndarray], limits: JointLimits
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """The joint box ``(lower (21,), upper (21,))`` rad keyframe ``k`` keeps from every posed keyframe at their
-    :func:`~studio.motion.reach.reach_distances` over the show clock's moves ``times`` (:func:`transition_times`):
-    ``poses`` id → ``(21,)`` rad of those that count as posed (the others are left out); None when none joined to
-    ``k`` is posed. The one rule of :func:`keyframe_box` and of a spread run's workers
-    (:mod:`studio.project.run_spread`), which hold poses but no project."""
-    near = [(poses[n], d) for n, d in reach_distances(times, limits, margin).get(k, {}).items() if n in poses]
+    """The joint box ``(lower (21,), upper (21,))`` rad a keyframe keeps from every posed keyframe: ``far`` id →
+    ``(21,)`` rad its :func:`~studio.motion.reach.reach_distances` over the show clock's moves
+    (:func:`transition_times`), ``poses`` id → ``(21,)`` rad of those that count as posed (the others are left
+    out); None when none joined to it is posed. The one rule of :func:`keyframe_box`, :func:`seams_out_of_reach`
+    and a spread run's workers (:mod:`studio.project.run_spread`), which hold poses but no project."""
+    near = [(poses[n], d) for n, d in far.items() if n in poses]
     return distance_box(near, limits) if near else None
 
 
@@ -216,9 +213,10 @@ def seams_out_of_reach(
     source = {kf.id: s.frames[kf.representative].source for kf in s.keyframes}
     poses = {k: r.theta(hand.joint_names) for k, r in s.results.items()}
     times = transition_times(s, layout)
+    far = reach_distances(times, lim, margin)
 
     def room(k: int) -> bool:  # every posed neighbour of k leaves room on every joint
-        box = reach_of(times, k, {n: p for n, p in poses.items() if n != k}, lim, margin)
+        box = reach_of(far.get(k, {}), {n: p for n, p in poses.items() if n != k}, lim)
         return box is None or not bool(np.any(box[1] - box[0] < 1e-9))
 
     again: set[int] = set()
