@@ -208,6 +208,7 @@ def test_a_still_then_a_video_on_a_short_gap_plays_without_a_late_transition(tmp
     Project.create(path, sources=[STILL, DEFAULT_VIDEO]).set_roll(0.0)
     rc, summary, text = run_cli(capsys, "project", "run", str(path), *TINY, "--gap-s", "0.3")
     assert rc == 0 and summary["show"] == "planned" and summary["late_transitions"] == [], text
+    assert "again: its move to or from another source was too fast for the servos" in text  # said, not silent
     assert summary["show_seconds"] == pytest.approx(Project.open(path).show_timing(ShowLayout(gap_s=0.3)).end_s)
 
 

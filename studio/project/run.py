@@ -187,7 +187,8 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
     if seq.keep_clock:  # the paper's way (no clock) leaves late moves to the planner, as within a source
         seams = seams_out_of_reach(project.state, report.optimised, cfg.layout, cfg.plan.limits, seq.clock_margin)
     if seams:
-        done = _optimise(project, cfg, clip, queue, cancel, model_path, on_job, seams, set(ids), report)
+        done = _optimise(project, cfg, clip, queue, cancel, model_path, on_job, seams, set(ids), report,
+                         " again: its move to or from another source was too fast for the servos")  # fmt: skip
         report.optimised = list(dict.fromkeys(report.optimised))
         if not done:
             return report.finish(project, cfg.transitions, t0)
@@ -239,7 +240,7 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
     return report.finish(project, cfg.transitions, t0)
 
 
-def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, settled, report) -> bool:
+def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, settled, report, why="") -> bool:
     """The pending keyframes one job each on the queue, in order; False when one failed or was cancelled. A
     keyframe's reach box counts ``settled`` and its own source's keyframes finished before it (run_spread's rule)."""
     seq = cfg.sequence
@@ -258,7 +259,7 @@ def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, se
         job.meta["of"] = (n + 1, len(pending))
         queue.submit(job)
         if on_job is not None:
-            on_job(job, f"keyframe {k} ({n + 1} of {len(pending)})")
+            on_job(job, f"keyframe {k} ({n + 1} of {len(pending)}){why}")
         state = _wait(job, cancel)
         if state == JobState.DONE:
             report.optimised.append(k)
