@@ -3,6 +3,7 @@ live preview, and segment raw colour footage as a job; every edit undoable."""
 
 from __future__ import annotations
 
+import threading
 import time
 from datetime import datetime, timezone
 from pathlib import Path
@@ -113,6 +114,36 @@ def test_threshold_preview_follows_the_slider_and_otsu_then_applies(state):
     state.undo()
     assert state.project.state.still.threshold == TargetConfig().threshold
     assert np.array_equal(state.project.state.targets, before)
+
+
+def test_a_late_draw_never_lands_over_a_newer_one(state, monkeypatch):
+    """The slider's throttled draw runs on a timer thread: a draw still computing the old level when the slider moves
+    must not land after the draw of the new level (the preview would show a level the slider no longer has)."""
+    import widgets.targets as targets
+
+    panel = TargetsPanel(state)
+    inside, release = threading.Event(), threading.Event()
+    real = targets.frame_preview
+
+    def slow_at_five(grey, box, px, polarity, level, *rest, **kw):
+        if level == 5.0:
+            inside.set()
+            release.wait(10.0)
+        return real(grey, box, px, polarity, level, *rest, **kw)
+
+    monkeypatch.setattr(targets, "frame_preview", slow_at_five)
+    panel.threshold.value = 5.0
+    old = threading.Thread(target=panel.refresh_preview)  # the timer's draw, caught mid-way
+    old.start()
+    assert inside.wait(10.0)
+    panel.threshold.value = 200.0
+    new = threading.Thread(target=panel.refresh_preview)
+    new.start()
+    new.join(0.5)  # without the panel's lock, the new draw lands now …
+    release.set()  # … and the old one after it
+    old.join(10.0)
+    new.join(10.0)
+    assert panel.preview_level == 200.0
 
 
 def colour_clip(folder: Path, seed: int) -> Path:

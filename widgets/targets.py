@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import html
 import logging
+import threading
 from pathlib import Path
 
 import cv2
@@ -71,6 +72,7 @@ class TargetsPanel:
         self.segment_job: Job | None = None  # the last segmentation job
         self.preview_rgb: np.ndarray | None = None  # (PREVIEW_PX, PREVIEW_PX, 3) uint8: what the preview shows
         self._first_source: tuple | None = None  # (source, path, box) whose first frame the first-frame picture has
+        self._drawing = threading.RLock()  # one preview drawn at a time: a late throttled draw never lands last stale
 
         samples = bundled_samples()
         self.sample = w.Dropdown(options=list(samples), description="sample")
@@ -255,6 +257,10 @@ class TargetsPanel:
     def refresh_preview(self) -> None:
         """Draw the binary mask at the slider's threshold (or Otsu's) over the selected frame, now (raw footage
         waiting for its object: its first frame with the box or the painted mask)."""
+        with self._drawing:  # the slider's throttled draw runs on a timer thread (widgets.images.Throttle)
+            self._draw_preview()
+
+    def _draw_preview(self) -> None:
         self.threshold.disabled = self.otsu.value
         if self.pending is not None:
             self.first.redraw()
