@@ -21,7 +21,7 @@ from studio.cli.runs import advice
 def rig(request):
     echo = request.param
     with ServoEmulator(range(1, 22), EmulatorConfig(echo=echo)) as emu:
-        with SerialServoBus(BusConfig(emu.port, timeout_s=0.01, retries=1, echo=echo)) as bus:
+        with SerialServoBus(BusConfig(emu.port, timeout_s=0.05, retries=1, echo=echo)) as bus:
             yield emu, bus
 
 

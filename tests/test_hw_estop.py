@@ -61,8 +61,8 @@ def test_an_estop_on_one_bus_holds_on_every_bus_until_one_reset(hand):
     with (
         ServoEmulator(cal.ids) as emu_a,
         ServoEmulator(cal.ids) as emu_b,
-        SerialServoBus(BusConfig(emu_a.port, timeout_s=0.01)) as a,
-        SerialServoBus(BusConfig(emu_b.port, timeout_s=0.01)) as b,
+        SerialServoBus(BusConfig(emu_a.port, timeout_s=0.05)) as a,
+        SerialServoBus(BusConfig(emu_b.port, timeout_s=0.05)) as b,
     ):
         assert a.write_positions({1: 600}, 0.0) and b.write_positions({1: 600}, 0.0)
         assert Jog(a, cal).estop()

@@ -26,7 +26,7 @@ def cal(hand):
 
 @pytest.fixture
 def rig(cal):
-    with ServoEmulator(cal.ids) as emu, SerialServoBus(BusConfig(emu.port, timeout_s=0.01, retries=1)) as bus:
+    with ServoEmulator(cal.ids) as emu, SerialServoBus(BusConfig(emu.port, timeout_s=0.05, retries=1)) as bus:
         yield emu, bus
 
 

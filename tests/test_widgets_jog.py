@@ -21,7 +21,7 @@ from widgets.jog import JogPanel, JogPanelConfig, jog_panel
 from widgets.state import StudioState
 
 STILL = asset("targets/asl_o.jpeg")
-FAST = JogPanelConfig(jog=JogConfig(speed_rad_s=20.0, min_move_s=0.0), refresh_hz=10.0, timeout_s=0.01)
+FAST = JogPanelConfig(jog=JogConfig(speed_rad_s=20.0, min_move_s=0.0), refresh_hz=10.0, timeout_s=0.05)
 
 
 @pytest.fixture
