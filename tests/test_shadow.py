@@ -250,3 +250,34 @@ def test_the_paper_rig_keeps_its_record_and_a_calibrated_one_round_trips():
     assert Rig.from_dict(rig.to_dict()) == rig and rig.hash != Rig().hash
     with pytest.raises(ValueError, match="between the light and the backdrop"):
         Rig(hand_offset=(0.0, 0.0, 3.5))
+
+
+TWINS = """
+import numpy as np
+from studio.sim import raster
+parent = np.array([-1, 0, 1], np.int64)
+T_origin = np.tile(np.eye(4), (3, 1, 1))
+axis = np.tile([0.0, 0.0, 1.0], (3, 1))
+theta = np.zeros((4, 3))
+raster.fk_batch_serial(theta, parent, T_origin, axis)  # the serial kernel first, as small batches come first
+raster.fk_batch(theta, parent, T_origin, axis)
+for kernel in (raster.fk_batch_serial, raster.fk_batch):
+    (sig,) = kernel.signatures
+    compiled = not kernel.stats.cache_hits
+    threaded = "do_scheduling" in kernel.inspect_llvm(sig) if compiled else None
+    print(kernel.py_func.__name__, compiled, threaded)
+"""
+
+
+def test_the_threaded_and_serial_kernels_keep_their_own_compiled_code(tmp_path):
+    """numba keys its disk cache by a function's name, not its options (numba#6845): the threaded twin compiled
+    after the serial one must compile its own threaded code, not load the serial one's (it ran large batches on
+    one core)."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    out = subprocess.run([sys.executable, "-c", TWINS], capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split("\n")[:2] == ["_fk_batch_serial True False", "_fk_batch True True"], out.stdout

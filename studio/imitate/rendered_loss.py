@@ -18,6 +18,7 @@ from numba import njit, prange
 
 from studio.imitate.losses import ImageLoss
 from studio.sim.crop import REFERENCE_SIDE
+from studio.sim.raster import serial_twin
 
 
 @njit(cache=True)
@@ -108,38 +109,51 @@ def crop_batch(shadows, pad, size):
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, inline="always")
+def _score_one(crop, target, mask, has_mask, eps, out):
+    """One aligned crop ``(size, size)`` against the target → ``out (3,)``: mae, iou_loss, exp_iou."""
+    size = target.shape[0]
+    sad, inter, union, m_inter, m_union = 0.0, 0.0, 0.0, 0.0, 0.0
+    for i in range(size):
+        for j in range(size):
+            p, t = crop[i, j], target[i, j]
+            sad += abs(p - t)
+            inter += min(p, t)
+            union += max(p, t)
+            if has_mask:
+                mp, mt = mask[i, j] * p, mask[i, j] * t
+                m_inter += min(mp, mt)
+                m_union += max(mp, mt)
+    out[0] = sad / (size * size)
+    out[1] = 1.0 - (inter + eps) / (union + eps)
+    out[2] = 1.0 - (m_inter + eps) / (m_union + eps) if has_mask else np.nan
+
+
+CHUNK = 16  # shadows per scratch allocation (the threaded kernel's unit of work)
+
+
 def _scores(shadows, target, mask, has_mask, pad, eps):
+    """Binary shadows ``(B, H, W)`` uint8 against one aligned target crop ``(size, size)`` → ``(B, 3)`` float32."""
     B, H, W = shadows.shape
     size = target.shape[0]
     k = max(1, -(-max(H, W) // size))
     n = size * k
     out = np.empty((B, 3), dtype=np.float32)  # mae, iou_loss, exp_iou
-    crop = np.empty((size, size), dtype=np.float32)
-    tmp = np.empty((size, W), dtype=np.float32)
-    iy, ix = np.empty(n, np.int64), np.empty(n, np.int64)
-    wy, wx = np.empty(n, np.float32), np.empty(n, np.float32)
-    for b in range(B):
-        _crop_one(shadows[b], pad, size, k, crop, tmp, iy, wy, ix, wx)
-        sad, inter, union, m_inter, m_union = 0.0, 0.0, 0.0, 0.0, 0.0
-        for i in range(size):
-            for j in range(size):
-                p, t = crop[i, j], target[i, j]
-                sad += abs(p - t)
-                inter += min(p, t)
-                union += max(p, t)
-                if has_mask:
-                    mp, mt = mask[i, j] * p, mask[i, j] * t
-                    m_inter += min(mp, mt)
-                    m_union += max(mp, mt)
-        out[b, 0] = sad / (size * size)
-        out[b, 1] = 1.0 - (inter + eps) / (union + eps)
-        out[b, 2] = 1.0 - (m_inter + eps) / (m_union + eps) if has_mask else np.nan
+    for c in prange((B + CHUNK - 1) // CHUNK):
+        crop = np.empty((size, size), dtype=np.float32)
+        tmp = np.empty((size, W), dtype=np.float32)
+        iy, ix = np.empty(n, np.int64), np.empty(n, np.int64)
+        wy, wx = np.empty(n, np.float32), np.empty(n, np.float32)
+        for b in range(c * CHUNK, min(B, (c + 1) * CHUNK)):
+            _crop_one(shadows[b], pad, size, k, crop, tmp, iy, wy, ix, wx)
+            _score_one(crop, target, mask, has_mask, eps, out[b])
     return out
 
 
-# Two compilations of one kernel: serial for the small batches of refinement, threads over the batch for large ones.
-_scores_parallel = njit(cache=True, parallel=True, nogil=True)(_scores.py_func)  # nogil: UI threads run
+# Two compilations of one kernel: serial for the small batches of refinement, threads over the batch for large ones
+# (each under its own name, so neither loads the other's compiled code from numba's disk cache: serial_twin).
+_scores_parallel = njit(cache=True, parallel=True, nogil=True)(_scores)  # nogil: UI threads run
+_scores_serial = njit(cache=True, nogil=True)(serial_twin(_scores))
 PARALLEL_FROM = 256  # batches at least this large use the threaded kernel
 
 
@@ -168,7 +182,7 @@ class RenderedLoss:
         s = np.ascontiguousarray(shadows, dtype=np.uint8)
         if s.ndim == 2:
             s = s[None]
-        kernel = _scores_parallel if len(s) >= PARALLEL_FROM else _scores
+        kernel = _scores_parallel if len(s) >= PARALLEL_FROM else _scores_serial
         raw = kernel(s, self.target, self.mask, self.has_mask, self.pad(*s.shape[1:]), self.cfg.eps).astype(np.float64)
         cfg, nan = self.cfg, np.full(len(s), np.nan)
         c = {"mae": raw[:, 0], "iou_loss": raw[:, 1], "clip": nan}

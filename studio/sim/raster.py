@@ -15,6 +15,7 @@ ellipse on the backdrop), sampled at ``M`` points scaled to keep the ellipse's a
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
 from numba import njit, prange
@@ -293,10 +294,20 @@ def _render_into(out, theta, parent, T_origin, axis, piece_link, piece_pts, piec
     return out
 
 
+def serial_twin(fn):
+    """A copy of ``fn`` under its own name, for its serial compilation. numba keys a function's on-disk cache by its
+    module, name and first line, not by its options (numba issue #6845): a threaded and a serial ``njit`` of one
+    function would both load whichever of the two was compiled first after an install, and either the large batches
+    ran on one core (the retrieval index's build, the block sweep's draws) or the small ones woke the thread pool."""
+    twin = types.FunctionType(fn.__code__, fn.__globals__, fn.__name__ + "_serial", fn.__defaults__, fn.__closure__)
+    twin.__qualname__ = fn.__qualname__ + "_serial"
+    return twin
+
+
 # The same kernel compiled twice: threads over the batch for large batches, and serial for small ones, where
 # waking the thread pool costs more than the work (refinement renders 8 shadows per step).
 render_into = njit(cache=True, parallel=True, nogil=True)(_render_into)  # nogil: a UI thread runs meanwhile
-render_into_serial = njit(cache=True, nogil=True)(_render_into)
+render_into_serial = njit(cache=True, nogil=True)(serial_twin(_render_into))
 SERIAL_BELOW = 64  # batches smaller than this use the serial kernel
 
 
@@ -310,4 +321,4 @@ def _fk_batch(theta, parent, T_origin, axis):
 
 
 fk_batch = njit(cache=True, parallel=True, nogil=True)(_fk_batch)
-fk_batch_serial = njit(cache=True, nogil=True)(_fk_batch)
+fk_batch_serial = njit(cache=True, nogil=True)(serial_twin(_fk_batch))
