@@ -29,6 +29,9 @@ def test_times_counts_and_stages_in_words():
     assert stage("index", 200_000) == "building the retrieval index of 200,000 poses (first use only, cached)"
     assert stage("keyframe 2/5: index", 10).startswith("keyframe 2/5: building the retrieval index of 10 poses")
     assert stage("search", 40) == "search"
+    assert stage("keyframe 1/3: compile", 1) == (
+        "keyframe 1/3: compiling the renderer's and the losses' kernels (first run after this install only)"
+    )
     late = {"from_frame": None, "to_frame": 0, "from_keyframe": None, "to_keyframe": 3, "t_start": 0.0,
             "t_end": 0.05, "given_s": 0.05, "needed_s": 0.7999999999999999}  # fmt: skip
     assert late_lines([late]) == ["home → frame 0 (home → k3) at 0.00 s: needs 0.80 s, given 0.05 s"]

@@ -48,11 +48,13 @@ def loss(value: float | None) -> str:
 
 def stage(name: str, total: int = 0) -> str:
     """A job's stage as the artist reads it: ``index`` (its total: poses) is the retrieval index being built, once
-    per machine; a prefix (``keyframe 2/5: index``) is kept."""
+    per machine, ``compile`` the kernels compiling, once per install; a prefix (``keyframe 2/5: index``) is kept."""
     head, _, last = name.rpartition(": ")
     if last == "index":
         size = count(total, "pose") if total else "poses"
         last = f"building the retrieval index of {size} (first use only, cached)"
+    elif last == "compile":  # studio.imitate.kernels
+        last = "compiling the renderer's and the losses' kernels (first run after this install only)"
     return f"{head}: {last}" if head else last
 
 

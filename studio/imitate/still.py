@@ -29,6 +29,7 @@ from studio.imitate.config import (
     SweepConfig,
 )
 from studio.imitate.framing import Framed, Framer
+from studio.imitate.kernels import compile_first
 from studio.imitate.live_best import LiveBest
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner, RefineResult
@@ -105,6 +106,7 @@ class Imitator:
         self.refiner = Refiner(self.renderer)
         self._index = retrieval if isinstance(retrieval, RetrievalIndex) else None
         self._warmed = False  # torch's first-use start-up is done (run beside the first sweep)
+        self._compiled = False  # the compiled kernels were checked (and compiled when this install had not yet)
         self._framer = Framer(self.refiner, self.loss_fn)  # targets on a rolled mount (keeps its refiner)
         self.retrieval_cfg = self._index.cfg if self._index is not None else retrieval or RetrievalConfig()
 
@@ -139,7 +141,12 @@ class Imitator:
         fanout: FanoutConfig | None = None,
     ) -> RetrievalIndex | None:  # fmt: skip
         """The retrieval index for this model's hand and rig (loaded or built on first use, then kept: stage "index"
-        while it is built; a build spread as ``fanout`` says); None when ``cancel`` stopped its build."""
+        while it is built; a build spread as ``fanout`` says); None when ``cancel`` stopped its build. Every search
+        from scratch and every roll search starts here, so the first one after an install compiles the kernels
+        first, saying so (stage "compile", :mod:`studio.imitate.kernels`)."""
+        if not self._compiled:
+            compile_first(self.renderer, self.loss_cfg, progress)
+            self._compiled = True
         if self._index is None:
             self._index = cached_index(self.renderer, self.retrieval_cfg, progress=progress, cancel=cancel,
                                        fanout=fanout)  # fmt: skip
