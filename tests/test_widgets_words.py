@@ -14,7 +14,7 @@ from studio.project.jobs import queue_for
 from studio.project.project import Project
 from studio.targets.video import VideoConfig
 from widgets.state import StudioState
-from widgets.words import count, late_lines, seconds, span, stage
+from widgets.words import bar_label, count, late_lines, seconds, span, stage
 
 WIDGETS = Path(__file__).resolve().parents[1] / "widgets"
 FLAG = re.compile(r"(?<![\w-])--[a-z][a-z-]+")  # --allow-late, --clip-weights
@@ -32,6 +32,8 @@ def test_times_counts_and_stages_in_words():
     assert stage("keyframe 1/3: compile", 1) == (
         "keyframe 1/3: compiling the renderer's and the losses' kernels (first run after this install only)"
     )
+    assert bar_label("keyframe 1/3: index") == "retrieval index (first use)" and bar_label("search") == "search"
+    assert bar_label("compile") == "compiling kernels (first run)"  # not the index's words (the bar labels did)
     late = {"from_frame": None, "to_frame": 0, "from_keyframe": None, "to_keyframe": 3, "t_start": 0.0,
             "t_end": 0.05, "given_s": 0.05, "needed_s": 0.7999999999999999}  # fmt: skip
     assert late_lines([late]) == ["home → frame 0 (home → k3) at 0.00 s: needs 0.80 s, given 0.05 s"]

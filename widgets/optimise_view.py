@@ -13,7 +13,7 @@ import numpy as np
 from studio.jobs import JobEvent, JobState
 from studio.project.run import RunReport
 from widgets.images import mask_picture
-from widgets.words import ALLOW_LATE, count, late_lines, stage
+from widgets.words import ALLOW_LATE, bar_label, count, late_lines, stage
 
 
 class OptimiseDrawing:
@@ -44,7 +44,7 @@ class OptimiseDrawing:
             if bar is None:
                 bar = self.bars[e.stage] = w.FloatProgress(min=0.0, max=1.0, style={"description_width": "240px"},
                                                            layout=w.Layout(width="560px"))  # fmt: skip
-                self._bar_labels[e.stage] = "retrieval index (first use)" if stage(e.stage) != e.stage else e.stage
+                self._bar_labels[e.stage] = bar_label(e.stage)
                 self.bar_box.children = (*self.bar_box.children, bar)
             bar.value = min(1.0, e.step / e.total)
             bar.description = f"{self._bar_labels[e.stage]} {e.step:,}/{e.total:,}"

@@ -58,6 +58,15 @@ def stage(name: str, total: int = 0) -> str:
     return f"{head}: {last}" if head else last
 
 
+BAR_LABELS = {"index": "retrieval index (first use)", "compile": "compiling kernels (first run)"}  # one-off stages
+
+
+def bar_label(name: str) -> str:
+    """A progress bar's short label for a stage: a one-off stage (the index's build, the kernels' compile) in words,
+    any other stage as it is."""
+    return BAR_LABELS.get(name.rpartition(": ")[2], name)
+
+
 def late_lines(late: list[dict]) -> list[str]:
     """The late transitions of a show (``RunReport.late`` / ``VideoTiming.late_transitions``: frames, keyframes,
     needed versus given seconds), one line each: ``frame 3 → frame 4 (k1 → k2) at 0.50 s: needs 0.62 s, given
