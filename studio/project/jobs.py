@@ -166,15 +166,22 @@ def index_needed(model_path: Path | None = None, retrieval: Any = None) -> bool:
 def index_job(*, model_path: Path | None = None, retrieval: Any = None) -> Job:
     """Build (or load) the retrieval index the keyframe jobs search from (:func:`~studio.imitate.retrieval.
     cached_index`, stage "index": poses packed of its size) into this machine's cache, so that the first
-    optimisation does not wait for it; cancelled, it saves nothing. Its result: the index's size (0: cancelled)."""
+    optimisation does not wait for it, compiling the kernels first when this install has not (stage "compile",
+    :mod:`studio.imitate.kernels`); cancelled, it saves nothing. Its result: the index's size (0: cancelled)."""
     run = functools.partial(_build_index, model_path=model_path, retrieval=retrieval)
     return Job("index", run, title="retrieval index (first use only)")
 
 
 def _build_index(report, cancel, *, model_path: Path | None, retrieval: Any) -> int:
+    from studio.imitate.config import LossConfig
+    from studio.imitate.kernels import compile_first
     from studio.imitate.retrieval import cached_index
 
-    index = cached_index(search_renderer(model_path), retrieval, progress=report, cancel=cancel)
+    renderer = search_renderer(model_path)
+    # a machine without the index is a fresh install: its kernels compile here first (stage "compile"), not in the
+    # first optimisation
+    compile_first(renderer, LossConfig(use_clip=False, crop_size=renderer.rig.resolution), report)
+    index = cached_index(renderer, retrieval, progress=report, cancel=cancel)
     return 0 if index is None else len(index)
 
 
