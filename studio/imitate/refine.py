@@ -83,8 +83,8 @@ class Refiner:
     @contextmanager
     def bounded(self, box: tuple[np.ndarray, np.ndarray] | None) -> Iterator[Refiner]:
         """Within the block, every proposal, sweep draw and seed stays in ``box`` ``(lower (21,), upper (21,))``
-        rad (e.g. a keyframe's reach from its neighbours on the show's clock, :func:`studio.motion.reach.reach_box`);
-        None: the joint limits."""
+        rad (e.g. a keyframe's reach from the posed keyframes on the show's clock,
+        :func:`studio.motion.reach.clock_boxes`); None: the joint limits."""
         before = self.box
         if box is not None:
             lo = np.maximum(np.asarray(box[0], float), self.hand.lower)

@@ -165,7 +165,7 @@ class SequenceImitator:
         is then searched from it when sequential and held to it by the temporal term); None: from scratch.
         ``box_for(k, done)`` → ``(lower (21,), upper (21,))`` rad or None: the box keyframe ``k``'s pose must keep
         given the poses ``done`` so far (e.g. its reach on the show's clock from the keyframes posed,
-        :func:`~studio.motion.reach.reach_box`): retrieval, sweep, search and refinement all stay inside it.
+        :func:`~studio.motion.reach.clock_boxes`): retrieval, sweep, search and refinement all stay inside it.
         ``roll`` rad: the mount's roll; the masks are as the audience sees them, and every shadow and loss is the
         rolled mount's (:class:`~studio.imitate.framing.Framed`).
         """

@@ -146,7 +146,7 @@ def video_keyframes(
 def transition_times(timing: VideoTiming) -> dict[tuple[int, int], float]:
     """Every pair of clusters (keyframes) the show moves between, either way (A → B → A counts both moves) → the
     shortest time the clock gives such a move, s: what the sequence optimisation keeps each transition within
-    (:func:`studio.motion.reach.reach_box`)."""
+    (:func:`studio.motion.reach.reach_distances`)."""
     t, c = timing.keyframes.times, timing.cluster
     out: dict[tuple[int, int], float] = {}
     for m in range(len(t) - 1):
