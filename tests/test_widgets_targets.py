@@ -143,7 +143,13 @@ def test_a_late_draw_never_lands_over_a_newer_one(state, monkeypatch):
     release.set()  # … and the old one after it
     old.join(10.0)
     new.join(10.0)
-    assert panel.preview_level == 200.0
+    shown, png_shown, level = panel.preview_rgb.copy(), panel.preview.value, panel.preview_level
+    panel.refresh_preview()  # a draw at 200 with nothing else running: the pixels the artist must be seeing
+    assert np.array_equal(shown, panel.preview_rgb) and png_shown == panel.preview.value
+    assert level == 200.0
+    panel.threshold.value = 5.0
+    panel.refresh_preview()
+    assert not np.array_equal(shown, panel.preview_rgb)  # the old level's picture differs: the check can fail
 
 
 def colour_clip(folder: Path, seed: int) -> Path:
