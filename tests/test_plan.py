@@ -19,6 +19,7 @@ from studio.motion.errors import KeyframeCollisionError, PlanCancelled, PlanErro
 from studio.motion.limits import JointLimits, LimitsConfig
 from studio.motion.path import PathConfig, build_path, keyframe_spline, spline_path
 from studio.motion.plan import Keyframes, PlanConfig, keyframe_velocities, parse_keyframes, plan_show
+from studio.motion.reach import rest_to_rest_time
 from studio.motion.show import load_show
 from studio.motion.timing import TimingConfig
 from studio.progress import Progress
@@ -234,6 +235,25 @@ def test_too_fast_segment_is_reported_with_its_feasible_time(world):
     assert [s.index for s in late.trajectory.late] == [0, 1]
     assert late.show.provenance["late_segments"][0]["feasible"] == pytest.approx(segs[0].feasible)
     assert late.show.duration == pytest.approx(segs[0].feasible + segs[1].feasible)
+
+
+# Wrist-only shows in which every move gets its straight rest-to-rest time (+2 %, +0.05 s): the reach rule the
+# studio's keyframe boxes keep (studio.motion.reach). Passing every keyframe at the spline's velocity, the planner
+# stretched one or two moves of each (a velocity at a keyframe that heads away from the next one costs more time
+# than it saves); it now passes such a keyframe at rest instead.
+REACH_SHOWS = [(-0.34, 1.226, -0.857, 0.387), (-0.758, -0.812, 1.219, -0.861), (0.689, -1.521, 0.81, 0.04)]
+
+
+@pytest.mark.parametrize("wrist", REACH_SHOWS)
+def test_moves_given_their_rest_to_rest_time_are_never_late(world, wrist):
+    poses = [pose(wrist=w) for w in wrist]
+    times = [1.0]
+    for a, b in zip(poses, poses[1:], strict=False):
+        times.append(times[-1] + 1.02 * float(rest_to_rest_time(b - a, LIMITS).max()) + 0.05)
+    got = plan_show(HAND, keyframes(times, poses), world=world)  # SegmentTooFastError when a move is late
+    assert got.trajectory.late == [] and got.show.duration == pytest.approx(times[-1])
+    assert np.allclose(got.trajectory.state(np.asarray(times))[0], poses, atol=1e-6)
+    assert_within_limits(got.trajectory)
 
 
 def _crossing(n: int) -> Keyframes:

@@ -13,6 +13,10 @@ Open-source Ruckig plans one state-to-state motion at a time, so the trajectory 
   segment's states, the durations split in proportion to the path's nominal times but never below each piece's
   shortest feasible time. A piece that still collides (or swings out of a joint's limits) becomes rest-to-rest and
   phase-synchronised: the straight, checked line between its corners (split at a path point if needed).
+* A segment too slow for its time with its keyframes passed at the spline's velocities passes its end keyframe at
+  rest instead, or both (the one before is then re-timed to end at rest), when that fits: the keyframe boxes of
+  :mod:`studio.motion.reach` give each move its rest-to-rest time, and a keyframe velocity that heads away from the
+  next keyframe can cost more time than it saves.
 * A segment whose shortest feasible time exceeds its requested time raises ``SegmentTooFastError`` with every
   such segment and its feasible time; with ``allow_late`` the segment is stretched and later keyframes shift
   (reported in the result, never silent).
@@ -227,6 +231,23 @@ def _colliding(world: CollisionWorld, pieces: list[Piece], t0: float, t1: float,
     return t, world.in_collision(pos, check=False)
 
 
+def _ends_at_rest(timer, t0: float, span: float, tau, q, v0, v1, at_rest) -> tuple[bool, bool] | None:
+    """For a segment too slow for its ``span`` s with its keyframes passed at the spline's velocities: which of its
+    ends (start, end) to pass at rest instead so that it fits, the end alone first (nothing before it is re-timed),
+    then both; None when neither fits, or both ends already rest (the reach of :mod:`studio.motion.reach` is rest to
+    rest: a via velocity that heads away from the next keyframe can cost more than it gives)."""
+    for start, end in ((False, True), (True, True)):
+        trial = at_rest.copy()
+        trial[0] |= start
+        trial[-1] |= end
+        if (trial == at_rest).all():
+            continue
+        v = timer.via_velocities(tau, q, v0 * (not trial[0]), v1 * (not trial[-1]), trial)
+        if timer.time(t0, t0 + span, tau, q, v, trial)[0] is not None:
+            return bool(trial[0] and not at_rest[0]), bool(trial[-1] and not at_rest[-1])
+    return None
+
+
 def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, cancel=None):
     """Rounds of timing + checking for segment ``s``; returns (pieces, restart previous?, checks).
 
@@ -244,6 +265,15 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, c
         v = timer.via_velocities(tau, q, kv[s], kv[s + 1], at_rest)
         got, feasible = timer.time(t0, t0 + duration[s], tau, q, v, at_rest)
         if got is None:
+            ends = _ends_at_rest(timer, t0, float(duration[s]), tau, q, kv[s], kv[s + 1], at_rest)
+            if ends is not None:  # passing a keyframe at rest makes the segment fit its time: before stretching it
+                if ends[1]:
+                    kv[s + 1] = 0.0
+                if ends[0]:
+                    kv[s] = 0.0
+                    if s > 0:
+                        return None, True, checks
+                continue
             slow[s] = SegmentTiming(s, float(req_t[s]), float(req_t[s + 1]), feasible)
             duration[s] = feasible  # stretched: reported unless allow_late
             continue
