@@ -203,14 +203,14 @@ def test_plan_shows_progress_at_once(in_process, poses, tmp_path):
 
 def test_limits_too_small_for_ruckig_are_a_clear_plan_error(hand):
     from studio.motion.limits import JointLimits, LimitsConfig
-    from studio.motion.timing import SegmentTimer, TimingConfig, _Solver
+    from studio.motion.segment_timer import RuckigSolver, SegmentTimer
 
     limits = JointLimits.from_hand(hand, LimitsConfig(acceleration=1e-9, jerk=1e-9))
     q0, q1 = hand.rest_pose(), hand.rest_pose()
     q1[1] += 0.3
     z = np.zeros_like(q0)
-    assert _Solver(limits).solve(q0, z, q1, z, None) is None  # Ruckig's -101, not "-101 is not a valid Result"
-    timer = SegmentTimer(_Solver(limits), limits, TimingConfig())
+    assert RuckigSolver(limits).solve(q0, z, q1, z, None) is None  # Ruckig's -101, not "-101 is not a valid Result"
+    timer = SegmentTimer(RuckigSolver(limits), limits)
     with pytest.raises(PlanError, match="limits are too small to reach it"):
         timer.time(0.0, 1.0, np.array([0.0, 1.0]), np.stack([q0, q1]), np.stack([z, z]), np.array([True, True]))
 

@@ -22,6 +22,7 @@ from studio.motion.plan import Keyframes, PlanConfig, keyframe_velocities, parse
 from studio.motion.reach import rest_to_rest_time
 from studio.motion.show import load_show
 from studio.motion.timing import TimingConfig
+from studio.motion.via_search import ViaSearch
 from studio.progress import Progress
 from studio.sim.hand import DEFAULT_URDF, load_hand, parse_urdf
 from studio.sim.physics import CollisionWorld
@@ -254,6 +255,28 @@ def test_moves_given_their_rest_to_rest_time_are_never_late(world, wrist):
     assert got.trajectory.late == [] and got.show.duration == pytest.approx(times[-1])
     assert np.allclose(got.trajectory.state(np.asarray(times))[0], poses, atol=1e-6)
     assert_within_limits(got.trajectory)
+
+
+@pytest.mark.parametrize("tries", [ViaSearch().tries, 0])
+def test_a_crossing_move_given_its_rest_to_rest_time_is_not_late(world, tries):
+    """The index finger swinging across the middle one, given 1.02 × its straight rest-to-rest time: the straight
+    move collides, and the repaired path's corners need 2.4 s for its 0.89 s. One via-point near the straight move
+    (``studio.motion.via_search``) makes it in time, collision-free; without the search (``tries`` 0) it is late."""
+    t1 = 1.0 + 1.02 * float(rest_to_rest_time(CROSS_A - HAND.rest_pose(), LIMITS).max()) + 0.05
+    t2 = t1 + 1.02 * float(rest_to_rest_time(CROSS_B - CROSS_A, LIMITS).max()) + 0.05
+    kf = keyframes([t1, t2], [CROSS_A, CROSS_B])
+    cfg = PlanConfig(timing=TimingConfig(via=ViaSearch(tries=tries)))
+    if not tries:
+        with pytest.raises(SegmentTooFastError, match="segment 1"):
+            plan_show(HAND, kf, cfg, world=world)
+        return
+    got = plan_show(HAND, kf, cfg, world=world)
+    assert got.trajectory.late == [] and got.show.duration == pytest.approx(t2)
+    assert_collision_free(world, got.trajectory)
+    assert_keyframes_exact(got, kf)
+    assert_within_limits(got.trajectory)
+    again = plan_show(HAND, kf, cfg, world=world)  # seeded: the same plan
+    assert np.array_equal(again.show.positions, got.show.positions)
 
 
 def _crossing(n: int) -> Keyframes:

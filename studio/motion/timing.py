@@ -17,6 +17,9 @@ Open-source Ruckig plans one state-to-state motion at a time, so the trajectory 
   rest instead, or both (the one before is then re-timed to end at rest), when that fits: the keyframe boxes of
   :mod:`studio.motion.reach` give each move its rest-to-rest time, and a keyframe velocity that heads away from the
   next keyframe can cost more time than it saves.
+* A segment whose straight move collided and that would still be late through the path's corners (or that
+  collides even along them) tries one via-point near the straight move (:mod:`studio.motion.via_search`): the
+  corners follow the spline and the repair walk, not the clock, and can cost the move twice its straight time.
 * A segment whose shortest feasible time exceeds its requested time raises ``SegmentTooFastError`` with every
   such segment and its feasible time; with ``allow_late`` the segment is stretched and later keyframes shift
   (reported in the result, never silent).
@@ -28,12 +31,12 @@ import threading
 from dataclasses import dataclass, field
 
 import numpy as np
-from ruckig import InputParameter, Result, Ruckig, Synchronization, Trajectory
-from scipy.interpolate import CubicSpline
 
-from studio.motion.errors import PathError, PlanError, SegmentTiming, SegmentTooFastError, check_cancel
+from studio.motion.errors import PathError, SegmentTiming, SegmentTooFastError, check_cancel
 from studio.motion.limits import JointLimits
 from studio.motion.path import Path
+from studio.motion.segment_timer import Piece, RuckigSolver, SegmentTimer, colliding, evaluate, overshoots
+from studio.motion.via_search import ViaSearch, via_detour
 from studio.progress import ProgressFn, report
 from studio.sim.physics import CollisionWorld
 
@@ -47,18 +50,7 @@ class TimingConfig:
     velocity_margin: float = 0.95  # keyframe/via velocities are clipped to this fraction of the velocity limit
     max_rounds: int = 40  # via-insertion rounds per segment before giving up
     allow_late: bool = False  # stretch too-fast segments (shifting later keyframes) instead of raising
-
-
-@dataclass
-class Piece:
-    """One Ruckig motion starting at ``t0`` (s, show time)."""
-
-    t0: float
-    traj: Trajectory
-
-    @property
-    def duration(self) -> float:
-        return float(self.traj.duration)
+    via: ViaSearch = field(default_factory=ViaSearch)  # one via-point near a colliding straight move, before late
 
 
 @dataclass
@@ -97,140 +89,6 @@ class TimedTrajectory:
         return worst
 
 
-def evaluate(pieces: list[Piece], t: np.ndarray) -> np.ndarray:
-    """Position, velocity, acceleration ``(3, T, 21)`` of chained ``pieces`` at show times ``t (T,)``."""
-    starts = np.array([p.t0 for p in pieces])
-    idx = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(pieces) - 1)
-    out = np.empty((3, len(t), pieces[0].traj.degrees_of_freedom))
-    for n, (ti, k) in enumerate(zip(t, idx)):
-        piece = pieces[k]
-        out[:, n] = piece.traj.at_time(min(max(ti - piece.t0, 0.0), piece.duration))
-    return out
-
-
-class _Solver:
-    """Ruckig calls with the joint limits set once."""
-
-    def __init__(self, limits: JointLimits):
-        self.dof = len(limits.velocity)
-        self.ruckig = Ruckig(self.dof)
-        self.inp = InputParameter(self.dof)
-        self.inp.max_velocity = limits.velocity.tolist()
-        self.inp.max_acceleration = limits.acceleration.tolist()
-        self.inp.max_jerk = limits.jerk.tolist()
-        self.inp.min_position = limits.lower.tolist()
-        self.inp.max_position = limits.upper.tolist()
-
-    def solve(self, p0, v0, p1, v1, duration: float | None, straight: bool = False) -> Trajectory | None:
-        """One motion (p0, v0, 0) → (p1, v1, 0); None when Ruckig finds none within the limits."""
-        inp, zero = self.inp, [0.0] * self.dof
-        inp.current_position, inp.current_velocity, inp.current_acceleration = list(p0), list(v0), zero
-        inp.target_position, inp.target_velocity, inp.target_acceleration = list(p1), list(v1), zero
-        inp.synchronization = Synchronization.Phase if straight else Synchronization.Time
-        inp.minimum_duration = duration
-        traj = Trajectory(self.dof)
-        try:
-            res = self.ruckig.calculate(inp, traj)
-        except ValueError:  # a code the binding's Result lacks: -101, the motion outlasts what Ruckig computes
-            return None
-        return traj if res in (Result.Working, Result.Finished) else None
-
-
-def _allocate(minimum: np.ndarray, weight: np.ndarray, total: float) -> np.ndarray:
-    """Durations ``d = max(minimum, c·weight)`` summing to ``total`` (requires Σ minimum ≤ total)."""
-    lo, hi = 0.0, total / max(weight.min(), 1e-12)
-    for _ in range(100):
-        c = (lo + hi) / 2
-        lo, hi = (c, hi) if np.maximum(minimum, c * weight).sum() < total else (lo, c)
-    d = np.maximum(minimum, hi * weight)
-    free = d > minimum
-    if free.any():  # put the rounding remainder on the stretchable pieces
-        d[free] += (total - d.sum()) * weight[free] / weight[free].sum()
-    return d
-
-
-def via_spline_velocities(tau: np.ndarray, q: np.ndarray, v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
-    """Velocities ``(n, 21)`` rad/s at a segment's states ``q (n, 21)`` at times ``tau (n,)``: a cubic spline through
-    them clamped to the end velocities ``v0``/``v1`` (21,). This via-point spline is not the keyframe spline
-    (``studio.motion.path.keyframe_spline``): it threads via-points between two keyframes whose velocities that
-    spline has already fixed."""
-    v = np.zeros_like(q)
-    v[0], v[-1] = v0, v1
-    if len(q) > 2:
-        v[1:-1] = CubicSpline(tau, q, bc_type=((1, v0), (1, v1)), axis=0)(tau[1:-1], 1)
-    return v
-
-
-class SegmentTimer:
-    """Times one keyframe segment through a chosen set of via-points of the path."""
-
-    def __init__(self, solver: _Solver, limits: JointLimits, cfg: TimingConfig):
-        self.solver, self.limits, self.cfg = solver, limits, cfg
-
-    def via_velocities(self, tau: np.ndarray, q: np.ndarray, v0: np.ndarray, v1: np.ndarray, stop: np.ndarray):
-        """Velocities (n, 21) at the states ``q (n, 21)``: the via spline's, within the limits, zero where ``stop``."""
-        v = via_spline_velocities(tau, q, v0, v1)
-        vmax = self.cfg.velocity_margin * self.limits.velocity
-        v = self.inward(q, np.clip(v, -vmax, vmax))
-        v[stop] = 0.0
-        return v
-
-    def inward(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Zero each velocity component that heads out through a joint limit closer than its braking distance
-        (v²/2a + |v|·a/j, a jerk-limited stop), so no piece overshoots a limit."""
-        lim = self.limits
-        brake = v**2 / (2 * lim.acceleration) + np.abs(v) * lim.acceleration / lim.jerk
-        out = ((v < 0) & (q - brake <= lim.lower)) | ((v > 0) & (q + brake >= lim.upper))
-        return np.where(out, 0.0, v)
-
-    def time(self, t0: float, t1: float, tau, q, v, stop) -> tuple[list[Piece] | None, float]:
-        """Pieces from t0 to t1 through states (q, v); (None, feasible) when Σ shortest times > t1 − t0."""
-        n = len(q) - 1
-        straight = stop[:-1] & stop[1:]
-        minimum = np.empty(n)
-        for k in range(n):
-            tr = self.solver.solve(q[k], v[k], q[k + 1], v[k + 1], None, bool(straight[k]))
-            if tr is None:
-                raise PlanError(
-                    f"no motion reaches the path state near t = {tau[k]:.3f} s within the limits: the velocity, "
-                    "acceleration or jerk limits are too small to reach it (a motion of hours), or the state lies "
-                    "outside a joint's range; raise the limits"
-                )
-            minimum[k] = tr.duration
-        total = t1 - t0
-        for _ in range(10):
-            if minimum.sum() > total + 1e-9:
-                return None, float(minimum.sum())
-            d = _allocate(minimum, np.maximum(np.diff(tau), 1e-6), total)
-            pieces, start = [], t0
-            for k in range(n):
-                tr = self.solver.solve(q[k], v[k], q[k + 1], v[k + 1], float(d[k]), bool(straight[k]))
-                if tr is None or tr.duration > d[k] + 1e-9:  # a blocked interval: that duration is impossible
-                    minimum[k] = d[k] + 1e-3 if tr is None else tr.duration
-                    break
-                pieces.append(Piece(start, tr))
-                start += d[k]
-            else:
-                return pieces, float(minimum.sum())
-        raise PlanError(f"could not fit the motion between t = {t0:.3f} s and t = {t1:.3f} s to its duration")
-
-
-def _overshoots(traj: Trajectory, limits: JointLimits, tol: float = 1e-9) -> bool:
-    """True when the piece leaves a joint's position limits (Ruckig may swing out to fill a long duration)."""
-    ext = traj.position_extrema
-    lo = np.array([e.min for e in ext])
-    hi = np.array([e.max for e in ext])
-    return bool((lo < limits.lower - tol).any() or (hi > limits.upper + tol).any())
-
-
-def _colliding(world: CollisionWorld, pieces: list[Piece], t0: float, t1: float, rate: float):
-    """Check-grid times ``(T,)`` in [t0, t1] (ends included) and their penetration flags ``(T,)``."""
-    grid = np.arange(np.ceil(t0 * rate), np.floor(t1 * rate) + 1) / rate
-    t = np.unique(np.concatenate([[t0], grid[(grid >= t0) & (grid <= t1)], [t1]]))
-    pos = np.clip(evaluate(pieces, t)[0], world.hand.lower, world.hand.upper)
-    return t, world.in_collision(pos, check=False)
-
-
 def _ends_at_rest(timer, t0: float, span: float, tau, q, v0, v1, at_rest) -> tuple[bool, bool] | None:
     """For a segment too slow for its ``span`` s with its keyframes passed at the spline's velocities: which of its
     ends (start, end) to pass at rest instead so that it fits, the end alone first (nothing before it is re-timed),
@@ -248,6 +106,12 @@ def _ends_at_rest(timer, t0: float, span: float, tau, q, v0, v1, at_rest) -> tup
     return None
 
 
+def _via_detour(path, s, kv, t0: float, span: float, timer, world, rate: float, cfg: TimingConfig):
+    """:func:`~studio.motion.via_search.via_detour` for segment ``s``: its pieces or None, and the poses checked."""
+    a, b = path.key_index[s], path.key_index[s + 1]
+    return via_detour(timer, world, t0, span, (path.poses[a], path.poses[b]), (kv[s], kv[s + 1]), rate, s, cfg.via)
+
+
 def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, cancel=None):
     """Rounds of timing + checking for segment ``s``; returns (pieces, restart previous?, checks).
 
@@ -257,7 +121,7 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, c
     """
     a, b = path.key_index[s], path.key_index[s + 1]
     t0 = float(np.sum(duration[:s]))
-    idx, stop, checks = [a, b], set(), 0
+    idx, stop, checks, collided, searched = [a, b], set(), 0, False, None  # searched: the span a via was sought in
     for _ in range(cfg.max_rounds):
         check_cancel(cancel)
         tau, q = path.times[idx], path.poses[idx]
@@ -274,15 +138,22 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, c
                     if s > 0:
                         return None, True, checks
                 continue
+            if collided and searched is None:  # the straight move collided: one via-point near it, before stretching
+                searched = float(duration[s])
+                via, n = _via_detour(path, s, kv, t0, searched, timer, world, rate, cfg)
+                checks += n
+                if via is not None:
+                    return via, False, checks
             slow[s] = SegmentTiming(s, float(req_t[s]), float(req_t[s + 1]), feasible)
             duration[s] = feasible  # stretched: reported unless allow_late
             continue
         check_cancel(cancel)
-        t, bad = _colliding(world, got, t0, t0 + duration[s], rate)
+        t, bad = colliding(world, got, t0, t0 + duration[s], rate)
         checks += len(t)
-        over = [k for k, p in enumerate(got) if _overshoots(p.traj, timer.limits)]  # a time-filling swing
+        over = [k for k, p in enumerate(got) if overshoots(p.traj, timer.limits)]  # a time-filling swing
         if not bad.any() and not over:
             return got, False, checks
+        collided |= len(idx) == 2 and bool(bad.any())
         if len(idx) == 2 and not at_rest.all() and bad.any():
             idx = [int(i) for i in np.flatnonzero(path.corner[a : b + 1]) + a]
             if len(idx) > 2:
@@ -293,6 +164,12 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, c
         for k in np.union1d(hit, over).astype(int):
             if at_rest[k] and at_rest[k + 1]:  # missed between the path check's samples: split at a path point
                 if idx[k + 1] - idx[k] < 2:
+                    if searched != float(duration[s]):  # the repaired path is no way through: one via, if any
+                        searched = float(duration[s])
+                        via, n = _via_detour(path, s, kv, t0, searched, timer, world, rate, cfg)
+                        checks += n
+                        if via is not None:
+                            return via, False, checks
                     raise PathError(
                         f"the motion near t = {got[k].t0:.3f} s collides even along the repaired path; "
                         "move the neighbouring keyframes apart or add a keyframe in between"
@@ -324,7 +201,7 @@ def time_path(
     being set.
     """
     cfg = cfg or TimingConfig()
-    timer = SegmentTimer(_Solver(limits), limits, cfg)
+    timer = SegmentTimer(RuckigSolver(limits), limits, cfg.velocity_margin)
     rate = cfg.rate_hz * cfg.check_factor
     ki = path.key_index
     req_t = path.times[ki]
