@@ -26,6 +26,8 @@ def test_bench_reach_one_target():
     assert 0.0 <= row["floor"] < 0.2 and row["iou_loss"] == pytest.approx(row["per_target"][0], abs=1e-4)
     assert row["excess"] == pytest.approx(max(row["iou_loss"] - row["floor"], 0.0), abs=1e-9)
     assert any(line.startswith("| studio | ") for line in lines) and "excess_vs_paper" not in s
+    assert row["total"] == pytest.approx(row["per_target_total"][0], abs=1e-4) and row["floor_total"] >= 0
+    assert row["wrong_pose_preferred_pct"] in (0.0, 100.0)  # one target: the objective prefers a wrong pose or not
     rolled = s["methods"]["roll-auto"]  # the same pose, cast by a mount rolled at random: its roll is found
     assert rolled["roll_error_max_deg"] <= 2.0 and rolled["roll_found_pct"] == 100.0 and rolled["collide_pct"] == 0
     assert rolled["excess"] < 0.1 and any("roll auto on 1 rolled targets" in line for line in lines)
