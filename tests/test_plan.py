@@ -20,9 +20,10 @@ from studio.motion.limits import JointLimits, LimitsConfig
 from studio.motion.path import PathConfig, build_path, keyframe_spline, spline_path
 from studio.motion.plan import Keyframes, PlanConfig, keyframe_velocities, parse_keyframes, plan_show
 from studio.motion.reach import rest_to_rest_time
+from studio.motion.segment_timer import RuckigSolver, SegmentTimer, colliding, evaluate
 from studio.motion.show import load_show
 from studio.motion.timing import TimingConfig
-from studio.motion.via_search import ViaSearch
+from studio.motion.via_search import ViaSearch, via_detour
 from studio.progress import Progress
 from studio.sim.hand import DEFAULT_URDF, load_hand, parse_urdf
 from studio.sim.physics import CollisionWorld
@@ -277,6 +278,25 @@ def test_a_crossing_move_given_its_rest_to_rest_time_is_not_late(world, tries):
     assert_within_limits(got.trajectory)
     again = plan_show(HAND, kf, cfg, world=world)  # seeded: the same plan
     assert np.array_equal(again.show.positions, got.show.positions)
+
+
+def test_the_via_search_fits_the_span_exactly_refuses_the_impossible_and_stops_on_cancel(world):
+    """``via_detour`` on the crossing move: pieces that start at t0, end at t0 + span on the keyframe, collision-free;
+    None for a span shorter than the straight rest-to-rest move (no via beats it); PlanCancelled once cancelled."""
+    timer = SegmentTimer(RuckigSolver(LIMITS), LIMITS)
+    zero, straight = np.zeros(HAND.dof), float(rest_to_rest_time(CROSS_B - CROSS_A, LIMITS).max())
+    span = 1.05 * straight
+    pieces, checks = via_detour(timer, world, 2.0, span, (CROSS_A, CROSS_B), (zero, zero), 160.0)
+    assert pieces is not None and checks > 0 and pieces[0].t0 == 2.0
+    assert pieces[-1].t0 + pieces[-1].duration == pytest.approx(2.0 + span)
+    end = evaluate(pieces, np.array([2.0, 2.0 + span]))[0]
+    assert np.allclose(end, [CROSS_A, CROSS_B], atol=1e-6)
+    assert not colliding(world, pieces, 2.0, 2.0 + span, 160.0)[1].any()
+    assert via_detour(timer, world, 2.0, 0.9 * straight, (CROSS_A, CROSS_B), (zero, zero), 160.0)[0] is None
+    cancel = threading.Event()
+    cancel.set()
+    with pytest.raises(PlanCancelled):
+        via_detour(timer, world, 2.0, span, (CROSS_A, CROSS_B), (zero, zero), 160.0, cancel=cancel)
 
 
 def _crossing(n: int) -> Keyframes:

@@ -106,10 +106,11 @@ def _ends_at_rest(timer, t0: float, span: float, tau, q, v0, v1, at_rest) -> tup
     return None
 
 
-def _via_detour(path, s, kv, t0: float, span: float, timer, world, rate: float, cfg: TimingConfig):
+def _via_detour(path, s, kv, t0: float, span: float, timer, world, rate: float, cfg: TimingConfig, cancel=None):
     """:func:`~studio.motion.via_search.via_detour` for segment ``s``: its pieces or None, and the poses checked."""
     a, b = path.key_index[s], path.key_index[s + 1]
-    return via_detour(timer, world, t0, span, (path.poses[a], path.poses[b]), (kv[s], kv[s + 1]), rate, s, cfg.via)
+    ends, velocities = (path.poses[a], path.poses[b]), (kv[s], kv[s + 1])
+    return via_detour(timer, world, t0, span, ends, velocities, rate, s, cfg.via, cancel)
 
 
 def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, cancel=None):
@@ -140,7 +141,7 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, c
                 continue
             if collided and searched is None:  # the straight move collided: one via-point near it, before stretching
                 searched = float(duration[s])
-                via, n = _via_detour(path, s, kv, t0, searched, timer, world, rate, cfg)
+                via, n = _via_detour(path, s, kv, t0, searched, timer, world, rate, cfg, cancel)
                 checks += n
                 if via is not None:
                     return via, False, checks
@@ -166,7 +167,7 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, c
                 if idx[k + 1] - idx[k] < 2:
                     if searched != float(duration[s]):  # the repaired path is no way through: one via, if any
                         searched = float(duration[s])
-                        via, n = _via_detour(path, s, kv, t0, searched, timer, world, rate, cfg)
+                        via, n = _via_detour(path, s, kv, t0, searched, timer, world, rate, cfg, cancel)
                         checks += n
                         if via is not None:
                             return via, False, checks

@@ -16,11 +16,12 @@ fastest first; the first free one is the segment's motion. Random, with the plan
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
 
-from studio.motion.errors import PlanError
+from studio.motion.errors import PlanError, check_cancel
 from studio.motion.segment_timer import Piece, SegmentTimer, colliding, overshoots
 from studio.sim.physics import CollisionWorld
 
@@ -47,11 +48,13 @@ def via_detour(
     rate: float,
     segment: int = 0,
     cfg: ViaSearch | None = None,
+    cancel: threading.Event | None = None,
 ) -> tuple[list[Piece] | None, int]:
     """Pieces from keyframe ``ends[0]`` to ``ends[1]`` ``(21,)`` rad, leaving and reaching them at ``velocities``
     ``(21,)`` rad/s, in exactly ``span`` s from show time ``t0`` through one via-point, within the joint limits and
     collision-free at ``rate`` Hz along the trajectory; None when no candidate fits (module doc). ``segment`` seeds
-    the draw with ``cfg.seed``. Returns the pieces and the poses checked."""
+    the draw with ``cfg.seed``. Returns the pieces and the poses checked; raises
+    :class:`~studio.motion.errors.PlanCancelled` within one candidate of ``cancel`` being set."""
     cfg = cfg or ViaSearch()
     if cfg.tries <= 0:
         return None, 0
@@ -66,6 +69,7 @@ def via_detour(
     free = ~world.in_collision(vias, check=False)
     options = []  # (feasible s, tau, q, v, stop)
     for m in vias[free]:
+        check_cancel(cancel)
         da, db = np.abs(m - qa).max(), np.abs(qb - m).max()
         tau = np.array([t0, t0 + span * da / max(da + db, 1e-12), t0 + span])
         q = np.array([qa, m, qb])
@@ -81,6 +85,7 @@ def via_detour(
                 options.append((feasible, tau, q, v, stop))
     options.sort(key=lambda o: o[0])
     for _, tau, q, v, stop in options[: cfg.checked]:
+        check_cancel(cancel)
         try:
             pieces, _ = timer.time(t0, t0 + span, tau, q, v, stop)
         except PlanError:  # Ruckig cannot stretch this one to the span
