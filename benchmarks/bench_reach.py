@@ -13,6 +13,10 @@ prefers a wrong pose (a lower Total than the known pose's, an IoU loss more than
 line with the same and the ratios of each method's excess to the paper configuration's (below 1: closer to the floor).
 
     python benchmarks/bench_reach.py [--count 12] [--seed 7] [--methods studio no-sweep paper roll-auto]
+                                     [--hole-weight W]
+
+``--hole-weight W`` imitates (and scores Total) with the holes' expressive term weighted ``W`` instead of 1.0: how
+much of the excess over the floor that term causes.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ from studio.imitate.config import (
     PAPER_SWEEP,
     STUDIO_SEARCH,
     ImitateConfig,
+    LossConfig,
     SweepConfig,
 )
 from studio.imitate.still import Imitator
@@ -67,13 +72,15 @@ def objective_summary(totals, floor_totals, losses, floors, tolerance: float = 0
             "per_target_floor_total": [round(float(t), 4) for t in floor_totals]}  # fmt: skip
 
 
-def run_method(name: str, theta: np.ndarray, targets: np.ndarray, rolls: np.ndarray | None = None) -> dict:
+def run_method(
+    name: str, theta: np.ndarray, targets: np.ndarray, rolls: np.ndarray | None = None, loss: LossConfig | None = None
+) -> dict:
     """One method over the targets; with ``rolls (N,)`` rad the targets are rolled and the roll is chosen first
     (roll auto), the pose then imitated and scored as the rolled mount casts it."""
     search, refine, config, sweep = METHODS[name]
     losses, floors, seconds, collides, errors = [], [], [], [], []
     totals, floor_totals = [], []  # the objective (Total) of the answer and of the known pose
-    with Imitator(search=search, refine=refine, config=config, sweep=sweep) as im:
+    with Imitator(search=search, refine=refine, config=config, sweep=sweep, loss_cfg=loss) as im:
         for i, (truth, target) in enumerate(zip(theta, targets)):
             expressive = still_expressive(target)
             loss_fn = im.loss_fn(target, expressive)
@@ -113,6 +120,9 @@ def main() -> int:
     parser.add_argument("--count", type=int, default=12, help="reachable targets (default 12)")
     parser.add_argument("--seed", type=int, default=7, help="seed of the pose draws (default 7)")
     parser.add_argument("--methods", nargs="+", choices=tuple(METHODS), default=list(METHODS))
+    parser.add_argument("--hole-weight", type=float, default=None, metavar="W",
+                        help="weight of the holes' expressive term in the imitation (LossConfig.w_exp_iou; default: "
+                        "the studio's 1.0); the known pose and the answer are scored with it too")  # fmt: skip
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
     torch.set_num_threads(1)
@@ -122,13 +132,16 @@ def main() -> int:
         theta, targets = reachable_targets(im.hand, im.refiner.world, im.resolution, cfg)
         if "roll-auto" in args.methods:
             rolled_targets = reachable_targets(im.hand, im.refiner.world, im.resolution, cfg, rolls=rolls)[1]
+    loss = None
+    if args.hole_weight is not None:
+        loss = LossConfig(use_clip=False, crop_size=im.resolution, w_exp_iou=args.hole_weight)
     rows = {}
     for name in args.methods:
         t0 = time.perf_counter()
         if name == "roll-auto":
-            rows[name] = run_method(name, theta, rolled_targets, rolls)
+            rows[name] = run_method(name, theta, rolled_targets, rolls, loss)
         else:
-            rows[name] = run_method(name, theta, targets)
+            rows[name] = run_method(name, theta, targets, loss=loss)
         rows[name]["wall_seconds"] = round(time.perf_counter() - t0, 1)
     print(f"\n{args.count} reachable targets (seed {args.seed}), 128² shipped self-model, no CLIP, IoU loss:\n")
     print(
@@ -150,7 +163,7 @@ def main() -> int:
             f"\nroll auto on {args.count} rolled targets: roll error mean {r['roll_error_mean_deg']:.2f}°, worst "
             f"{r['roll_error_max_deg']:.2f}°, {r['roll_found_pct']:.0f} % within {ROLL_FOUND_DEG:g}°"
         )
-    summary = {"targets": args.count, "seed": args.seed, "methods": rows}
+    summary = {"targets": args.count, "seed": args.seed, "hole_weight": args.hole_weight, "methods": rows}
     if "paper" in rows and rows["paper"]["excess"] > 0:
         summary["excess_vs_paper"] = {n: round(r["excess"] / rows["paper"]["excess"], 3) for n, r in rows.items()}
     print(json.dumps(summary))
