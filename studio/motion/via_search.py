@@ -73,9 +73,10 @@ def via_detour(
         da, db = np.abs(m - qa).max(), np.abs(qb - m).max()
         tau = np.array([t0, t0 + span * da / max(da + db, 1e-12), t0 + span])
         q = np.array([qa, m, qb])
-        for scale in VIA_SCALES:
+        spline_v = timer.via_velocities(tau, q, va, vb, np.array([not va.any(), False, not vb.any()]))
+        for scale in VIA_SCALES:  # the via spline's velocity at the via, scaled (0: at rest)
             stop = np.array([not va.any(), scale == 0.0, not vb.any()])
-            v = timer.via_velocities(tau, q, va, vb, stop)
+            v = spline_v.copy()
             v[1] *= scale
             try:
                 feasible = float(timer.shortest(tau, q, v, stop).sum())
