@@ -124,6 +124,8 @@ def main() -> int:
                         help="weight of the holes' expressive term in the imitation (LossConfig.w_exp_iou; default: "
                         "the studio's 1.0); the known pose and the answer are scored with it too")  # fmt: skip
     args = parser.parse_args()
+    if args.hole_weight is not None and not args.hole_weight >= 0:
+        parser.error(f"--hole-weight must be ≥ 0 (a weight on a loss term), not {args.hole_weight}")
     logging.basicConfig(level=logging.WARNING)
     torch.set_num_threads(1)
     cfg = ReachableConfig(count=args.count, seed=args.seed)

@@ -297,6 +297,9 @@ def test_the_via_search_fits_the_span_exactly_refuses_the_impossible_and_stops_o
     cancel.set()
     with pytest.raises(PlanCancelled):
         via_detour(timer, world, 2.0, span, (CROSS_A, CROSS_B), (zero, zero), 160.0, cancel=cancel)
+    for bad in ({"tries": -1}, {"checked": -1}, {"spreads": ()}, {"spreads": (0.1, 0.0)}):
+        with pytest.raises(ValueError, match="via search"):
+            ViaSearch(**bad)
 
 
 def _crossing(n: int) -> Keyframes:

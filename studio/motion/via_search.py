@@ -37,6 +37,10 @@ class ViaSearch:
     checked: int = 100  # at most this many of the fastest fitting candidates are collision-checked along the motion
     seed: int = 0  # random seed (with the segment's number: plans are reproducible) [0, 4294967295]
 
+    def __post_init__(self) -> None:
+        if self.tries < 0 or self.checked < 0 or not self.spreads or min(self.spreads) <= 0:
+            raise ValueError(f"the via search needs tries ≥ 0, checked ≥ 0 and deviations > 0, not {self}")
+
 
 def via_detour(
     timer: SegmentTimer,
