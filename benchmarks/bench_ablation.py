@@ -41,6 +41,7 @@ from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import Rig, ShadowRenderer
 from studio.targets.expressive import still_expressive
 from studio.targets.images import gather_targets, load_target
+from studio.threads import set_torch_threads
 
 ROOT = Path(__file__).resolve().parent.parent
 ASL = ROOT.parent / "shared" / "targets" / "asl"
@@ -156,7 +157,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S", stream=sys.stderr)
-    torch.set_num_threads(args.threads)
+    if args.threads:
+        set_torch_threads(args.threads)
     t0 = time.perf_counter()
     files = gather_targets([args.targets], args.per_folder)[: args.limit]
     search = replace(CPU_SEARCH, batch=args.search_batch, iterations=args.search_iterations, seed=args.seed)

@@ -4,11 +4,12 @@ A notebook kernel handles a widget click on its main thread's event loop, so the
 an asyncio loop on the main thread schedules a callback every ``--period-ms`` (20 ms) and records how late each
 one runs (actual − due), and each callback pulls the queue's events as a widget would. Measured for ``--seconds``
 (10) while a gradient search job (``imitate_keyframe_job`` on the bundled ``asl_v.jpeg``: the shipped self-model,
-``CPU_SEARCH``'s batch and step size with iterations enough to outlast the window, no refinement, one torch thread,
-live shadow previews on) runs in a **thread** worker and in a **process** worker (spawn), and the reference, the
-same loop with **no job** ("idle"), measured in the same run. The window starts at the job's first search event, so
-start-up (the process's imports, the model load) is reported apart; the job is then cancelled and the time to its
-final event recorded. ``--cores 2`` pins the run (children inherit it) to 2 CPUs where the machine has more.
+``CPU_SEARCH``'s batch and step size with iterations enough to outlast the window, no refinement, ``--threads``
+torch threads (default 1), live shadow previews on) runs in a **thread** worker and in a **process** worker
+(spawn), and the reference, the same loop with **no job** ("idle"), measured in the same run. The window starts at
+the job's first search event, so start-up (the process's imports, the model load) is reported apart; the job is
+then cancelled and the time to its final event recorded. ``--cores 2`` pins the run (children inherit it) to 2
+CPUs where the machine has more.
 
 Printed: one line per condition, then a JSON object last: per condition the latency p50/p99/max (ms) and ticks,
 and for the workers the stage's steps/s, start-up s, cancel s, events received; the ratios of p99 to idle, the
@@ -106,7 +107,7 @@ def run_worker(worker: str, args) -> dict:
             if not first:
                 first.append(time.perf_counter())
 
-    with JobQueue(worker, threads=1) as queue:
+    with JobQueue(worker, threads=args.threads) as queue:
         queue.subscribe(on_event)
         t0 = time.perf_counter()
         queue.submit(job)
@@ -143,14 +144,17 @@ def main() -> None:
     ap.add_argument("--switch-ms", type=float, default=None, help="sys.setswitchinterval in ms (default: Python's)")
     ap.add_argument("--stage", choices=("search", "refine", "sweep"), default="search", help="the job's stage measured")
     ap.add_argument("--cores", type=int, default=2, help="pin to this many CPUs where there are more (0: no pin)")
+    ap.add_argument("--threads", type=int, default=1, help="the job's torch CPU threads (default 1)")
     args = ap.parse_args()
+    if args.threads < 1:
+        ap.error(f"--threads must be at least 1, not {args.threads}")
     if args.cores and hasattr(os, "sched_setaffinity") and len(os.sched_getaffinity(0)) > args.cores:
         os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: args.cores])
     if args.switch_ms is not None:
         sys.setswitchinterval(args.switch_ms / 1000)
-    import torch
+    from studio.threads import set_torch_threads
 
-    torch.set_num_threads(1)  # DESIGN §6; the thread worker shares this process's setting
+    set_torch_threads(args.threads)  # the thread worker shares this process's setting
     results: dict[str, dict] = {"idle": stats(measure_loop(args.seconds, args.period_ms / 1000))}
     print(f"idle      p50 {results['idle']['p50_ms']:6.2f} ms  p99 {results['idle']['p99_ms']:6.2f} ms", flush=True)
     for worker in args.workers.split(","):
@@ -174,6 +178,7 @@ def main() -> None:
         "switch_interval_ms": round(sys.getswitchinterval() * 1000, 3),
         "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
         "cores": args.cores,
+        "threads": args.threads,
     }
     print(json.dumps(summary))
 

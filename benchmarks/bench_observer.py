@@ -55,7 +55,6 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
     import numpy as np
-    import torch
 
     from studio.evaluate.observer import DESCRIPTORS, Observer, ObserverConfig
     from studio.evaluate.table1 import score
@@ -63,8 +62,9 @@ def main(argv: list[str] | None = None) -> int:
     from studio.sim.roll import file_deg
     from studio.targets.expressive import still_expressive
     from studio.targets.images import load_target
+    from studio.threads import DEFAULT_THREADS, set_torch_threads
 
-    torch.set_num_threads(1)
+    set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.threads)
     gallery, queries = _sets(args.set)
     queries = queries[: args.limit] if args.limit else queries
     side = 128

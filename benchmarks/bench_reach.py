@@ -29,7 +29,6 @@ import math
 import time
 
 import numpy as np
-import torch
 
 from studio.evaluate.reachable import ReachableConfig, reach_summary, reachable_targets
 from studio.evaluate.table1 import score
@@ -48,6 +47,7 @@ from studio.imitate.still import Imitator
 from studio.sim.roll import wrap_deg
 from studio.sim.shadow import ShadowRenderer
 from studio.targets.expressive import still_expressive
+from studio.threads import DEFAULT_THREADS, set_torch_threads
 
 METHODS = {  # name → (search, refine, imitate, sweep): `--preset studio|paper` (paper at the CPU budget),
     # and the studio's before the sweep
@@ -127,7 +127,7 @@ def main() -> int:
     if args.hole_weight is not None and not args.hole_weight >= 0:
         parser.error(f"--hole-weight must be ≥ 0 (a weight on a loss term), not {args.hole_weight}")
     logging.basicConfig(level=logging.WARNING)
-    torch.set_num_threads(1)
+    set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.threads)
     cfg = ReachableConfig(count=args.count, seed=args.seed)
     rolls = np.radians(np.random.default_rng(args.seed).uniform(-180.0, 180.0, args.count))
     with Imitator(config=dataclasses.replace(ImitateConfig(), retrieve=False)) as im:

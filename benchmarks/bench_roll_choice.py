@@ -38,15 +38,15 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
     import numpy as np
-    import torch
 
     from studio.evaluate.table1 import score
     from studio.imitate.roll_search import RollSearchConfig
     from studio.imitate.still import Imitator
     from studio.targets.expressive import still_expressive
     from studio.targets.images import image_class, image_number
+    from studio.threads import DEFAULT_THREADS, set_torch_threads
 
-    torch.set_num_threads(1)
+    set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.threads)
     numbered = {(image_class(p), image_number(p)): p for p in MPEG7.glob("*.gif")}  # "camel-3", "rat-03"
     paths = [numbered[a, i] for i in args.images for a in ANIMALS if (a, i) in numbered]
     if not paths:

@@ -21,7 +21,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from studio.imitate.config import CPU_SEQUENCE, LossConfig
 from studio.imitate.sequence import SequenceImitator
@@ -31,6 +30,7 @@ from studio.learn.selfmodel import load_selfmodel
 from studio.targets.expressive import expressive_masks
 from studio.targets.keyframes import cluster_keyframes, keyframe_targets
 from studio.targets.video import VideoConfig, load_video
+from studio.threads import DEFAULT_THREADS, set_torch_threads
 
 DAVIS = Path(__file__).resolve().parents[2] / "shared" / "targets" / "davis"
 MODES = {
@@ -44,7 +44,7 @@ def main() -> int:
     parser.add_argument("--davis", default=str(DAVIS), help="folder of DAVIS mask sequences (one folder each)")
     parser.add_argument("--sequences", default="", help="comma-separated names (default: every sub-folder)")
     args = parser.parse_args()
-    torch.set_num_threads(1)
+    set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.threads)
     root = Path(args.davis)
     names = [n for n in args.sequences.split(",") if n] or sorted(p.name for p in root.iterdir() if p.is_dir())
     targets = {}

@@ -1,7 +1,7 @@
-"""Where the engine's torch work runs: ``--device`` and ``--threads``, and :func:`torch_threads` that applies it.
+"""Where the engine's torch work runs: ``--device`` and ``--threads``, applied by :func:`studio.threads.torch_threads`.
 
-One torch thread is far faster than torch's default when the 2 CPU cores are shared, and close to it otherwise, so
-``--threads`` defaults to 1 everywhere; the table verbs also take 0 for torch's own default. ``--threads`` is bounded
+``--threads`` defaults to :data:`studio.threads.DEFAULT_THREADS` everywhere (2 on a 2-core machine, measured there);
+the table verbs also take 0 for torch's own default. ``--threads`` is bounded
 by :data:`MAX_THREADS` (``TrainerConfig.threads``' range, stated once), and ``--device`` is checked as it is read
 (:func:`device_arg`): ``cuda`` on a machine without a GPU is one line, at once, not an internal error an hour later.
 """
@@ -9,11 +9,10 @@ by :data:`MAX_THREADS` (``TrainerConfig.threads``' range, stated once), and ``--
 from __future__ import annotations
 
 import argparse
-import contextlib
-from collections.abc import Iterator
 
 from studio.cli.flags import field_docs, ranged
 from studio.learn.config import TrainerConfig
+from studio.threads import DEFAULT_THREADS
 
 MAX_THREADS = int(field_docs(TrainerConfig)["threads"].range.hi)  # more threads than this only slow torch down
 DEVICES = ("cpu", "cuda")  # what --device names (cuda:N picks one GPU)
@@ -41,20 +40,7 @@ def add_device_flags(parser: argparse.ArgumentParser, zero_threads: bool = False
     parser.add_argument("--device", type=device_arg, default=None,
                         help="cpu or cuda, for the self-model and CLIP (default: cuda when present)")  # fmt: skip
     lowest = "0 = torch's default" if zero_threads else "≥ 1"
-    parser.add_argument("--threads", type=ranged(int, f"[{int(not zero_threads)}, {MAX_THREADS}]"), default=1,
-                        metavar="N", help=f"torch CPU threads (default: 1, fastest on shared cores; {lowest}, "
-                                          f"≤ {MAX_THREADS})")  # fmt: skip
-
-
-@contextlib.contextmanager
-def torch_threads(n: int) -> Iterator[None]:
-    """Run the block with torch on ``n`` CPU threads (0: torch's default), the previous count restored after."""
-    import torch
-
-    previous = torch.get_num_threads()
-    if n:
-        torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(previous)
+    parser.add_argument("--threads", type=ranged(int, f"[{int(not zero_threads)}, {MAX_THREADS}]"),
+                        default=DEFAULT_THREADS, metavar="N",
+                        help=f"torch CPU threads (default: {DEFAULT_THREADS}, measured fastest here; {lowest}, "
+                             f"≤ {MAX_THREADS})")  # fmt: skip

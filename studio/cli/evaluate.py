@@ -17,7 +17,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from studio.assets import asset
-from studio.cli.device_flags import add_device_flags, torch_threads
+from studio.cli.device_flags import add_device_flags
 from studio.cli.flags import add_config_flags, config_from_args, ranged
 from studio.cli.progress import add_quiet_flag, ctrl_c_cancels
 from studio.cli.run_flags import add_budget_flags, sequence_from_args
@@ -25,6 +25,7 @@ from studio.cli.scale_flags import add_fanout_flags, fanout_from_args, models_fr
 from studio.cli.source_flags import add_source_flags, still_config_from_args
 from studio.imitate.config import still_configs
 from studio.targets.images import gather_targets
+from studio.threads import torch_threads
 
 DEFAULT_INVERSE = asset("models/inverse_cpu128.pt", must_exist=False)
 

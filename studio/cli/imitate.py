@@ -21,10 +21,10 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from studio.cli.device_flags import torch_threads
 from studio.cli.run_flags import add_budget_flags, add_engine_flags, add_show_flags, run_config_from_args
 from studio.cli.runs import print_run, run_with_bars
 from studio.cli.source_flags import add_source_flags, source_settings_from_args
+from studio.threads import torch_threads
 
 
 def _imitate(args: argparse.Namespace) -> int:
@@ -70,6 +70,7 @@ def _run(args: argparse.Namespace, src: Path) -> int:
         lambda **kw: imitate_video(src, out, settings, cfg, clip=clip, model_path=args.model, fresh=args.fresh,
                                    provenance=provenance, **kw),
         args.quiet,
+        threads=args.threads,
     )  # fmt: skip
     report, project = result.report, result.project
     print_run(report)

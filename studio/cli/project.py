@@ -37,6 +37,7 @@ from studio.cli.run_flags import add_budget_flags, add_engine_flags, add_show_fl
 from studio.cli.runs import print_run, run_with_bars
 from studio.cli.scale_flags import add_fanout_flags, fanout_from_args, models_from_args
 from studio.cli.source_flags import add_source_flags, roll_arg, source_settings_from_args
+from studio.threads import torch_threads
 
 
 def print_info(project) -> dict:
@@ -116,7 +117,6 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from studio.cli.device_flags import torch_threads
     from studio.project.project import Project
 
     project = Project.open(Path(args.name))
@@ -142,6 +142,7 @@ def _run(args: argparse.Namespace) -> int:
                 **kw,
             ),
             args.quiet,
+            threads=args.threads,
         )
     print_run(report)
     summary = report.summary() | {"clip": None if clip is None else clip.name}

@@ -1,8 +1,9 @@
 """The command line's side of a project run (``imitate``, ``imitate-video``, ``project run``, ``demo``): bars, Ctrl-C,
 and the lines a run prints, in the command line's words.
 
-- :func:`run_with_bars`: runs an engine call on a fresh job queue with :class:`~studio.jobs.bars.TqdmBars` (one bar
-  per job stage and per engine stage on stderr; none with ``--quiet``), the first Ctrl-C cancelling it;
+- :func:`run_with_bars`: runs an engine call on a fresh job queue (its jobs on ``--threads``) with
+  :class:`~studio.jobs.bars.TqdmBars` (one bar per job stage and per engine stage on stderr; none with
+  ``--quiet``), the first Ctrl-C cancelling it;
 - :func:`print_run`: the late transitions, then the run's message with what to type about it;
 - :func:`advice`: what the command line says after an engine error a user can meet (the engine's messages name
   no flags, DESIGN §5.14).
@@ -14,19 +15,24 @@ import sys
 from collections.abc import Callable
 from typing import Any, TypeVar
 
+from studio.threads import DEFAULT_THREADS
+
 T = TypeVar("T")
 
 
-def run_with_bars(run: Callable[..., T], quiet: bool, *subscribers: Callable[[Any], None]) -> T:
+def run_with_bars(
+    run: Callable[..., T], quiet: bool, *subscribers: Callable[[Any], None], threads: int = DEFAULT_THREADS
+) -> T:
     """``run(queue=, cancel=, on_job=, progress=)`` with tqdm bars and Ctrl-C → cancel (module doc); its result.
-    ``subscribers`` get the queue's job events too (a review's job progress)."""
+    ``subscribers`` get the queue's job events too (a review's job progress); the jobs' torch work runs on
+    ``threads`` CPU threads (``--threads``; 0: torch's default)."""
     from tqdm import tqdm
 
     from studio.cli.progress import ctrl_c_cancels
     from studio.jobs import JobQueue, TqdmBars
 
     bars = TqdmBars(disable=quiet)
-    queue = JobQueue()
+    queue = JobQueue(threads=threads or None)
     unsubscribes = [queue.subscribe(f) for f in (bars, *subscribers)]
 
     def on_job(job: Any, what: str) -> None:

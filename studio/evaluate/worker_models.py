@@ -23,13 +23,12 @@ class ModelRecipe:
 
     def load(self) -> tuple[Any, Any]:
         """``(self-model, CLIP encoder or None)``, with torch set to ``threads`` in this process."""
-        import torch
-
         from studio.imitate.clip_loss import find_clip
         from studio.learn.selfmodel import load_selfmodel
+        from studio.threads import set_torch_threads
 
         if self.threads:
-            torch.set_num_threads(self.threads)
+            set_torch_threads(self.threads)
         model, _ = load_selfmodel(Path(self.model), device=self.device)
         clip, _ = find_clip(self.clip_weights, self.clip_model, enabled=self.use_clip,
                             device=next(model.parameters()).device)  # fmt: skip

@@ -9,13 +9,13 @@ import threading
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from studio.imitate.config import RefineConfig, SearchConfig
 from studio.imitate.still import ImitationResult, Imitator
 from studio.progress import ProgressFn
 from studio.targets.expressive import still_expressive
 from studio.targets.images import TargetConfig
+from studio.threads import DEFAULT_THREADS, torch_threads
 
 
 def imitate_still(
@@ -27,23 +27,18 @@ def imitate_still(
     device: str | None = None,
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
-    threads: int | None = 1,
+    threads: int | None = DEFAULT_THREADS,
 ) -> ImitationResult:
     """One still target end to end with the shipped model (or ``model_path``), CLIP off, holes as expressive region;
     ``progress`` and ``cancel`` as :meth:`Imitator.imitate` (its stages, its partial result).
 
     ``target`` is an image path (loaded with ``target_cfg``) or a mask ``(R, R)`` framed at the model's resolution
-    (``load_target(path, size=R)``). ``threads``: torch CPU threads for this call, restored after (1 is far faster
-    on shared cores, DESIGN §6; None leaves torch's setting). For many targets keep an :class:`Imitator` instead: it
-    loads the model once.
+    (``load_target(path, size=R)``). ``threads``: torch CPU threads for this call, restored after
+    (:data:`~studio.threads.DEFAULT_THREADS`; None leaves torch's setting). For many targets keep an
+    :class:`Imitator` instead: it loads the model once.
     """
-    before = torch.get_num_threads()
-    if threads:
-        torch.set_num_threads(threads)
-    try:
+    with torch_threads(threads):
         return _imitate_still(target, model_path, search, refine, target_cfg, device, progress, cancel)
-    finally:
-        torch.set_num_threads(before)
 
 
 def _imitate_still(target, model_path, search, refine, target_cfg, device, progress, cancel) -> ImitationResult:

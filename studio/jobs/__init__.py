@@ -25,6 +25,9 @@ the process took ~1 s longer to start (3.1 vs 2.2 s: a fresh interpreter imports
 new worker), needs picklable jobs and results, and cannot hold a caller's bus or hooks. So the default is the
 **thread** worker (``DEFAULT_WORKER``); ``JobQueue("process")`` remains for work that must be killable at once
 (a cancelled job that does not stop within the grace time is killed, not waited for) or isolated from crashes.
+
+A job's torch work runs on ``threads`` (:data:`studio.threads.DEFAULT_THREADS`: 2 on 2 cores). Rerun with
+``--workers thread --threads 1|2``: the search 13.8 → 18.4 steps/s, the main thread's p99 1.26 → 3.47 ms.
 """
 
 from __future__ import annotations

@@ -31,6 +31,7 @@ from typing import Any
 
 from studio.jobs.events import EventPoller, JobError, JobEvent, JobState, WorkerDied
 from studio.jobs.workers import WORKERS, ProcessWorker, Run, ThreadWorker
+from studio.threads import DEFAULT_THREADS
 
 log = logging.getLogger(__name__)
 
@@ -119,8 +120,8 @@ class Job:
 class JobQueue:
     """The jobs of one project (module doc). ``worker``: "thread", "process" or a worker object."""
 
-    def __init__(self, worker: str | ThreadWorker | ProcessWorker = DEFAULT_WORKER, threads: int | None = 1,
-                 cancel_grace: float = 0.8):  # fmt: skip
+    def __init__(self, worker: str | ThreadWorker | ProcessWorker = DEFAULT_WORKER,
+                 threads: int | None = DEFAULT_THREADS, cancel_grace: float = 0.8):  # fmt: skip
         if isinstance(worker, str):
             if worker not in WORKERS:
                 raise ValueError(f"worker must be one of {sorted(WORKERS)}, not {worker!r}")

@@ -13,8 +13,8 @@ first job) and reused, and killed when a cancelled job does not return within th
 script's main module in the worker: a script using it keeps its work under ``if __name__ == "__main__":``
 (notebooks need nothing).
 
-``threads`` sets torch's CPU threads where the engine runs (DESIGN §6: 1 on shared cores); a thread worker sets it
-for the job's duration only (torch's setting is per process) and restores it.
+``threads`` sets torch's CPU threads where the engine runs (:data:`studio.threads.DEFAULT_THREADS` unless given); a
+thread worker sets it for the job's duration only (torch's setting is per process) and restores it.
 """
 
 from __future__ import annotations
@@ -24,34 +24,18 @@ import multiprocessing as mp
 import pickle
 import queue
 import signal
-import sys
 import threading
 import traceback
 from collections.abc import Callable
-from contextlib import contextmanager
 from typing import Any
 
 from studio.errors import Cancelled
 from studio.jobs.events import Reporter, Send
+from studio.threads import DEFAULT_THREADS, torch_threads
 
 log = logging.getLogger(__name__)
 
 Run = Callable[[Reporter, Any], Any]  # run(report, cancel) -> result
-
-
-@contextmanager
-def torch_threads(threads: int | None):
-    """Run with torch on ``threads`` CPU threads (restored after); no-op for None or when torch is not loaded."""
-    torch = sys.modules.get("torch")
-    if not threads or torch is None:
-        yield
-        return
-    before = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def execute(run: Run, send: Send, cancel, threads: int | None, pickle_result: bool = False) -> None:
@@ -107,7 +91,7 @@ class ThreadWorker:
 
     name = "thread"
 
-    def __init__(self, threads: int | None = 1):
+    def __init__(self, threads: int | None = DEFAULT_THREADS):
         self.threads = threads
         self._count = 0
 
@@ -181,7 +165,7 @@ class ProcessWorker:
 
     name = "process"
 
-    def __init__(self, threads: int | None = 1):
+    def __init__(self, threads: int | None = DEFAULT_THREADS):
         self.threads = threads
         self._ctx = mp.get_context("spawn")
         self._proc = None

@@ -31,6 +31,7 @@ from studio.progress import ProgressFn, report, stopped
 from studio.sim.hand import Hand
 from studio.sim.sampling import sample_poses
 from studio.sim.shadow import ShadowRenderer
+from studio.threads import set_torch_threads
 
 log = logging.getLogger(__name__)
 Batch = tuple[torch.Tensor, torch.Tensor]  # theta (B, 21) float32 rad, shadows (B, 1, R, R) float32 (1 = shadow)
@@ -229,7 +230,7 @@ def fit(
         raise StudioError(f"{out} exists: pass --resume to continue training it, --force to replace it, "
                           "or choose another --out")  # fmt: skip
     if cfg.threads:
-        torch.set_num_threads(cfg.threads)
+        set_torch_threads(cfg.threads)
     device = torch.device(cfg.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     rep = replica or Replica()
     if cfg.batch_size % rep.world:
