@@ -2,10 +2,10 @@
 
 numba's parallel kernels (the renderer, the compiled loss) and torch share one OpenMP runtime. The first parallel
 kernel a process launches starts numba's thread pool, and once torch has run, that start sets the *launching
-thread's* OpenMP thread count to numba's (every core). A torch thread count set before it was lost: under ``--threads 1`` the self-model
-search of ``evaluate`` ran on 2 threads while ``imitate``'s ran on 1, depending only on what had rendered first.
-:func:`set_torch_threads` starts numba's pool first, so the count it sets holds for the calling thread's later
-torch work, renders or not (``tests/test_threads.py``).
+thread's* OpenMP thread count to numba's (every core). A torch thread count set before it was lost: under
+``--threads 1`` the self-model search of ``evaluate`` ran on 2 threads, while ``imitate``'s ran on 1 whatever its
+``--threads`` (its job queue did not pass the flag on). :func:`set_torch_threads` starts numba's pool first, so the
+count it sets holds for the calling thread's later torch work, renders or not (``tests/test_threads.py``).
 
     with torch_threads(2):          # this block's torch work on 2 threads; the previous count restored after
         imitator.imitate(mask)
@@ -15,15 +15,26 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 
-# Torch threads of one job when nothing else asks: 2 where there are 2 cores. With idle OpenMP threads sleeping
-# (OMP_WAIT_POLICY=PASSIVE, set by ``studio/__init__``) 2 beat 1 on this 2-core machine: the gradient search 13.8 →
-# 18.4 steps/s with the notebook's main-thread p99 1.3 → 3.5 ms (benchmarks/bench_jobs.py --threads 1|2, limit
-# 100 ms); `evaluate`'s "Ours" 7.9 → 6.3 s a target, `imitate` of a still 13.0 → 12.1 s. Work spread over worker
-# processes keeps 1 thread each (``WorkerModels.threads``).
-_CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-DEFAULT_THREADS = max(1, min(2, _CORES))
+
+def default_threads(environ: Mapping[str, str], cores: int) -> int:
+    """Torch threads of one job when nothing else asks: ``OMP_NUM_THREADS`` when the user set it (a positive whole
+    number), else 2, or 1 on a 1-core machine.
+
+    With idle OpenMP threads sleeping (OMP_WAIT_POLICY=PASSIVE, set by ``studio/__init__``) 2 beat 1 on the 2-core
+    machine: the gradient search 13.8 → 18.4 steps/s with the notebook's main-thread p99 1.3 → 3.5 ms
+    (benchmarks/bench_jobs.py --threads 1|2, limit 100 ms); `evaluate`'s "Ours" 7.9 → 6.3 s a target, `imitate` of
+    a still 13.0 → 12.1 s. Work spread over worker processes keeps 1 thread each (``WorkerModels.threads``)."""
+    text = environ.get("OMP_NUM_THREADS", "").strip()
+    if text.isdigit() and int(text) >= 1:
+        return int(text)
+    return max(1, min(2, cores))
+
+
+DEFAULT_THREADS = default_threads(
+    os.environ, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+)
 
 
 def set_torch_threads(n: int) -> None:

@@ -4,6 +4,7 @@ command line's ``--threads`` reaches the job that does the work."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -26,7 +27,8 @@ def render():  # torch at work, then a batch big enough for numba's parallel ker
 
 def _run(body: str) -> dict:
     code = _RENDER + textwrap.dedent(body)
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    env = {k: v for k, v in os.environ.items() if k != "OMP_NUM_THREADS"}  # the suite's own setting (conftest) off
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
     assert done.returncode == 0, done.stderr[-3000:]
     return json.loads(done.stdout.strip().splitlines()[-1])
 
@@ -59,6 +61,16 @@ def test_the_count_set_holds_across_renders_in_this_and_another_thread(n):
         print(json.dumps(out))
     """)
     assert got == {"main": n, "job": n}
+
+
+def test_the_default_is_two_threads_or_what_omp_num_threads_says():
+    from studio.threads import default_threads
+
+    assert default_threads({}, cores=2) == 2 and default_threads({}, cores=16) == 2 and default_threads({}, 1) == 1
+    assert default_threads({"OMP_NUM_THREADS": "3"}, cores=2) == 3
+    assert default_threads({"OMP_NUM_THREADS": " 1"}, cores=8) == 1
+    for junk in ("0", "-2", "two", "", "1.5"):  # not a positive whole number: the studio's own default
+        assert default_threads({"OMP_NUM_THREADS": junk}, cores=2) == 2
 
 
 def test_torch_threads_restores_the_previous_count_and_refuses_zero_through_set():
