@@ -15,13 +15,14 @@ from scipy.interpolate import CubicSpline
 
 from studio.cli.main import main
 from studio.errors import Cancelled
-from studio.motion.errors import KeyframeCollisionError, PlanCancelled, PlanError, SegmentTooFastError
+from studio.motion.errors import KeyframeCollisionError, PathError, PlanCancelled, PlanError, SegmentTooFastError
 from studio.motion.limits import JointLimits, LimitsConfig
-from studio.motion.path import PathConfig, build_path, keyframe_spline, spline_path
+from studio.motion.path import Path, PathConfig, build_path, keyframe_spline, spline_path
 from studio.motion.plan import Keyframes, PlanConfig, keyframe_velocities, parse_keyframes, plan_show
 from studio.motion.reach import rest_to_rest_time
 from studio.motion.segment_timer import RuckigSolver, SegmentTimer, colliding, evaluate
 from studio.motion.show import load_show
+from studio.motion.sidestep import SidestepConfig, insert_point, sidestep
 from studio.motion.timing import TimingConfig
 from studio.motion.via_search import ViaSearch, via_detour
 from studio.progress import Progress
@@ -300,6 +301,64 @@ def test_the_via_search_fits_the_span_exactly_refuses_the_impossible_and_stops_o
     for bad in ({"tries": -1}, {"checked": -1}, {"spreads": ()}, {"spreads": (0.1, 0.0)}):
         with pytest.raises(ValueError, match="via search"):
             ViaSearch(**bad)
+
+
+# bench_crossing.py's show 12 of seed 2 at factor 1.02 (rounded): its path's 2° check steps over a 0.7° contact (the
+# ring finger's tip 6.5 µm into the pinky) that the trajectory's 160 Hz check meets between two adjacent path points
+THIN_A = np.array([0.7762, 1.0571, -0.0038, 1.0656, 0.8408, -0.3612, -0.742, -1.2658, -0.8906, -0.2791, -1.1245,
+                   -0.2757, 0.8564, 0.7486, -0.5166, 0.8116, 0.4717, 0.3209, 0.1416, 0.129, 0.5744])  # fmt: skip
+THIN_B = np.array([0.0298, 0.582, -0.3716, -0.4358, -0.9633, -0.7602, -0.7687, 0.6812, 1.0593, -0.9192, 1.1537,
+                   1.2415, -0.3399, 0.438, 0.5837, 0.9041, 1.2217, 0.5326, -0.5703, -0.1116, 0.1829])  # fmt: skip
+
+
+@pytest.mark.parametrize("tries", [SidestepConfig().tries, 0])
+def test_a_thin_collision_between_path_points_gets_a_point_beside_it(world, tries):
+    """Where the trajectory meets a contact between two adjacent path points, the timing adds one point beside it
+    (``studio.motion.sidestep``): the show plans collision-free (checked at 1,000 Hz), its late move reported as
+    such; without the sidestep (``tries`` 0) the same show fails with a PathError."""
+    kf = keyframes([1.757, 2.704], [THIN_A, THIN_B])
+    cfg = PlanConfig(timing=TimingConfig(allow_late=True, sidestep=SidestepConfig(tries=tries)))
+    if not tries:
+        with pytest.raises(PathError, match="collides even along the repaired path"):
+            plan_show(HAND, kf, cfg, world=world)
+        return
+    got = plan_show(HAND, kf, cfg, world=world)
+    assert [s.index for s in got.trajectory.late] == [1]  # the move needs 2.7 s of its 0.95: late, and said so
+    assert_collision_free(world, got.trajectory, rate=1000.0)
+    assert_keyframes_exact(got, kf)
+    assert_within_limits(got.trajectory)
+    path = got.path  # the added point is in the path, and the keyframes are where its indices say
+    assert np.array_equal(path.poses[path.key_index[1:]], kf.poses) and len(path.times) == len(path.poses)
+    assert (np.diff(path.times) > 0).all()
+    with pytest.raises(SegmentTooFastError, match="segment 1"):  # without --allow-late: too fast, not a failure
+        plan_show(HAND, kf, PlanConfig(), world=world)
+
+
+def test_sidestep_finds_a_free_point_with_free_halves_and_insert_point_keeps_the_path_consistent(world):
+    line = CROSS_A + np.linspace(0.0, 1.0, 200)[:, None] * (CROSS_B - CROSS_A)
+    near = line[np.flatnonzero(world.in_collision(line))[0]]
+    m, checks = sidestep(world, CROSS_A, CROSS_B, near, SidestepConfig())
+    assert m is not None and checks > 0 and not world.in_collision(m[None])[0]
+    for a, b in ((CROSS_A, m), (m, CROSS_B)):
+        s = np.linspace(0.0, 1.0, 400)[:, None]
+        assert not world.in_collision(a + s * (b - a)).any()
+    again, _ = sidestep(world, CROSS_A, CROSS_B, near, SidestepConfig())  # seeded
+    assert np.array_equal(again, m)
+    assert sidestep(world, CROSS_A, CROSS_B, near, SidestepConfig(tries=0)) == (None, 0)
+    cancel = threading.Event()
+    cancel.set()
+    with pytest.raises(PlanCancelled):
+        sidestep(world, CROSS_A, CROSS_B, near, SidestepConfig(), cancel)
+    for bad in ({"tries": -1}, {"fine_deg": 0.0}, {"fine_deg": 3.0}, {"spreads": ()}, {"spreads": (0.1, -0.1)}):
+        with pytest.raises(ValueError, match="sidestep"):
+            SidestepConfig(**bad)
+    poses = np.stack([HAND.rest_pose(), CROSS_A, CROSS_B])
+    flags = np.zeros(3, bool)
+    path = Path(np.array([0.0, 1.0, 2.0]), poses, np.array([0, 2]), flags.copy(), flags.copy(), np.ones(3, bool))
+    insert_point(path, 1, m)
+    assert np.array_equal(path.times, [0.0, 1.0, 1.5, 2.0]) and np.array_equal(path.poses[2], m)
+    assert np.array_equal(path.key_index, [0, 3]) and np.array_equal(path.poses[path.key_index[1]], CROSS_B)
+    assert path.repaired.tolist() == [False, False, True, False] and path.corner.all() and not path.refined.any()
 
 
 def _crossing(n: int) -> Keyframes:

@@ -20,6 +20,8 @@ Open-source Ruckig plans one state-to-state motion at a time, so the trajectory 
 * A segment whose straight move collided and that would still be late through the path's corners (or that
   collides even along them) tries one via-point near the straight move (:mod:`studio.motion.via_search`): the
   corners follow the spline and the repair walk, not the clock, and can cost the move twice its straight time.
+* Two adjacent path points whose motion collides at the trajectory's checks (a thin collision the path's 2° check
+  stepped over) get one more point beside the contact (:mod:`studio.motion.sidestep`), passed at rest.
 * A segment whose shortest feasible time exceeds its requested time raises ``SegmentTooFastError`` with every
   such segment and its feasible time; with ``allow_late`` the segment is stretched and later keyframes shift
   (reported in the result, never silent).
@@ -36,6 +38,7 @@ from studio.motion.errors import PathError, SegmentTiming, SegmentTooFastError, 
 from studio.motion.limits import JointLimits
 from studio.motion.path import Path
 from studio.motion.segment_timer import Piece, RuckigSolver, SegmentTimer, colliding, evaluate, overshoots
+from studio.motion.sidestep import SidestepConfig, insert_point, sidestep
 from studio.motion.via_search import ViaSearch, via_detour
 from studio.progress import ProgressFn, report
 from studio.sim.physics import CollisionWorld
@@ -51,6 +54,7 @@ class TimingConfig:
     max_rounds: int = 40  # via-insertion rounds per segment before giving up
     allow_late: bool = False  # stretch too-fast segments (shifting later keyframes) instead of raising
     via: ViaSearch = field(default_factory=ViaSearch)  # one via-point near a colliding straight move, before late
+    sidestep: SidestepConfig = field(default_factory=SidestepConfig)  # a point beside a thin collision, not a failure
 
 
 @dataclass
@@ -160,21 +164,20 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, c
             if len(idx) > 2:
                 continue
         starts = np.array([p.t0 for p in got])
-        added = []
+        added, thin = [], {}
         hit = np.clip(np.searchsorted(starts, t[bad], side="right") - 1, 0, len(got) - 1)
         for k in np.union1d(hit, over).astype(int):
             if at_rest[k] and at_rest[k + 1]:  # missed between the path check's samples: split at a path point
-                if idx[k + 1] - idx[k] < 2:
+                if idx[k + 1] - idx[k] < 2:  # adjacent points: a thin collision the path's check stepped over
                     if searched != float(duration[s]):  # the repaired path is no way through: one via, if any
                         searched = float(duration[s])
                         via, n = _via_detour(path, s, kv, t0, searched, timer, world, rate, cfg, cancel)
                         checks += n
                         if via is not None:
                             return via, False, checks
-                    raise PathError(
-                        f"the motion near t = {got[k].t0:.3f} s collides even along the repaired path; "
-                        "move the neighbouring keyframes apart or add a keyframe in between"
-                    )
+                    mine = bad & (t >= got[k].t0) & (t <= got[k].t0 + got[k].traj.duration)
+                    thin[idx[k]] = (got[k].t0, evaluate(got, t[mine][:1])[0][0] if mine.any() else None)
+                    continue
                 added.append((idx[k] + idx[k + 1]) // 2)
                 continue
             stop |= {idx[k], idx[k + 1]}  # rest to rest between corners: the straight, checked line
@@ -184,6 +187,20 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, c
                 kv[s] = 0.0
                 if s > 0:
                     return None, True, checks
+        for lo in sorted(thin, reverse=True):  # a point beside each thin collision, passed at rest
+            piece_t0, near = thin[lo]
+            ends = path.poses[lo], path.poses[lo + 1]
+            m, n = (None, 0) if near is None else sidestep(world, *ends, near, cfg.sidestep, cancel)
+            checks += n
+            if m is None:
+                raise PathError(
+                    f"the motion near t = {piece_t0:.3f} s collides even along the repaired path; "
+                    "move the neighbouring keyframes apart or add a keyframe in between"
+                )
+            insert_point(path, lo, m)
+            idx, added = [i + (i > lo) for i in idx], [i + (i > lo) for i in added] + [lo + 1]
+            stop = {i + (i > lo) for i in stop}
+        b = path.key_index[s + 1]
         stop |= set(added)
         idx = sorted(set(idx) | set(added))
     raise PathError(f"segment {s} ({req_t[s]:.3f} s → {req_t[s + 1]:.3f} s) stays in collision after re-timing")
@@ -226,5 +243,5 @@ def time_path(
         raise SegmentTooFastError(late)
     key_t = np.concatenate([[0.0], np.cumsum(duration)])
     return TimedTrajectory(
-        [p for seg in pieces for p in seg], key_t, path.poses[ki], late, checks + path.collision_checks
+        [p for seg in pieces for p in seg], key_t, path.poses[path.key_index], late, checks + path.collision_checks
     )
