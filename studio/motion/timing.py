@@ -117,6 +117,28 @@ def _via_detour(path, s, kv, t0: float, span: float, timer, world, rate: float, 
     return via_detour(timer, world, t0, span, ends, velocities, rate, s, cfg.via, cancel)
 
 
+def _sidestep_thin(path, thin: dict, idx: list, added: list, stop: set, world, cfg: TimingConfig, cancel=None):
+    """A point beside each thin collision ``thin``: {path index lo: (its piece's start s, a colliding pose or
+    None)}, the move lo → lo + 1 colliding. Each point is inserted after lo (:func:`~studio.motion.sidestep.
+    insert_point`) and passed at rest. Returns ``idx``, ``added`` and ``stop`` renumbered, the new points added, and
+    the poses checked; raises ``PathError`` where no point is found."""
+    checks = 0
+    for lo in sorted(thin, reverse=True):  # from the end, so the indices still to do stay valid
+        piece_t0, near = thin[lo]
+        ends = path.poses[lo], path.poses[lo + 1]
+        m, n = (None, 0) if near is None else sidestep(world, *ends, near, cfg.sidestep, cancel)
+        checks += n
+        if m is None:
+            raise PathError(
+                f"the motion near t = {piece_t0:.3f} s collides even along the repaired path; "
+                "move the neighbouring keyframes apart or add a keyframe in between"
+            )
+        insert_point(path, lo, m)
+        idx, added = [i + (i > lo) for i in idx], [i + (i > lo) for i in added] + [lo + 1]
+        stop = {i + (i > lo) for i in stop}
+    return idx, added, stop, checks
+
+
 def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, cancel=None):
     """Rounds of timing + checking for segment ``s``; returns (pieces, restart previous?, checks).
 
@@ -187,20 +209,10 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, c
                 kv[s] = 0.0
                 if s > 0:
                     return None, True, checks
-        for lo in sorted(thin, reverse=True):  # a point beside each thin collision, passed at rest
-            piece_t0, near = thin[lo]
-            ends = path.poses[lo], path.poses[lo + 1]
-            m, n = (None, 0) if near is None else sidestep(world, *ends, near, cfg.sidestep, cancel)
+        if thin:
+            idx, added, stop, n = _sidestep_thin(path, thin, idx, added, stop, world, cfg, cancel)
             checks += n
-            if m is None:
-                raise PathError(
-                    f"the motion near t = {piece_t0:.3f} s collides even along the repaired path; "
-                    "move the neighbouring keyframes apart or add a keyframe in between"
-                )
-            insert_point(path, lo, m)
-            idx, added = [i + (i > lo) for i in idx], [i + (i > lo) for i in added] + [lo + 1]
-            stop = {i + (i > lo) for i in stop}
-        b = path.key_index[s + 1]
+            b = path.key_index[s + 1]
         stop |= set(added)
         idx = sorted(set(idx) | set(added))
     raise PathError(f"segment {s} ({req_t[s]:.3f} s → {req_t[s + 1]:.3f} s) stays in collision after re-timing")
