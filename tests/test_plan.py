@@ -281,6 +281,30 @@ def test_a_crossing_move_given_its_rest_to_rest_time_is_not_late(world, tries):
     assert np.array_equal(again.show.positions, got.show.positions)
 
 
+@pytest.mark.parametrize("stretch", [1.0, 1.3, 3.0])
+def test_a_motion_between_rests_stays_on_its_straight_line_however_long_it_is_given(stretch):
+    """``RuckigSolver.solve(..., straight=True)``: Ruckig's own ``minimum_duration`` reshapes each joint's profile and
+    leaves the line (up to 0.014 rad here); slowed down evenly, the motion stays on it, ends on time at rest, and keeps
+    every limit."""
+    solver, rng, zero = RuckigSolver(LIMITS), np.random.default_rng(3), np.zeros(HAND.dof)
+    for _ in range(20):
+        a = rng.uniform(HAND.lower, HAND.upper)
+        b = np.clip(a + rng.normal(0.0, 0.15, HAND.dof), HAND.lower, HAND.upper)
+        span = stretch * solver.solve(a, zero, b, zero, None, straight=True).duration
+        tr = solver.solve(a, zero, b, zero, span, straight=True)
+        assert tr.duration == pytest.approx(span, rel=1e-9, abs=1e-12)
+        t = np.linspace(0.0, tr.duration, 80)
+        pos, vel, acc = (np.array([tr.at_time(x)[i] for x in t]) for i in range(3))
+        u = (pos - a) @ (b - a) / ((b - a) @ (b - a))
+        assert np.abs(pos - (a + u[:, None] * (b - a))).max() < 1e-9 and (np.diff(u) >= -1e-12).all()
+        assert np.allclose(pos[-1], b, atol=1e-9) and np.abs(vel[-1]).max() < 1e-9
+        assert (np.abs(vel) <= LIMITS.velocity * (1 + 1e-9)).all() and (
+            np.abs(acc) <= LIMITS.acceleration * (1 + 1e-9)
+        ).all()
+    hold = solver.solve(a, zero, a, zero, 1.0, straight=True)  # no line to follow: a hold at rest
+    assert hold is not None and np.allclose(hold.at_time(0.5)[0], a)
+
+
 def test_the_via_search_fits_the_span_exactly_refuses_the_impossible_and_stops_on_cancel(world):
     """``via_detour`` on the crossing move: pieces that start at t0, end at t0 + span on the keyframe, collision-free;
     None for a span shorter than the straight rest-to-rest move (no via beats it); PlanCancelled once cancelled."""
