@@ -149,6 +149,14 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, c
     a, b = path.key_index[s], path.key_index[s + 1]
     t0 = float(np.sum(duration[:s]))
     idx, stop, checks, collided, searched = [a, b], set(), 0, False, None  # searched: the span a via was sought in
+
+    def via_near_the_straight_move():  # the via search over the segment's current span (recorded in ``searched``)
+        nonlocal checks, searched
+        searched = float(duration[s])
+        via, n = _via_detour(path, s, kv, t0, searched, timer, world, rate, cfg, cancel)
+        checks += n
+        return via
+
     for _ in range(cfg.max_rounds):
         check_cancel(cancel)
         tau, q = path.times[idx], path.poses[idx]
@@ -165,12 +173,8 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, c
                     if s > 0:
                         return None, True, checks
                 continue
-            if collided and searched is None:  # the straight move collided: one via-point near it, before stretching
-                searched = float(duration[s])
-                via, n = _via_detour(path, s, kv, t0, searched, timer, world, rate, cfg, cancel)
-                checks += n
-                if via is not None:
-                    return via, False, checks
+            if collided and searched is None and (via := via_near_the_straight_move()) is not None:
+                return via, False, checks  # the straight move collided: one via-point near it, before stretching
             slow[s] = SegmentTiming(s, float(req_t[s]), float(req_t[s + 1]), feasible)
             duration[s] = feasible  # stretched: reported unless allow_late
             continue
@@ -191,12 +195,8 @@ def _time_segment(path, s, kv, duration, req_t, slow, timer, world, rate, cfg, c
         for k in np.union1d(hit, over).astype(int):
             if at_rest[k] and at_rest[k + 1]:  # missed between the path check's samples: split at a path point
                 if idx[k + 1] - idx[k] < 2:  # adjacent points: a thin collision the path's check stepped over
-                    if searched != float(duration[s]):  # the repaired path is no way through: one via, if any
-                        searched = float(duration[s])
-                        via, n = _via_detour(path, s, kv, t0, searched, timer, world, rate, cfg, cancel)
-                        checks += n
-                        if via is not None:
-                            return via, False, checks
+                    if searched != float(duration[s]) and (via := via_near_the_straight_move()) is not None:
+                        return via, False, checks  # the repaired path is no way through: one via, if any
                     mine = bad & (t >= got[k].t0) & (t <= got[k].t0 + got[k].traj.duration)
                     thin[idx[k]] = (got[k].t0, evaluate(got, t[mine][:1])[0][0] if mine.any() else None)
                     continue
