@@ -6,6 +6,8 @@ import argparse
 import json
 import math
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -18,6 +20,7 @@ from hypothesis import strategies as st
 from studio.cli.clip_flags import add_clip_arguments, clip_from_args
 from studio.errors import StudioError
 from studio.imitate.clip_loss import (
+    KNOWN_SOURCES,
     TINY_CLIP_CFG,
     ClipWeightsError,
     cache_candidates,
@@ -261,6 +264,25 @@ def test_load_clip_never_downloads_and_says_what_to_do(tmp_path: Path) -> None:
         load_clip("ViT-B-32", weights=tmp_path / "nope.pt")
     with pytest.raises(ClipWeightsError, match="unknown open_clip model"):
         load_clip("no-such-model")
+
+
+def test_the_default_clips_sources_are_open_clips_own_and_looking_needs_no_open_clip(tmp_path: Path) -> None:
+    """``KNOWN_SOURCES`` (the fast path) says what open_clip's pretrained table says, and a run without local
+    weights learns that CLIP is off without importing open_clip or torchvision (a fresh interpreter)."""
+    import open_clip
+
+    assert KNOWN_SOURCES
+    for (name, pretrained), known in KNOWN_SOURCES.items():
+        cfg = open_clip.get_pretrained_cfg(name, pretrained)
+        assert {key: cfg[key] for key in known} == known
+    code = (
+        "import sys; from studio.imitate.clip_loss import find_clip\n"
+        "clip, line = find_clip(cache_dir=sys.argv[1])\n"
+        "print(clip is None, 'open_clip' in sys.modules, 'torchvision' in sys.modules, line)"
+    )
+    done = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.startswith("True False False CLIP terms off: no local ViT-B-32 weights"), done.stdout
 
 
 def test_cache_lookup_finds_url_and_hub_files(tmp_path: Path) -> None:

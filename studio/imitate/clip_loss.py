@@ -33,6 +33,16 @@ TINY_CLIP_CFG = {
 }
 OPENAI_MEAN = (0.48145466, 0.4578275, 0.40821073)  # open_clip.constants.OPENAI_DATASET_MEAN
 OPENAI_STD = (0.26862954, 0.26130258, 0.27577711)  # open_clip.constants.OPENAI_DATASET_STD
+# Where the studio's default CLIP is published (open_clip's pretrained table), read without importing open_clip: every
+# run without local weights asks where they would be, and importing open_clip (torchvision, torch._dynamo) took
+# ~1.8 s of a 12 s `imitate`. Held equal to open_clip's own table by tests/test_losses.py; other models ask it.
+KNOWN_SOURCES = {
+    ("ViT-B-32", "openai"): {
+        "hf_hub": "timm/vit_base_patch32_clip_224.openai/",
+        "url": "https://openaipublic.azureedge.net/clip/models/40d365715913c9da98579312b702a82c18be219cc2a73407c4526f58"
+        "eba950af/ViT-B-32.pt",
+    },
+}
 
 
 class ClipWeightsError(StudioError):
@@ -93,11 +103,20 @@ def tiny_clip(seed: int = 0, invert: bool = True) -> ClipImageEncoder:
     return ClipImageEncoder(model.visual, cfg["vision_cfg"]["image_size"], invert=invert, name="tiny-random")
 
 
-def cache_candidates(model_name: str, pretrained: str, cache_dir: str | Path | None = None) -> list[Path]:
-    """Where a cached checkpoint of ``model_name``/``pretrained`` could be (existing or not), best first."""
+def pretrained_sources(model_name: str, pretrained: str) -> dict:
+    """Where ``model_name``/``pretrained`` is published: open_clip's pretrained config (``hf_hub``, ``url``, …), from
+    :data:`KNOWN_SOURCES` when it is there (no open_clip import), else from open_clip ({} for an unknown pair)."""
+    known = KNOWN_SOURCES.get((model_name, pretrained))
+    if known is not None:
+        return dict(known)
     import open_clip
 
-    cfg = open_clip.get_pretrained_cfg(model_name, pretrained) or {}
+    return open_clip.get_pretrained_cfg(model_name, pretrained) or {}
+
+
+def cache_candidates(model_name: str, pretrained: str, cache_dir: str | Path | None = None) -> list[Path]:
+    """Where a cached checkpoint of ``model_name``/``pretrained`` could be (existing or not), best first."""
+    cfg = pretrained_sources(model_name, pretrained)
     out: list[Path] = []
     hub = cfg.get("hf_hub", "")
     if hub:
@@ -117,10 +136,9 @@ def cache_candidates(model_name: str, pretrained: str, cache_dir: str | Path | N
 
 
 def _missing_message(model_name: str, pretrained: str, cache_dir: str | Path | None, given: Path | None) -> str:
-    import open_clip
     from huggingface_hub import constants
 
-    cfg = open_clip.get_pretrained_cfg(model_name, pretrained) or {}
+    cfg = pretrained_sources(model_name, pretrained)
     hub = cfg.get("hf_hub", "").rstrip("/")
     where = f"open_clip_model.safetensors from https://huggingface.co/{hub}" if hub else "an open_clip checkpoint"
     if given is not None:
