@@ -34,8 +34,8 @@ TINY_CLIP_CFG = {
 OPENAI_MEAN = (0.48145466, 0.4578275, 0.40821073)  # open_clip.constants.OPENAI_DATASET_MEAN
 OPENAI_STD = (0.26862954, 0.26130258, 0.27577711)  # open_clip.constants.OPENAI_DATASET_STD
 # Where the studio's default CLIP is published (open_clip's pretrained table), read without importing open_clip: every
-# run without local weights asks where they would be, and importing open_clip (torchvision, torch._dynamo) took
-# ~1.8 s of a 12 s `imitate`. Held equal to open_clip's own table by tests/test_losses.py; other models ask it.
+# run without local weights asks where they would be, and importing open_clip costs 0.7 s beyond what torch loads
+# anyway (torchvision). Held equal to open_clip's own table by tests/test_losses.py; other models ask open_clip.
 KNOWN_SOURCES = {
     ("ViT-B-32", "openai"): {
         "hf_hub": "timm/vit_base_patch32_clip_224.openai/",

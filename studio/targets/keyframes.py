@@ -136,8 +136,6 @@ def embed(
     every frame is alike). Each mask is first cut to its :func:`aligned_crop` of side ``cfg.size``: the box of its
     frame's shadow in ``shadows (N, S, S)``, as the losses crop the expressive region with the target's box (the
     expressive part is then seen where it is on the shadow: an arm raised or lowered), or with None its own box."""
-    from sklearn.decomposition import PCA
-
     masks = np.asarray(expressive)
     if masks.ndim != 3 or masks.shape[0] == 0:
         raise ValueError(f"expressive masks must be (N, S, S) with N ≥ 1, not an array of shape {masks.shape}")
@@ -150,6 +148,8 @@ def embed(
     unique, inverse = np.unique(small, axis=0, return_inverse=True)
     if len(unique) == 1:  # every frame alike: no variance to project, every distance is 0
         return np.zeros((len(small), 1))
+    from sklearn.decomposition import PCA  # here: a still (one frame) never pays its ~1.1 s import
+
     pca = PCA(n_components=min(cfg.components, *small.shape), svd_solver="full").fit(small)
     return pca.transform(unique)[inverse.ravel()]  # identical frames get bit-identical embeddings (d = 0 exactly)
 
