@@ -333,3 +333,17 @@ def test_a_steady_change_of_shape_keeps_two_keyframes_at_any_tau():
     assert cluster_keyframes(masks, cfg).count == 2
     still = np.stack([frames[0]] * 6)
     assert most_different_iou(still, cfg) == 1.0 and cluster_keyframes(still, cfg).count == 1
+
+
+def test_a_single_frame_clusters_without_importing_scikit_learn():
+    """A still is one frame: nothing to project, so its clustering does not pay scikit-learn's import (~1 s)."""
+    code = (
+        "import sys, numpy as np\n"
+        "from studio.targets.keyframes import cluster_keyframes\n"
+        "m = np.zeros((1, 32, 32), np.uint8); m[0, 8:20, 10:24] = 1\n"
+        "c = cluster_keyframes(m)\n"
+        "print(c.assignment.tolist(), c.representatives.tolist(), 'sklearn' in sys.modules)"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ["[0]", "[0]", "False"], done.stdout
