@@ -86,6 +86,9 @@ def test_a_motion_between_rests_stays_on_its_straight_line_however_long_it_is_gi
         b = np.clip(a + rng.normal(0.0, 0.15, HAND.dof), HAND.lower, HAND.upper)
         span = stretch * solver.solve(a, zero, b, zero, None, straight=True).duration
         tr = solver.solve(a, zero, b, zero, span, straight=True)
+        given = solver.solve(a, zero, b, zero, span, straight=True, shortest=span / stretch)  # the caller's shortest
+        assert given.duration == pytest.approx(tr.duration, rel=1e-12)
+        assert np.allclose(given.at_time(0.4 * span)[0], tr.at_time(0.4 * span)[0], atol=1e-12)
         assert tr.duration == pytest.approx(span, rel=1e-9, abs=1e-12)
         t = np.linspace(0.0, tr.duration, 80)
         pos, vel, acc = (np.array([tr.at_time(x)[i] for x in t]) for i in range(3))

@@ -59,8 +59,11 @@ class RuckigSolver:
         self.inp = InputParameter(self.dof)
         self.inp.min_position = limits.lower.tolist()
         self.inp.max_position = limits.upper.tolist()
+        self._scale = None  # the slow-down the limits are set for (set on a call's first need)
 
-    def solve(self, p0, v0, p1, v1, duration: float | None, straight: bool = False) -> Trajectory | None:
+    def solve(
+        self, p0, v0, p1, v1, duration: float | None, straight: bool = False, shortest: float | None = None
+    ) -> Trajectory | None:
         """One motion (p0, v0, 0) → (p1, v1, 0) lasting at least ``duration`` s (None: as fast as the limits
         allow); None when Ruckig finds none within the limits. ``straight`` (both ends at rest): along the straight
         line p0 → p1, phase-synchronised.
@@ -68,23 +71,30 @@ class RuckigSolver:
         Ruckig fills a ``minimum_duration`` by reshaping each joint's profile on its own, which leaves the line
         (measured: up to 0.014 rad on moves of ~0.1 rad stretched 1.3×), so a straight motion given more time than
         its shortest is that shortest motion slowed down evenly: with the limits v/k, a/k², j/k³ the time-optimal
-        line takes exactly k times as long, on the same line.
+        line takes exactly k times as long, on the same line. ``shortest``: that shortest motion's duration when the
+        caller has it (:meth:`SegmentTimer.shortest`), saving a Ruckig call.
         """
         if not straight or duration is None:
             return self._calc(p0, v0, p1, v1, duration, straight)
-        fastest = self._calc(p0, v0, p1, v1, None, True)
-        if fastest is None or fastest.duration <= 0.0:  # none, or a hold (no line to follow)
+        if shortest is None or duration <= shortest:
+            fastest = self._calc(p0, v0, p1, v1, None, True)
+            if fastest is None or fastest.duration <= 0.0:  # none, or a hold (no line to follow)
+                return self._calc(p0, v0, p1, v1, duration, True)
+            if duration <= fastest.duration:  # (Ruckig reshapes even a minimum duration equal to the shortest)
+                return fastest
+            shortest = fastest.duration
+        if shortest <= 0.0:  # a hold: no line to follow
             return self._calc(p0, v0, p1, v1, duration, True)
-        if duration <= fastest.duration:  # (Ruckig reshapes even a minimum duration equal to the shortest)
-            return fastest
-        return self._calc(p0, v0, p1, v1, None, True, scale=duration / fastest.duration)
+        return self._calc(p0, v0, p1, v1, None, True, scale=duration / shortest)
 
     def _calc(self, p0, v0, p1, v1, duration, straight: bool, scale: float = 1.0) -> Trajectory | None:
         """One Ruckig call with the limits slowed by ``scale`` (velocity / k, acceleration / k², jerk / k³)."""
         inp, zero, lim = self.inp, [0.0] * self.dof, self.limits
-        inp.max_velocity = (lim.velocity / scale).tolist()
-        inp.max_acceleration = (lim.acceleration / scale**2).tolist()
-        inp.max_jerk = (lim.jerk / scale**3).tolist()
+        if scale != self._scale:
+            inp.max_velocity = (lim.velocity / scale).tolist()
+            inp.max_acceleration = (lim.acceleration / scale**2).tolist()
+            inp.max_jerk = (lim.jerk / scale**3).tolist()
+            self._scale = scale
         inp.current_position, inp.current_velocity, inp.current_acceleration = list(p0), list(v0), zero
         inp.target_position, inp.target_velocity, inp.target_acceleration = list(p1), list(v1), zero
         inp.synchronization = Synchronization.Phase if straight else Synchronization.Time
@@ -165,7 +175,8 @@ class SegmentTimer:
         """Pieces from t0 to t1 through states (q, v); (None, feasible) when Σ shortest times > t1 − t0."""
         n = len(q) - 1
         straight = stop[:-1] & stop[1:]
-        minimum = self.shortest(tau, q, v, stop)
+        fastest = self.shortest(tau, q, v, stop)
+        minimum = fastest.copy()  # raised where a duration proves blocked
         total = t1 - t0
         for _ in range(10):
             if minimum.sum() > total + 1e-9:
@@ -173,7 +184,7 @@ class SegmentTimer:
             d = _allocate(minimum, np.maximum(np.diff(tau), 1e-6), total)
             pieces, start = [], t0
             for k in range(n):
-                tr = self.solver.solve(q[k], v[k], q[k + 1], v[k + 1], float(d[k]), bool(straight[k]))
+                tr = self.solver.solve(q[k], v[k], q[k + 1], v[k + 1], float(d[k]), bool(straight[k]), fastest[k])
                 if tr is None or tr.duration > d[k] + 1e-9:  # a blocked interval: that duration is impossible
                     minimum[k] = d[k] + 1e-3 if tr is None else tr.duration
                     break
