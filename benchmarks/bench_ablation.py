@@ -36,12 +36,12 @@ from studio.imitate.search import gradient_search
 from studio.learn.checkpoint import CheckpointError, read_checkpoint
 from studio.learn.config import TrainConfig
 from studio.learn.selfmodel import load_selfmodel
+from studio.learn.threads import set_torch_threads
 from studio.learn.train import train
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import Rig, ShadowRenderer
 from studio.targets.expressive import still_expressive
 from studio.targets.images import gather_targets, load_target
-from studio.threads import set_torch_threads
 
 ROOT = Path(__file__).resolve().parent.parent
 ASL = ROOT.parent / "shared" / "targets" / "asl"

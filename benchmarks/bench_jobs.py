@@ -152,7 +152,7 @@ def main() -> None:
         os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: args.cores])
     if args.switch_ms is not None:
         sys.setswitchinterval(args.switch_ms / 1000)
-    from studio.threads import set_torch_threads
+    from studio.learn.threads import set_torch_threads
 
     set_torch_threads(args.threads)  # the thread worker shares this process's setting
     results: dict[str, dict] = {"idle": stats(measure_loop(args.seconds, args.period_ms / 1000))}

@@ -59,12 +59,12 @@ def main(argv: list[str] | None = None) -> int:
     from studio.evaluate.observer import DESCRIPTORS, Observer, ObserverConfig
     from studio.evaluate.table1 import score
     from studio.imitate.still import Imitator
+    from studio.learn.threads import DEFAULT_THREADS, set_torch_threads
     from studio.sim.roll import file_deg
     from studio.targets.expressive import still_expressive
     from studio.targets.images import load_target
-    from studio.threads import DEFAULT_THREADS, set_torch_threads
 
-    set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.threads)
+    set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.learn.threads)
     gallery, queries = _sets(args.set)
     queries = queries[: args.limit] if args.limit else queries
     side = 128

@@ -44,10 +44,10 @@ from studio.imitate.config import (
     SweepConfig,
 )
 from studio.imitate.still import Imitator
+from studio.learn.threads import DEFAULT_THREADS, set_torch_threads
 from studio.sim.roll import wrap_deg
 from studio.sim.shadow import ShadowRenderer
 from studio.targets.expressive import still_expressive
-from studio.threads import DEFAULT_THREADS, set_torch_threads
 
 METHODS = {  # name → (search, refine, imitate, sweep): `--preset studio|paper` (paper at the CPU budget),
     # and the studio's before the sweep
@@ -127,7 +127,7 @@ def main() -> int:
     if args.hole_weight is not None and not args.hole_weight >= 0:
         parser.error(f"--hole-weight must be ≥ 0 (a weight on a loss term), not {args.hole_weight}")
     logging.basicConfig(level=logging.WARNING)
-    set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.threads)
+    set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.learn.threads)
     cfg = ReachableConfig(count=args.count, seed=args.seed)
     rolls = np.radians(np.random.default_rng(args.seed).uniform(-180.0, 180.0, args.count))
     with Imitator(config=dataclasses.replace(ImitateConfig(), retrieve=False)) as im:

@@ -42,11 +42,11 @@ def main(argv: list[str] | None = None) -> int:
     from studio.evaluate.table1 import score
     from studio.imitate.roll_search import RollSearchConfig
     from studio.imitate.still import Imitator
+    from studio.learn.threads import DEFAULT_THREADS, set_torch_threads
     from studio.targets.expressive import still_expressive
     from studio.targets.images import image_class, image_number
-    from studio.threads import DEFAULT_THREADS, set_torch_threads
 
-    set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.threads)
+    set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.learn.threads)
     numbered = {(image_class(p), image_number(p)): p for p in MPEG7.glob("*.gif")}  # "camel-3", "rat-03"
     paths = [numbered[a, i] for i in args.images for a in ANIMALS if (a, i) in numbered]
     if not paths:

@@ -27,10 +27,10 @@ from studio.imitate.sequence import SequenceImitator
 from studio.imitate.still import DEFAULT_MODEL
 from studio.imitate.transitions import TransitionConfig
 from studio.learn.selfmodel import load_selfmodel
+from studio.learn.threads import DEFAULT_THREADS, set_torch_threads
 from studio.targets.expressive import expressive_masks
 from studio.targets.keyframes import cluster_keyframes, keyframe_targets
 from studio.targets.video import VideoConfig, load_video
-from studio.threads import DEFAULT_THREADS, set_torch_threads
 
 DAVIS = Path(__file__).resolve().parents[2] / "shared" / "targets" / "davis"
 MODES = {
@@ -44,7 +44,7 @@ def main() -> int:
     parser.add_argument("--davis", default=str(DAVIS), help="folder of DAVIS mask sequences (one folder each)")
     parser.add_argument("--sequences", default="", help="comma-separated names (default: every sub-folder)")
     args = parser.parse_args()
-    set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.threads)
+    set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.learn.threads)
     root = Path(args.davis)
     names = [n for n in args.sequences.split(",") if n] or sorted(p.name for p in root.iterdir() if p.is_dir())
     targets = {}

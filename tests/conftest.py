@@ -14,8 +14,8 @@ from PIL import Image
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 
 # pytest-xdist runs one worker per core: each one's torch (and its subprocesses') on 1 thread, not the studio's
-# default of 2 (studio.threads.default_threads honours OMP_NUM_THREADS), so the workers do not oversubscribe the
-# cores. Set before anything imports torch or studio.threads; a value set by the caller is kept.
+# default of 2 (studio.learn.threads.default_threads honours OMP_NUM_THREADS), so the workers do not oversubscribe the
+# cores. Set before anything imports torch or studio.learn.threads; a value set by the caller is kept.
 if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 

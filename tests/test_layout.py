@@ -33,9 +33,8 @@ FOUNDATION = {
     "studio.path_checks",
     "studio.fanout",
     "studio.ray_cluster",
-    "studio.threads",
 }  # path_checks: outputs never over inputs; jsonfile: the one bounded JSON reader; fanout (+ ray_cluster): many
-# items through one task, in this process, on local processes or on Ray; threads: torch's CPU threads, one way
+# items through one task, in this process, on local processes or on Ray
 
 
 def modules() -> dict[str, Path]:

@@ -1,4 +1,4 @@
-"""Torch runs on the threads it was given (studio.threads): numba's pool start no longer resets the count, and the
+"""Torch runs on the threads it was given (studio.learn.threads): numba's pool start no longer resets the count, and the
 command line's ``--threads`` reaches the job that does the work."""
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ def test_a_plain_torch_count_is_lost_at_numbas_first_parallel_kernel():
 @pytest.mark.parametrize("n", [1, 2])
 def test_the_count_set_holds_across_renders_in_this_and_another_thread(n):
     got = _run(f"""
-        from studio.threads import set_torch_threads, torch_threads
+        from studio.learn.threads import set_torch_threads, torch_threads
         set_torch_threads({n})
         render(); render()
         out = {{"main": torch.get_num_threads()}}
@@ -63,7 +63,7 @@ def test_the_count_set_holds_across_renders_in_this_and_another_thread(n):
 
 
 def test_the_default_is_two_threads_or_what_omp_num_threads_says():
-    from studio.threads import default_threads
+    from studio.learn.threads import default_threads
 
     assert default_threads({}, cores=2) == 2 and default_threads({}, cores=16) == 2 and default_threads({}, 1) == 1
     assert default_threads({"OMP_NUM_THREADS": "3"}, cores=2) == 3
@@ -75,7 +75,7 @@ def test_the_default_is_two_threads_or_what_omp_num_threads_says():
 def test_torch_threads_restores_the_previous_count_and_refuses_zero_through_set():
     import torch
 
-    from studio.threads import set_torch_threads, torch_threads
+    from studio.learn.threads import set_torch_threads, torch_threads
 
     before = torch.get_num_threads()
     with pytest.raises(RuntimeError), torch_threads(1):

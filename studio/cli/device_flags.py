@@ -1,7 +1,8 @@
-"""Where the engine's torch work runs: ``--device`` and ``--threads``, applied by :func:`studio.threads.torch_threads`.
+"""Where the engine's torch work runs: ``--device`` and ``--threads``, applied by
+:func:`studio.learn.threads.torch_threads`.
 
-``--threads`` defaults to :data:`studio.threads.DEFAULT_THREADS` everywhere (2 on a 2-core machine, measured there);
-the table verbs also take 0 for torch's own default. ``--threads`` is bounded
+``--threads`` defaults to :data:`studio.learn.threads.DEFAULT_THREADS` everywhere (2 on a 2-core machine, measured
+there); the table verbs also take 0 for torch's own default. ``--threads`` is bounded
 by :data:`MAX_THREADS` (``TrainerConfig.threads``' range, stated once), and ``--device`` is checked as it is read
 (:func:`device_arg`): ``cuda`` on a machine without a GPU is one line, at once, not an internal error an hour later.
 """
@@ -12,7 +13,7 @@ import argparse
 
 from studio.cli.flags import field_docs, ranged
 from studio.learn.config import TrainerConfig
-from studio.threads import DEFAULT_THREADS
+from studio.learn.threads import DEFAULT_THREADS
 
 MAX_THREADS = int(field_docs(TrainerConfig)["threads"].range.hi)  # more threads than this only slow torch down
 DEVICES = ("cpu", "cuda")  # what --device names (cuda:N picks one GPU)

@@ -24,8 +24,8 @@ from studio.cli.run_flags import add_budget_flags, sequence_from_args
 from studio.cli.scale_flags import add_fanout_flags, fanout_from_args, models_from_args
 from studio.cli.source_flags import add_source_flags, still_config_from_args
 from studio.imitate.config import still_configs
+from studio.learn.threads import torch_threads
 from studio.targets.images import gather_targets
-from studio.threads import torch_threads
 
 DEFAULT_INVERSE = asset("models/inverse_cpu128.pt", must_exist=False)
 

@@ -24,7 +24,7 @@ from pathlib import Path
 from studio.cli.run_flags import add_budget_flags, add_engine_flags, add_show_flags, run_config_from_args
 from studio.cli.runs import print_run, run_with_bars
 from studio.cli.source_flags import add_source_flags, source_settings_from_args
-from studio.threads import torch_threads
+from studio.learn.threads import torch_threads
 
 
 def _imitate(args: argparse.Namespace) -> int:

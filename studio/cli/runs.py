@@ -15,7 +15,7 @@ import sys
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-from studio.threads import DEFAULT_THREADS
+from studio.learn.threads import DEFAULT_THREADS
 
 T = TypeVar("T")
 

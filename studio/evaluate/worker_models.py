@@ -25,7 +25,7 @@ class ModelRecipe:
         """``(self-model, CLIP encoder or None)``, with torch set to ``threads`` in this process."""
         from studio.imitate.clip_loss import find_clip
         from studio.learn.selfmodel import load_selfmodel
-        from studio.threads import set_torch_threads
+        from studio.learn.threads import set_torch_threads
 
         if self.threads:
             set_torch_threads(self.threads)

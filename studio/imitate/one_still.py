@@ -12,10 +12,10 @@ import numpy as np
 
 from studio.imitate.config import RefineConfig, SearchConfig
 from studio.imitate.still import ImitationResult, Imitator
+from studio.learn.threads import DEFAULT_THREADS, torch_threads
 from studio.progress import ProgressFn
 from studio.targets.expressive import still_expressive
 from studio.targets.images import TargetConfig
-from studio.threads import DEFAULT_THREADS, torch_threads
 
 
 def imitate_still(
@@ -34,7 +34,7 @@ def imitate_still(
 
     ``target`` is an image path (loaded with ``target_cfg``) or a mask ``(R, R)`` framed at the model's resolution
     (``load_target(path, size=R)``). ``threads``: torch CPU threads for this call, restored after
-    (:data:`~studio.threads.DEFAULT_THREADS`; None leaves torch's setting). For many targets keep an
+    (:data:`~studio.learn.threads.DEFAULT_THREADS`; None leaves torch's setting). For many targets keep an
     :class:`Imitator` instead: it loads the model once.
     """
     with torch_threads(threads):

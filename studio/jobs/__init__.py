@@ -26,7 +26,7 @@ new worker), needs picklable jobs and results, and cannot hold a caller's bus or
 **thread** worker (``DEFAULT_WORKER``); ``JobQueue("process")`` remains for work that must be killable at once
 (a cancelled job that does not stop within the grace time is killed, not waited for) or isolated from crashes.
 
-A job's torch work runs on ``threads`` (:data:`studio.threads.DEFAULT_THREADS`: 2 on 2 cores). Rerun with
+A job's torch work runs on ``threads`` (:data:`studio.learn.threads.DEFAULT_THREADS`: 2 on 2 cores). Rerun with
 ``--workers thread --threads 1|2``: the search 13.8 → 18.4 steps/s, the main thread's p99 1.26 → 3.47 ms.
 """
 

@@ -31,7 +31,7 @@ from typing import Any
 
 from studio.jobs.events import EventPoller, JobError, JobEvent, JobState, WorkerDied
 from studio.jobs.workers import WORKERS, ProcessWorker, Run, ThreadWorker
-from studio.threads import DEFAULT_THREADS
+from studio.learn.threads import DEFAULT_THREADS
 
 log = logging.getLogger(__name__)
 

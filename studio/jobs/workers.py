@@ -13,8 +13,8 @@ first job) and reused, and killed when a cancelled job does not return within th
 script's main module in the worker: a script using it keeps its work under ``if __name__ == "__main__":``
 (notebooks need nothing).
 
-``threads`` sets torch's CPU threads where the engine runs (:data:`studio.threads.DEFAULT_THREADS` unless given); a
-thread worker sets it for the job's duration only (torch's setting is per process) and restores it.
+``threads`` sets torch's CPU threads where the engine runs (:data:`studio.learn.threads.DEFAULT_THREADS` unless
+given); a thread worker sets it for the job's duration only (torch's setting is per process) and restores it.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from typing import Any
 
 from studio.errors import Cancelled
 from studio.jobs.events import Reporter, Send
-from studio.threads import DEFAULT_THREADS, torch_threads
+from studio.learn.threads import DEFAULT_THREADS, torch_threads
 
 log = logging.getLogger(__name__)
 

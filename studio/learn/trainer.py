@@ -27,11 +27,11 @@ from torch import nn
 from studio.errors import StudioError
 from studio.learn.checkpoint import CheckpointError, read_checkpoint, same_config, save_model
 from studio.learn.config import TrainerConfig
+from studio.learn.threads import set_torch_threads
 from studio.progress import ProgressFn, report, stopped
 from studio.sim.hand import Hand
 from studio.sim.sampling import sample_poses
 from studio.sim.shadow import ShadowRenderer
-from studio.threads import set_torch_threads
 
 log = logging.getLogger(__name__)
 Batch = tuple[torch.Tensor, torch.Tensor]  # theta (B, 21) float32 rad, shadows (B, 1, R, R) float32 (1 = shadow)

@@ -1,4 +1,5 @@
-"""How many CPU threads torch's work runs on: one way for every face and every worker, part of the foundation.
+"""How many CPU threads torch's work runs on: one way for every face and every worker, in the lowest
+stage that runs torch (every torch user sits on or above ``learn``).
 
 numba's parallel kernels (the renderer, the compiled loss) and torch share one OpenMP runtime. The first parallel
 kernel a process launches starts numba's thread pool, and once torch has run, that start sets the *launching
