@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
                 t0 = time.perf_counter()
                 roll = 0.0
                 if row == "roll auto":
-                    choice = im.choose_roll(target[None], exp[None] if exp is not None and exp.any() else None)
+                    choice = im.choose_roll(target[None])
                     roll = choice.roll
                 got = im.imitate(target, exp, refine=True, roll=roll)
                 shadow = got.shadow  # as the (rolled) mount casts it

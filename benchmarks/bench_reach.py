@@ -91,8 +91,7 @@ def run_method(
                 floor, floor_total = known["iou_loss"][0], float(known_total[0])
                 loss = result.loss["iou_loss"]
             else:
-                has = expressive is not None and expressive.any()
-                choice = im.choose_roll(target[None], expressive[None] if has else None)
+                choice = im.choose_roll(target[None])
                 errors.append(abs(wrap_deg(choice.deg - math.degrees(rolls[i]))))
                 result = im.imitate(target, expressive, roll=choice.roll)
                 truth_rolled = ShadowRenderer(im.hand, im.renderer.rig.with_roll(float(rolls[i])))

@@ -58,8 +58,7 @@ def main(argv: list[str] | None = None) -> int:
             target = im.load(path)
             exp = still_expressive(target)
             loss_fn = im.loss_fn(target, exp)
-            choice = im.choose_roll(target[None], exp[None] if exp is not None and exp.any() else None,
-                                    RollSearchConfig(top=max(3, args.top)))  # fmt: skip
+            choice = im.choose_roll(target[None], RollSearchConfig(top=max(3, args.top)))
             rows = []
             for deg, exact in choice.candidates[: args.top]:
                 roll = math.radians(deg)

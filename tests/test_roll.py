@@ -138,7 +138,7 @@ def test_roll_auto_recovers_the_roll_of_a_rendered_reachable_target(small_index,
     lc = LossConfig(use_clip=False, crop_size=R)
     theta = index.theta[int(abs(deg)) * 7].astype(np.float64)  # a reachable pose (in the index)
     target = ShadowRenderer(hand, Rig(resolution=R, roll=math.radians(deg))).render_one(theta)
-    choice = choose_roll(index, refiner, target[None], None, lambda t, e: ImageLoss(t, lc, None, e))
+    choice = choose_roll(index, refiner, target[None], lambda t, e: ImageLoss(t, lc, None, e))
     assert abs(wrap_deg(choice.deg - deg)) <= 2.0
     assert choice.loss < choice.upright_loss and choice.seconds > 0
     assert len(choice.coarse) == 24
@@ -151,8 +151,28 @@ def test_roll_auto_keeps_the_upright_rig_for_an_upright_target(small_index, hand
     index, refiner = small_index
     lc = LossConfig(use_clip=False, crop_size=R)
     target = ShadowRenderer(hand, Rig(resolution=R)).render_one(index.theta[11].astype(np.float64))
-    choice = choose_roll(index, refiner, target[None], None, lambda t, e: ImageLoss(t, lc, None, e))
+    choice = choose_roll(index, refiner, target[None], lambda t, e: ImageLoss(t, lc, None, e))
     assert abs(choice.deg) <= 2.0
+
+
+@pytest.mark.slow
+def test_roll_auto_finds_the_roll_of_rolled_reachable_targets_with_holes():
+    """``benchmarks/bench_reach.py``'s rolled targets (seed 7) that have holes, on the shipped model and index: the
+    roll is chosen on the outline, so whether a held index pose leaks shadow into a hole (the holes' term, a step)
+    does not decide it. Scored with that term the roll was 3.2–11.5° off on four of these seven."""
+    from studio.evaluate.reachable import ReachableConfig, reachable_targets
+    from studio.imitate.still import Imitator
+    from studio.targets.expressive import still_expressive
+
+    rolls = np.radians(np.random.default_rng(7).uniform(-180.0, 180.0, 12))
+    errors = []
+    with Imitator() as im:
+        _, targets = reachable_targets(im.hand, im.refiner.world, im.resolution, ReachableConfig(count=12, seed=7),
+                                       rolls=rolls)  # fmt: skip
+        for target, roll in zip(targets, rolls, strict=True):
+            if still_expressive(target) is not None:
+                errors.append(abs(wrap_deg(im.choose_roll(target[None]).deg - math.degrees(roll))))
+    assert len(errors) == 7 and max(errors) <= 3.0 and np.mean(errors) <= 2.0, errors
 
 
 def test_a_rolled_imitation_is_scored_as_the_rolled_mount_casts_it(small_index, hand):

@@ -23,7 +23,7 @@ def mount_line(project) -> str:
     chosen = " (chosen by auto)" if m.auto else ""
     gain = ""
     if m.auto and m.loss is not None and m.upright_loss is not None:
-        gain = f"; first-answer loss {m.loss:.3f} vs {m.upright_loss:.3f} upright"
+        gain = f"; first-answer outline loss {m.loss:.3f} vs {m.upright_loss:.3f} upright"
     return f"{mount_text(m.roll)}{chosen}{gain}"
 
 

@@ -185,8 +185,7 @@ class Evaluator:
         t0 = time.perf_counter()
         im = self.imitator
         if self.cfg.roll == "auto":
-            exp = expressive[None] if expressive is not None and expressive.any() else None
-            choice = im.choose_roll(target[None], exp, progress=progress, cancel=cancel)
+            choice = im.choose_roll(target[None], progress=progress, cancel=cancel)
             roll = 0.0 if choice is None else choice.roll
         else:
             roll = math.radians(float(self.cfg.roll))

@@ -222,7 +222,7 @@ class VideoEvaluator:
         t0 = time.perf_counter()
         masks, expressive, roll = s.masks, s.expressive, 0.0
         if row.roll:  # one mount for the whole sequence, its shadows scored as it casts them
-            choice = self.seq.imitator.choose_roll(s.masks, s.expressive, progress=steps, cancel=cancel)
+            choice = self.seq.imitator.choose_roll(s.masks, progress=steps, cancel=cancel)
             if choice is None:
                 return None
             roll = choice.roll

@@ -236,19 +236,18 @@ class Imitator:
     def choose_roll(
         self,
         targets: np.ndarray,
-        expressive: np.ndarray | None = None,
         cfg: RollSearchConfig | None = None,
         progress: ProgressFn | None = None,
         cancel: threading.Event | None = None,
     ) -> RollChoice | None:
-        """``--roll auto``: the one mount roll for ``targets (K, R, R)`` (a still: K = 1) and their expressive masks
+        """``--roll auto``: the one mount roll for ``targets (K, R, R)`` (a still: K = 1), chosen on their outlines
         (:func:`~studio.imitate.roll_search.choose_roll` on this imitator's index, loss and refiner); stage "index"
         while the index is built, then "roll". None when ``cancel`` stopped the index build."""
         index = self.retrieval_index(progress, cancel)
         if index is None:
             return None
         report(progress, "roll", 0, 1)
-        choice = choose_roll(index, self.refiner, targets, expressive, self.loss_fn, cfg)
+        choice = choose_roll(index, self.refiner, targets, self.loss_fn, cfg)
         report(progress, "roll", 1, 1, choice.loss)
         return choice
 

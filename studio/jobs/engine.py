@@ -172,27 +172,25 @@ def imitate_keyframes(
 
 def choose_roll_job(
     masks: np.ndarray,
-    expressive: np.ndarray | None = None,
     *,
     loss_cfg: LossConfig | None = None,
     model_path: Path | None = None,
     apply: Apply = None,
     title: str = "mount roll",
 ) -> Job:
-    """``--roll auto``: the one mount roll for the keyframe targets ``masks (K, S, S)`` (with their expressive masks)
+    """``--roll auto``: the one mount roll for the keyframe targets ``masks (K, S, S)`` (chosen on their outlines)
     → :class:`~studio.imitate.roll_search.RollChoice` (:func:`~studio.imitate.roll_search.choose_roll`, on the
     retrieval index of the model's resolution; stage "index" while it is built, once per machine, then "roll")."""
-    run = functools.partial(_choose_roll, masks=np.asarray(masks), loss_cfg=loss_cfg, model_path=model_path,
-                            expressive=None if expressive is None else np.asarray(expressive))  # fmt: skip
+    run = functools.partial(_choose_roll, masks=np.asarray(masks), loss_cfg=loss_cfg, model_path=model_path)
     return Job("choose-roll", run, apply, title)
 
 
-def _choose_roll(report: Reporter, cancel, *, masks, expressive, loss_cfg, model_path):
+def _choose_roll(report: Reporter, cancel, *, masks, loss_cfg, model_path):
     from studio.imitate.still import Imitator
 
     with Imitator(None, model_path, loss_cfg, None) as im:
         progress = report.engine_progress()
-        choice = im.choose_roll(masks, expressive, progress=progress, cancel=cancel)
+        choice = im.choose_roll(masks, progress=progress, cancel=cancel)
         report.check()
         return choice
 

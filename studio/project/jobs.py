@@ -121,21 +121,16 @@ def video_job(
 
 
 def roll_job(project: ProjectHandle, *, model_path: Path | None = None) -> Job:
-    """``--roll auto``: choose the one mount roll for every keyframe target of the project (their expressive masks
-    and the project's weights, CLIP off) → ``project.set_chosen_roll`` on completion, which makes the keyframes
-    optimised for another roll stale."""
-    pairs = [project.keyframe_masks(kf.id) for kf in project.keyframes]
-    masks = np.stack([np.array(t) for t, _ in pairs])
-    expressive = np.stack([np.array(e) for _, e in pairs])
+    """``--roll auto``: choose the one mount roll for every keyframe target of the project (their outlines, the
+    project's weights, CLIP off) → ``project.set_chosen_roll`` on completion, which makes the keyframes optimised for
+    another roll stale."""
+    masks = np.stack([np.array(project.keyframe_masks(kf.id)[0]) for kf in project.keyframes])
 
     def apply(r) -> None:
         if r is not None:
             project.set_chosen_roll(r.roll, loss=r.loss, upright_loss=r.upright_loss)
 
-    job = choose_roll_job(
-        masks, expressive if expressive.any() else None, loss_cfg=project_loss(project, masks.shape[-1]),
-        model_path=model_path, apply=apply,
-    )  # fmt: skip
+    job = choose_roll_job(masks, loss_cfg=project_loss(project, masks.shape[-1]), model_path=model_path, apply=apply)
     job.meta["keyframes"] = [kf.id for kf in project.keyframes]
     return job
 

@@ -113,7 +113,7 @@ class Mount:
     auto: bool = False  # the studio chooses the roll (``--roll auto``) before the keyframes are next optimised
     roll: float = 0.0  # rad, the roll the keyframes are optimised for (the artist's, or the one auto chose)
     chosen: bool = True  # auto: the roll has been chosen (False: it is chosen at the start of the next run)
-    upright_loss: float | None = None  # auto: the retrieval's mean loss at roll 0, beside the chosen roll's
+    upright_loss: float | None = None  # auto: the retrieval's mean outline loss at roll 0, beside the chosen roll's
     loss: float | None = None  # auto: … at the chosen roll (both for the summary: what the roll bought)
 
     @staticmethod
