@@ -40,7 +40,7 @@ _API: dict[str, str] = {
     "SAMPLE_DIR": "studio.targets.images",
     "TargetConfig": "studio.targets.images",
     "load_target": "studio.targets.images",
-    "find_holes": "studio.targets.images",
+    "find_holes": "studio.targets.holes",
     "DEFAULT_VIDEO": "studio.targets.video",
     "VideoConfig": "studio.targets.video",
     "Video": "studio.targets.video",

@@ -31,7 +31,8 @@ from studio.imitate.clip_loss import (
 from studio.imitate.config import COMPONENTS, LossConfig
 from studio.imitate.losses import ImageLoss, mae, soft_iou, temporal_loss
 from studio.sim.crop import align, as_image_batch, pad_pixels, square_boxes
-from studio.targets.images import find_holes, load_target, shadow_box, square_frame
+from studio.targets.holes import find_holes
+from studio.targets.images import load_target, shadow_box, square_frame
 
 CFG = LossConfig(crop_size=64)  # small crops: CPU tests in milliseconds
 

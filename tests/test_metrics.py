@@ -24,7 +24,8 @@ from studio.learn.config import CollectConfig
 from studio.learn.dataset import collect
 from studio.learn.inverse import InverseCNN, InverseConfig
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
-from studio.targets.images import find_holes, gather_targets
+from studio.targets.holes import find_holes
+from studio.targets.images import gather_targets
 
 RES = 32
 TINY_MODEL = SelfModelConfig(resolution=RES, hidden=64, channels=16, min_channels=8, res_blocks=1)

@@ -12,7 +12,7 @@ from studio.imitate.rendered_loss import PARALLEL_FROM, RenderedLoss, crop_batch
 from studio.sim.crop import align, pad_pixels
 from studio.sim.sampling import sample_poses
 from studio.sim.shadow import Rig, ShadowRenderer
-from studio.targets.images import find_holes
+from studio.targets.holes import find_holes
 
 
 @pytest.fixture(scope="module")

@@ -12,12 +12,11 @@ from hypothesis import strategies as st
 from PIL import Image
 
 from studio.errors import StudioError, TargetError
+from studio.targets.holes import fill_holes, find_holes
 from studio.targets.images import (
     DEFAULT_TARGET,
     SAMPLE_DIR,
     TargetConfig,
-    fill_holes,
-    find_holes,
     find_target_files,
     keep_largest_components,
     load_target,

@@ -3,7 +3,7 @@
 Each method gives a pose and its shadow: Random and Nearest Neighbour a training image (a rendered shadow of a
 training pose), the inverse CNN and ours the exact renderer's shadow of their pose (ours before and after
 refinement). One :class:`~studio.imitate.losses.ImageLoss` per target scores every method's shadow. The
-expressive region of a still target is its holes (:func:`studio.targets.images.find_holes`): for a target without holes
+expressive region of a still target is its holes (:func:`studio.targets.holes.find_holes`): for a target without holes
 the expressive terms are NaN, and the Exp. columns are means over the targets that have holes. Rows are plain
 JSON-able dicts (NaN → None); :func:`write_table` writes them as Markdown and CSV.
 """

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from studio.targets.images import find_holes
+from studio.targets.holes import find_holes
 
 
 def _check_sequence(masks: np.ndarray) -> np.ndarray:

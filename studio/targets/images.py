@@ -20,9 +20,10 @@ The steps, each a config field with a default that loads every target in ``share
    are mid-dark skin (shadowness 5-25) with little true black, so they fill; the opening of an ASL "o" shows the
    black backdrop and stays. In binary images every hole pixel is core, so only the area counts.
 
-:func:`square_frame` turns a mask into the square ``size × size`` frame the optimiser works in, and
-:func:`find_holes` gives the holes of a single mask (the hole part of the expressive region, DESIGN §4);
-:func:`gather_targets` lists the target files of files and folders (first per folder, first per class).
+:func:`square_frame` turns a mask into the square ``size × size`` frame the optimiser works in, with the mask's
+holes and no others (a gap narrower than a frame pixel stays open, :mod:`studio.targets.holes`, which also finds
+the holes: the hole part of the expressive region, DESIGN §4); :func:`gather_targets` lists the target files of
+files and folders (first per folder, first per class).
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from PIL import Image, ImageOps, UnidentifiedImageError
 from studio.assets import asset
 from studio.errors import TargetError
 from studio.path_checks import check_text
+from studio.targets.holes import MIN_CORE_SHARE, MIN_HOLE_AREA, fill_holes, find_holes, threshold_keeping_gaps
 
 log = logging.getLogger(__name__)
 
@@ -56,8 +58,8 @@ class TargetConfig:
     auto_otsu: bool = True  # use Otsu instead of the fixed threshold when the border (backdrop) is above it
     max_components: int = 3  # keep at most this many 8-connected shadow pieces, largest first [1, 1000]
     min_component_share: float = 0.1  # drop pieces smaller than this fraction of the largest piece (specks) [0, 1]
-    min_hole_area: float = 0.015  # smallest real opening's core: < 1 → fraction of the shadow area, ≥ 1 → pixels
-    min_core_share: float = 0.3  # a hole whose core is less than this share of its area is a crease [0, 1]
+    min_hole_area: float = MIN_HOLE_AREA  # smallest real opening's core: < 1 → share of the shadow area, ≥ 1 → pixels
+    min_core_share: float = MIN_CORE_SHARE  # a hole whose core is less than this share of its area is a crease [0, 1]
     backdrop_level: float = 0.25  # core pixels: shadowness ≤ backdrop_level × threshold (surely backdrop) [0, 1]
     frame: str = "shadow"  # load_target(size=…) frames "shadow" (its bounding box + margin) or the whole "image"
     margin: float = 0.1  # frame margin around the shadow box on each side, fraction of its longer side [0, 10]
@@ -131,46 +133,6 @@ def keep_largest_components(mask: np.ndarray, max_components: int = 1, min_share
     return np.isin(labels, keep).astype(np.uint8)
 
 
-def _hole_labels(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """4-connected backdrop regions of ``mask``: labels ``(H, W)`` and the ids of those not touching the border."""
-    _, labels = cv2.connectedComponents((mask == 0).astype(np.uint8), connectivity=4)
-    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    ids = np.setdiff1d(np.unique(labels[mask == 0]), border)
-    return labels, ids
-
-
-def find_holes(mask: np.ndarray) -> np.ndarray:
-    """Holes of a shadow mask ``(H, W)``: backdrop pixels not 4-connected to the image border, ``(H, W)`` uint8."""
-    labels, ids = _hole_labels(mask)
-    return np.isin(labels, ids).astype(np.uint8)
-
-
-def fill_holes(
-    mask: np.ndarray,
-    shade: np.ndarray | None = None,
-    core_level: float = 0.0,
-    min_hole_area: float = TargetConfig.min_hole_area,
-    min_core_share: float = TargetConfig.min_core_share,
-) -> np.ndarray:
-    """Fill the crease holes of ``mask`` ``(H, W)`` and keep the real openings (module doc, step 5).
-
-    ``shade`` is the shadowness ``(H, W)`` the mask came from (None: the mask is all there is, every hole pixel is
-    core); ``core_level`` the shadowness at or below which a pixel is surely backdrop; ``min_hole_area`` and
-    ``min_core_share`` as in :class:`TargetConfig`.
-    """
-    labels, ids = _hole_labels(mask)
-    out = mask.astype(np.uint8).copy()
-    if len(ids) == 0:
-        return out
-    area = np.bincount(labels.ravel(), minlength=labels.max() + 1)
-    core_px = (labels if shade is None else np.where(shade <= core_level, labels, 0)).ravel()
-    core = np.bincount(core_px, minlength=labels.max() + 1)
-    min_area = min_hole_area * int(mask.sum()) if min_hole_area < 1 else min_hole_area
-    fill = [i for i in ids if core[i] < min_area or core[i] < min_core_share * area[i]]
-    out[np.isin(labels, fill)] = 1
-    return out
-
-
 def threshold_level(shade: np.ndarray, cfg: TargetConfig, source: str = "<array>") -> float:
     """The shadowness level of step 3 for ``shade`` ``(H, W)`` uint8: ``cfg.threshold``, or Otsu's when it is None
     or (``auto_otsu``) when the fixed level would make the backdrop shadow; pixels above it are shadow."""
@@ -216,7 +178,8 @@ def square_frame(
 
     ``box`` ``(row0, row1, col0, col1)`` is the region to frame (None: the whole image); it is grown by ``margin``
     × its longer side on each side, padded with backdrop to a square about its centre (aspect ratio kept) and
-    resized by area averaging, then thresholded at half coverage.
+    resized by area averaging, then thresholded at half coverage, keeping the gaps the resize would close
+    (:func:`~studio.targets.holes.threshold_keeping_gaps`: the frame has the mask's holes and no others).
     """
     if size < 1:
         raise ValueError("size must be a positive number of pixels")
@@ -225,13 +188,16 @@ def square_frame(
     side = max(1, longer + 2 * int(round(margin * longer)))  # same parity as the box: centred to the pixel
     top = (r0 + r1 - side) // 2
     left = (c0 + c1 - side) // 2
-    canvas = np.zeros((side, side), np.float32)
     sr0, sr1 = max(top, 0), min(top + side, mask.shape[0])
     sc0, sc1 = max(left, 0), min(left + side, mask.shape[1])
-    if sr1 > sr0 and sc1 > sc0:
-        canvas[sr0 - top : sr1 - top, sc0 - left : sc1 - left] = mask[sr0:sr1, sc0:sc1]
-    resized = cv2.resize(canvas, (size, size), interpolation=cv2.INTER_AREA)
-    return (resized >= 0.5).astype(np.uint8)
+
+    def area_resized(image: np.ndarray) -> np.ndarray:
+        canvas = np.zeros((side, side), np.float32)
+        if sr1 > sr0 and sc1 > sc0:
+            canvas[sr0 - top : sr1 - top, sc0 - left : sc1 - left] = image[sr0:sr1, sc0:sc1]
+        return cv2.resize(canvas, (size, size), interpolation=cv2.INTER_AREA)
+
+    return threshold_keeping_gaps(area_resized(mask), area_resized(find_holes(mask)))
 
 
 def load_target(path: str | Path, size: int | None = None, cfg: TargetConfig | None = None) -> np.ndarray:

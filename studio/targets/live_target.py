@@ -15,7 +15,7 @@ to grey at ``work_size`` (the speed), then:
   Otsu, the backdrop's level is fitted by a smooth quadratic surface over the backdrop's pixels and divided out
   (a wall lit from one side is no shadow; what is left is each pixel's contrast against the wall behind it),
   split by Otsu again, specks removed (:func:`~studio.targets.cleanup.remove_specks`), the largest pieces kept
-  and crease holes filled (:func:`~studio.targets.images.fill_holes`).
+  and crease holes filled (:func:`~studio.targets.holes.fill_holes`).
 """
 
 from __future__ import annotations
@@ -30,10 +30,10 @@ import numpy as np
 from studio.errors import TargetError
 from studio.targets.backdrop import binarise, rectify
 from studio.targets.cleanup import remove_specks
+from studio.targets.holes import fill_holes
 from studio.targets.images import (
     TargetConfig,
     detect_polarity,
-    fill_holes,
     keep_largest_components,
     shadow_box,
     shadowness,

@@ -12,7 +12,8 @@ video files through OpenCV, GIFs through Pillow with their real frame durations,
    is as light as a grey backdrop, ``backdrop_level``); a frame with no shadow is skipped and counted;
 3. frames every mask in ONE square frame: the union of the shadow boxes of all frames, grown by ``margin`` and
    squared about its centre, resized to ``size × size``, so motion stays visible (the losses still crop each
-   frame to its own box). The source frames are cropped the same way for review.
+   frame to its own box), keeping the gaps the resize would close (:mod:`studio.targets.holes`: each frame has
+   its mask's holes and no others). The source frames are cropped the same way for review.
 
 Raw colour footage needs segmentation (:mod:`studio.targets.segment`), so ``kind="auto"`` never thresholds it:
 it raises :class:`SegmentationNeeded`, which carries the sampled RGB frames (:func:`studio.targets.source.raw_frames`
@@ -35,6 +36,7 @@ from studio.errors import TargetError
 from studio.progress import ProgressFn, report
 from studio.targets.cleanup import clean_shadow
 from studio.targets.footage import Footage, read_footage, sample_times
+from studio.targets.holes import find_holes, threshold_keeping_gaps
 from studio.targets.images import (
     TargetConfig,
     detect_polarity,
@@ -210,7 +212,8 @@ def video_from_masks(
     box = square_box([shadow_box(masks[k]) for k in keep], cfg.margin)
     out_masks, out_frames, kept = [], [], []
     for step, k in enumerate(keep):
-        m = (crop_square(masks[k].astype(np.float32), box, cfg.size) >= 0.5).astype(np.uint8)
+        m = threshold_keeping_gaps(crop_square(masks[k].astype(np.float32), box, cfg.size),
+                                   crop_square(find_holes(masks[k]).astype(np.float32), box, cfg.size))  # fmt: skip
         if not m.any():
             skipped.append((int(footage.frame_index[k]), f"the shadow vanishes at {cfg.size}×{cfg.size} pixels"))
         else:
