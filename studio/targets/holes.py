@@ -34,10 +34,9 @@ MIN_CORE_SHARE = 0.3  # a hole whose core is less than this share of its area is
 def hole_labels(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """4-connected backdrop regions of ``mask`` ``(H, W)``: labels ``(H, W)`` and the ids of those not touching the
     border (the holes)."""
-    _, labels = cv2.connectedComponents((mask == 0).astype(np.uint8), connectivity=4)
+    n, labels = cv2.connectedComponents((mask == 0).astype(np.uint8), connectivity=4)  # 0: the shadow
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    ids = np.setdiff1d(np.unique(labels[mask == 0]), border)
-    return labels, ids
+    return labels, np.setdiff1d(np.arange(1, n), border)
 
 
 def find_holes(mask: np.ndarray) -> np.ndarray:
