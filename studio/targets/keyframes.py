@@ -41,12 +41,14 @@ class KeyframeConfig:
     # its defaults (4 Hz, one square frame of 128 px), expressive masks by expressive_masks, each in its own aligned
     # crop (its own box or its frame's shadow box: the same counts); frames → keyframes (reduction) [paper's]:
     #   bear 14 → 2 (86 %) [60 → 5], blackswan 9 → 2 (78 %) [16 → 5], camel 15 → 2 (87 %) [39 → 6],
-    #   cows 18 → 2 (89 %) [12 → 3], dog 10 → 3 (70 %) [21 → 6], flamingo 14 → 3 (79 %) [27 → 10];
-    #   all 80 → 14 (82 %; paper 175 → 35, 80 %). Every tau in [0.389, 0.419] keeps all six in the paper's 63–92 %
-    #   (0.404 is its middle); below 0.389 camel collapses to one keyframe (93 %), at 0.42 dog keeps 4 of 10 (60 %).
-    #   At 3 Hz tau 0.404 gives 62–85 % (dog 8 → 3), at 5 Hz 82–95 % (camel 19 → 1). Without the blur no tau keeps
-    #   all six at 4 Hz (camel needs ≥ 0.333, dog ≤ 0.312), nor with σ ≤ 3 px of 64; blur 0.11 (σ 7 px) is the least
-    #   blur whose interval is 0.03 wide (σ 6 px: 0.017, σ 10 px: 0.067 but coarser shapes).
+    #   cows 18 → 2 (89 %) [12 → 3], dog 10 → 3 (70 %) [21 → 6], flamingo 14 → 2 (86 %) [27 → 10];
+    #   all 80 → 13 (84 %; paper 175 → 35, 80 %). Every tau up to 0.422 keeps all six in the paper's 63–92 % (each
+    #   keeps at least two keyframes at any tau, one_iou below; under 0.36 dog drops to 2 of 10, 80 %); at 0.424 dog
+    #   keeps 4 of 10 (60 %). At 3 Hz tau 0.404 gives 62–85 % (dog 8 → 3), at 5 Hz 82–91 %. Measured with frames
+    #   that keep the masks' holes (studio.targets.holes); 0.404 was chosen as the middle of [0.389, 0.419], the
+    #   interval when framing closed thin gaps into holes (flamingo then 14 → 3) and before one_iou. Without the
+    #   blur no tau kept all six at 4 Hz then (camel needed ≥ 0.333, dog ≤ 0.312), nor with σ ≤ 3 px of 64; blur
+    #   0.11 (σ 7 px) was the least blur whose interval was 0.03 wide (σ 6 px: 0.017, σ 10 px: 0.067, coarser).
     tau: float = 0.404  # similarity 1 − d at which the two closest clusters still merge; higher = more keyframes [0, 1]
     size: int = 64  # side of the square each expressive mask's aligned crop is area-resized to before PCA, px [1, 512]
     blur: float = 0.11  # σ of the Gaussian blur of each crop before PCA, fraction of its side (0: none) [0, 10]
