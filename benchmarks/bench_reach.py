@@ -164,7 +164,9 @@ def main() -> int:
             f"\nroll auto on {args.count} rolled targets: roll error mean {r['roll_error_mean_deg']:.2f}°, worst "
             f"{r['roll_error_max_deg']:.2f}°, {r['roll_found_pct']:.0f} % within {ROLL_FOUND_DEG:g}°"
         )
-    summary = {"targets": args.count, "seed": args.seed, "hole_weight": args.hole_weight, "methods": rows}
+    holes = sum(still_expressive(t) is not None for t in targets)  # targets whose frame has holes (the term's)
+    summary = {"targets": args.count, "targets_with_holes": int(holes), "seed": args.seed,
+               "hole_weight": args.hole_weight, "methods": rows}  # fmt: skip
     if "paper" in rows and rows["paper"]["excess"] > 0:
         summary["excess_vs_paper"] = {n: round(r["excess"] / rows["paper"]["excess"], 3) for n, r in rows.items()}
     print(json.dumps(summary))

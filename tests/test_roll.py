@@ -156,23 +156,22 @@ def test_roll_auto_keeps_the_upright_rig_for_an_upright_target(small_index, hand
 
 
 @pytest.mark.slow
-def test_roll_auto_finds_the_roll_of_rolled_reachable_targets_with_holes():
-    """``benchmarks/bench_reach.py``'s rolled targets (seed 7) that have holes, on the shipped model and index: the
-    roll is chosen on the outline, so whether a held index pose leaks shadow into a hole (the holes' term, a step)
-    does not decide it. Scored with that term the roll was 3.2–11.5° off on four of these seven."""
+def test_roll_auto_finds_the_roll_of_rolled_reachable_targets():
+    """``benchmarks/bench_reach.py``'s 12 rolled targets (seed 7), on the shipped model and index: the roll is chosen
+    on the outline, so whether a held index pose leaks shadow into a hole (the holes' term, a step) does not decide
+    it. Scored with that term (and with the holes the 128² frame used to close out of thin gaps) four of them were
+    3.2–11.5° off."""
     from studio.evaluate.reachable import ReachableConfig, reachable_targets
     from studio.imitate.still import Imitator
-    from studio.targets.expressive import still_expressive
 
     rolls = np.radians(np.random.default_rng(7).uniform(-180.0, 180.0, 12))
-    errors = []
     with Imitator() as im:
         _, targets = reachable_targets(im.hand, im.refiner.world, im.resolution, ReachableConfig(count=12, seed=7),
                                        rolls=rolls)  # fmt: skip
-        for target, roll in zip(targets, rolls, strict=True):
-            if still_expressive(target) is not None:
-                errors.append(abs(wrap_deg(im.choose_roll(target[None]).deg - math.degrees(roll))))
-    assert len(errors) == 7 and max(errors) <= 3.0 and np.mean(errors) <= 2.0, errors
+        errors = [
+            abs(wrap_deg(im.choose_roll(t[None]).deg - math.degrees(r))) for t, r in zip(targets, rolls, strict=True)
+        ]
+    assert max(errors) <= 3.0 and sum(e <= 2.0 for e in errors) >= 11, errors
 
 
 def test_a_rolled_imitation_is_scored_as_the_rolled_mount_casts_it(small_index, hand):
