@@ -107,3 +107,15 @@ def test_held_out_targets_have_only_their_openings():
                  "asl/h/hand2_h_bot_seg_1_cropped.jpeg"):  # fmt: skip
         assert not find_holes(load_target(SHARED / name, size=128)).any(), name
     assert find_holes(load_target(SHARED / "asl/o/hand2_o_bot_seg_1_cropped.jpeg", size=128)).sum() > 500
+
+
+def test_the_targets_panel_previews_a_stored_mask_with_its_gaps():
+    """The Targets panel's "stored" preview frames a mask as the project stores it (its gap open), while its raw
+    threshold preview shows the plain half-coverage square (the gap closed)."""
+    from studio.targets.images import TargetConfig
+    from widgets.target_preview import frame_preview
+
+    grey = (_u_shape(6) * 255).astype(np.uint8)
+    shown = frame_preview(grey, (0, 0, 640, 640), 32, "bright", 127.0, "mask", VideoConfig(), TargetConfig())
+    assert find_holes(shown.mask).any() and shown.stored is not None and not find_holes(shown.stored).any()
+    assert int((shown.stored != shown.mask).sum()) <= 6

@@ -18,7 +18,7 @@ import numpy as np
 
 from studio.errors import TargetError
 from studio.targets.images import TargetConfig, detect_polarity, mask_from_grey, shadowness
-from studio.targets.video import VideoConfig, crop_square, frame_mask
+from studio.targets.video import VideoConfig, crop_square, frame_mask, square_mask
 
 
 @dataclass
@@ -40,7 +40,8 @@ def source_polarity(frames: np.ndarray, configured: str = "auto") -> str:
 
 def square(image: np.ndarray, box: tuple[int, int, int, int], side: int, mask: bool = False) -> np.ndarray:
     """``image (H, W)`` inside ``box (x, y, w, h)`` (outside: 0) at ``side²`` uint8: grey levels, or with ``mask``
-    a {0, 1} mask thresholded at half coverage (as the project frames its masks)."""
+    a {0, 1} mask thresholded at half coverage (the raw threshold's preview; :func:`square_mask` frames a mask as the
+    project stores it)."""
     out = crop_square(np.asarray(image, np.float32), box, side)
     return (out >= 0.5).astype(np.uint8) if mask else np.clip(out, 0, 255).astype(np.uint8)
 
@@ -79,7 +80,7 @@ def frame_preview(
                 full = mask_from_grey(grey, replace(still, polarity=polarity, threshold=level), "this frame")
             else:
                 full = frame_mask(grey, footage or "shadow", polarity, replace(video, threshold=level), "this frame")
-            kept = square(full, box, side, mask=True)
+            kept = square_mask(full, box, side)  # as the project frames it (its holes kept, no others)
         except TargetError as e:
             kept, note = None, f"nothing would be stored for this frame: {str(e).removesuffix(': this frame')}"
     return FramePreview(square(grey, box, side), float(shown), square(mask, box, side, mask=True), kept, note)

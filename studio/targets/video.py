@@ -187,6 +187,14 @@ def crop_square(image: np.ndarray, box: tuple[int, int, int, int], size: int) ->
     return cv2.resize(canvas, (size, size), interpolation=cv2.INTER_AREA)
 
 
+def square_mask(mask: np.ndarray, box: tuple[int, int, int, int], size: int) -> np.ndarray:
+    """Mask ``(H, W)`` inside ``box`` ``(x, y, w, h)`` at ``(size, size)`` uint8, as a video frame is stored: area
+    averaged and thresholded at half coverage, with the mask's holes and no others (a gap narrower than a frame pixel
+    stays open, :func:`~studio.targets.holes.threshold_keeping_gaps`)."""
+    cover = crop_square(np.asarray(mask, np.float32), box, size)
+    return threshold_keeping_gaps(cover, crop_square(find_holes(mask).astype(np.float32), box, size))
+
+
 def video_from_masks(
     footage: Footage,
     masks: np.ndarray,
@@ -212,8 +220,7 @@ def video_from_masks(
     box = square_box([shadow_box(masks[k]) for k in keep], cfg.margin)
     out_masks, out_frames, kept = [], [], []
     for step, k in enumerate(keep):
-        m = threshold_keeping_gaps(crop_square(masks[k].astype(np.float32), box, cfg.size),
-                                   crop_square(find_holes(masks[k]).astype(np.float32), box, cfg.size))  # fmt: skip
+        m = square_mask(masks[k], box, cfg.size)
         if not m.any():
             skipped.append((int(footage.frame_index[k]), f"the shadow vanishes at {cfg.size}×{cfg.size} pixels"))
         else:
