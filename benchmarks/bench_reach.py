@@ -10,7 +10,8 @@ known roll. Prints a Markdown table (mean IoU loss, its floor — the known pose
 floor, the share of targets within 0.02 of it, the share in collision, seconds per target), then the objective the
 studio optimises (Total) for its answers and for the known poses, with the share of targets where that objective
 prefers a wrong pose (a lower Total than the known pose's, an IoU loss more than 0.02 above it), and, last, a JSON
-line with the same and the ratios of each method's excess to the paper configuration's (below 1: closer to the floor).
+line with the same, how many targets have holes (``targets_with_holes``: the only ones the holes' term weighs) and the
+ratios of each method's excess to the paper configuration's (below 1: closer to the floor).
 
     python benchmarks/bench_reach.py [--count 12] [--seed 7] [--methods studio no-sweep paper roll-auto]
                                      [--hole-weight W]
