@@ -49,10 +49,11 @@ import cv2
 import numpy as np
 from PIL import Image
 
+from studio.targets.images import crop_square
 from studio.targets.segment import segment_video
 from studio.targets.segment_config import SegmentConfig
 from studio.targets.source import open_source
-from studio.targets.video import VideoConfig, crop_square
+from studio.targets.video import VideoConfig
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "targets"
 TUNED = ("blackswan", "camel", "cows", "dog")  # clips the defaults were chosen on

@@ -17,8 +17,8 @@ from studio.assets import asset
 from studio.jobs import JobState
 from studio.project.jobs import queue_for
 from studio.project.project import Project
-from studio.targets.images import TargetConfig
-from studio.targets.video import DEFAULT_VIDEO, VideoConfig, crop_square
+from studio.targets.images import TargetConfig, crop_square
+from studio.targets.video import DEFAULT_VIDEO, VideoConfig
 from widgets.images import ADD_RGB
 from widgets.keyframes import KeyframesPanel
 from widgets.masks import MasksPanel

@@ -21,7 +21,7 @@ import ipywidgets as w
 import numpy as np
 
 from studio.project.state import ProjectError
-from studio.targets.video import crop_square
+from studio.targets.images import crop_square
 from widgets.brush import BrushCanvas
 from widgets.images import ADD_RGB, MASK_RGB, stroke_mask, tint
 

@@ -17,8 +17,8 @@ import cv2
 import numpy as np
 
 from studio.errors import TargetError
-from studio.targets.images import TargetConfig, detect_polarity, mask_from_grey, shadowness
-from studio.targets.video import VideoConfig, crop_square, frame_mask, square_mask
+from studio.targets.images import TargetConfig, crop_square, detect_polarity, mask_from_grey, shadowness, square_mask
+from studio.targets.video import VideoConfig, frame_mask
 
 
 @dataclass

@@ -110,8 +110,8 @@ def load_sources(
 def framed_frames(sources: Sequence[Source], frames: Sequence[Frame], folder: Path, video: VideoConfig) -> list:
     """Every project frame's RGB source image framed like its target, ``(S, S, 3)`` uint8 (S = ``video.size``), for
     review; None for a still's frame and for a source that is missing or can no longer be read."""
+    from studio.targets.images import crop_square
     from studio.targets.source import raw_frames
-    from studio.targets.video import crop_square
 
     out: list = [None] * len(frames)
     for i, src in enumerate(sources):

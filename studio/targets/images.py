@@ -171,6 +171,35 @@ def shadow_box(mask: np.ndarray) -> tuple[int, int, int, int]:
     return int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
 
 
+def square_box(boxes: list[tuple[int, int, int, int]], margin: float) -> tuple[int, int, int, int]:
+    """The square frame ``(x, y, w, h)`` around the union of shadow boxes ``(row0, row1, col0, col1)``: grown by
+    ``margin`` × its longer side on each side and squared about its centre (as :func:`square_frame` frames a still)."""
+    r0, r1 = min(b[0] for b in boxes), max(b[1] for b in boxes)
+    c0, c1 = min(b[2] for b in boxes), max(b[3] for b in boxes)
+    longer = max(r1 - r0, c1 - c0)
+    side = max(1, longer + 2 * int(round(margin * longer)))
+    return (c0 + c1 - side) // 2, (r0 + r1 - side) // 2, side, side
+
+
+def crop_square(image: np.ndarray, box: tuple[int, int, int, int], size: int) -> np.ndarray:
+    """``image`` ``(H, W)`` or ``(H, W, C)`` inside ``box`` ``(x, y, w, h)`` (outside the image: zeros), resized
+    to ``(size, size[, C])`` by area averaging; float32."""
+    x, y, w, h = box
+    canvas = np.zeros((h, w) + image.shape[2:], np.float32)
+    sr0, sr1, sc0, sc1 = max(y, 0), min(y + h, image.shape[0]), max(x, 0), min(x + w, image.shape[1])
+    if sr1 > sr0 and sc1 > sc0:
+        canvas[sr0 - y : sr1 - y, sc0 - x : sc1 - x] = image[sr0:sr1, sc0:sc1]
+    return cv2.resize(canvas, (size, size), interpolation=cv2.INTER_AREA)
+
+
+def square_mask(mask: np.ndarray, box: tuple[int, int, int, int], size: int) -> np.ndarray:
+    """Mask ``(H, W)`` inside ``box`` ``(x, y, w, h)`` at ``(size, size)`` uint8, as a video frame is stored: area
+    averaged and thresholded at half coverage, with the mask's holes and no others (a gap narrower than a frame pixel
+    stays open, :func:`~studio.targets.holes.threshold_keeping_gaps`)."""
+    cover = crop_square(np.asarray(mask, np.float32), box, size)
+    return threshold_keeping_gaps(cover, crop_square(find_holes(mask).astype(np.float32), box, size))
+
+
 def square_frame(
     mask: np.ndarray, size: int, box: tuple[int, int, int, int] | None = None, margin: float = 0.0
 ) -> np.ndarray:
@@ -178,26 +207,12 @@ def square_frame(
 
     ``box`` ``(row0, row1, col0, col1)`` is the region to frame (None: the whole image); it is grown by ``margin``
     × its longer side on each side, padded with backdrop to a square about its centre (aspect ratio kept) and
-    resized by area averaging, then thresholded at half coverage, keeping the gaps the resize would close
-    (:func:`~studio.targets.holes.threshold_keeping_gaps`: the frame has the mask's holes and no others).
+    framed by :func:`square_mask` (area averaging, half coverage, the mask's holes and no others).
     """
     if size < 1:
         raise ValueError("size must be a positive number of pixels")
-    r0, r1, c0, c1 = box if box is not None else (0, mask.shape[0], 0, mask.shape[1])
-    longer = max(r1 - r0, c1 - c0)
-    side = max(1, longer + 2 * int(round(margin * longer)))  # same parity as the box: centred to the pixel
-    top = (r0 + r1 - side) // 2
-    left = (c0 + c1 - side) // 2
-    sr0, sr1 = max(top, 0), min(top + side, mask.shape[0])
-    sc0, sc1 = max(left, 0), min(left + side, mask.shape[1])
-
-    def area_resized(image: np.ndarray) -> np.ndarray:
-        canvas = np.zeros((side, side), np.float32)
-        if sr1 > sr0 and sc1 > sc0:
-            canvas[sr0 - top : sr1 - top, sc0 - left : sc1 - left] = image[sr0:sr1, sc0:sc1]
-        return cv2.resize(canvas, (size, size), interpolation=cv2.INTER_AREA)
-
-    return threshold_keeping_gaps(area_resized(mask), area_resized(find_holes(mask)))
+    box = box if box is not None else (0, mask.shape[0], 0, mask.shape[1])
+    return square_mask(mask, square_box([box], margin), size)
 
 
 def load_target(path: str | Path, size: int | None = None, cfg: TargetConfig | None = None) -> np.ndarray:

@@ -36,13 +36,15 @@ from studio.errors import TargetError
 from studio.progress import ProgressFn, report
 from studio.targets.cleanup import clean_shadow
 from studio.targets.footage import Footage, read_footage, sample_times
-from studio.targets.holes import find_holes, threshold_keeping_gaps
-from studio.targets.images import (
+from studio.targets.images import (  # the framing helpers live with the stills' square_frame
     TargetConfig,
+    crop_square,
     detect_polarity,
     mask_from_grey,
     shadow_box,
     shadowness,
+    square_box,
+    square_mask,
     threshold_level,
 )
 
@@ -164,35 +166,6 @@ def frame_mask(grey: np.ndarray, kind: str, polarity: str, cfg: VideoConfig, sou
     if kind == "mask":
         return (shadowness(grey, polarity) > 127).astype(np.uint8)
     return shadow_mask(grey, polarity, cfg, source)
-
-
-def square_box(boxes: list[tuple[int, int, int, int]], margin: float) -> tuple[int, int, int, int]:
-    """The square frame ``(x, y, w, h)`` around the union of shadow boxes ``(row0, row1, col0, col1)``: grown by
-    ``margin`` × its longer side on each side and squared about its centre (as ``square_frame`` frames a still)."""
-    r0, r1 = min(b[0] for b in boxes), max(b[1] for b in boxes)
-    c0, c1 = min(b[2] for b in boxes), max(b[3] for b in boxes)
-    longer = max(r1 - r0, c1 - c0)
-    side = max(1, longer + 2 * int(round(margin * longer)))
-    return (c0 + c1 - side) // 2, (r0 + r1 - side) // 2, side, side
-
-
-def crop_square(image: np.ndarray, box: tuple[int, int, int, int], size: int) -> np.ndarray:
-    """``image`` ``(H, W)`` or ``(H, W, C)`` inside ``box`` ``(x, y, w, h)`` (outside the image: zeros), resized
-    to ``(size, size[, C])`` by area averaging; float32."""
-    x, y, w, h = box
-    canvas = np.zeros((h, w) + image.shape[2:], np.float32)
-    sr0, sr1, sc0, sc1 = max(y, 0), min(y + h, image.shape[0]), max(x, 0), min(x + w, image.shape[1])
-    if sr1 > sr0 and sc1 > sc0:
-        canvas[sr0 - y : sr1 - y, sc0 - x : sc1 - x] = image[sr0:sr1, sc0:sc1]
-    return cv2.resize(canvas, (size, size), interpolation=cv2.INTER_AREA)
-
-
-def square_mask(mask: np.ndarray, box: tuple[int, int, int, int], size: int) -> np.ndarray:
-    """Mask ``(H, W)`` inside ``box`` ``(x, y, w, h)`` at ``(size, size)`` uint8, as a video frame is stored: area
-    averaged and thresholded at half coverage, with the mask's holes and no others (a gap narrower than a frame pixel
-    stays open, :func:`~studio.targets.holes.threshold_keeping_gaps`)."""
-    cover = crop_square(np.asarray(mask, np.float32), box, size)
-    return threshold_keeping_gaps(cover, crop_square(find_holes(mask).astype(np.float32), box, size))
 
 
 def video_from_masks(
