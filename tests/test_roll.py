@@ -153,6 +153,8 @@ def test_roll_auto_keeps_the_upright_rig_for_an_upright_target(small_index, hand
     target = ShadowRenderer(hand, Rig(resolution=R)).render_one(index.theta[11].astype(np.float64))
     choice = choose_roll(index, refiner, target[None], lambda t, e: ImageLoss(t, lc, None, e))
     assert abs(choice.deg) <= 2.0
+    degs = [d for d, _ in choice.candidates]  # each angle once, though the upright rig is a refined angle here
+    assert all(abs(wrap_deg(a - b)) >= 0.25 for i, a in enumerate(degs) for b in degs[:i]), degs
 
 
 @pytest.mark.slow

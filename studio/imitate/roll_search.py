@@ -69,7 +69,7 @@ class RollChoice:
     seconds: float  # wall time of the search
     coarse: dict[float, float] = field(default_factory=dict)  # degrees → mean index pixel loss (the first pass)
     candidates: list[tuple[float, float]] = field(default_factory=list)  # (degrees, loss): the roll chosen, then
-    # the other refined angles by their exact loss (benchmarks/bench_roll_choice.py imitates each)
+    # the other refined angles by their exact loss, each angle once (benchmarks/bench_roll_choice.py imitates each)
 
     @property
     def deg(self) -> float:
@@ -177,5 +177,8 @@ def choose_roll(
     others = tried[1:]
     if upright <= loss:  # the upright rig is as good: keep the paper's rig
         best_deg, loss, others = 0.0, upright, tried
-    candidates = [(float(best_deg), loss)] + [(float(wrap_deg(d)), v) for d, v, _ in others]
+    candidates = [(float(best_deg), loss)]
+    for d, v, _ in others:  # each angle once: the upright rig kept may be a refined angle too
+        if all(abs(wrap_deg(d - c)) >= cfg.fine_deg for c, _ in candidates):
+            candidates.append((float(wrap_deg(d)), v))
     return RollChoice(math.radians(best_deg), loss, upright, time.perf_counter() - t0, coarse, candidates)
