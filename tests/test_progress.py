@@ -116,8 +116,9 @@ def test_every_long_engine_call_reports_typed_progress(tmp_path, hand):
     """search, refine, sweep, the index, seeding, a still, a sequence, collect, train, Table 1, Table 2, plan and
     playback, each with a strict ProgressFn."""
     from studio.evaluate.baselines import TrainingSet
+    from studio.evaluate.sequences import PreparedSequence
     from studio.evaluate.table1 import Evaluator
-    from studio.evaluate.table2 import ROWS, PreparedSequence, VideoEvaluator
+    from studio.evaluate.table2 import ROWS, VideoEvaluator
     from studio.imitate.candidates import refine_best
     from studio.imitate.config import ImitateConfig, LossConfig, RefineConfig, SearchConfig, SequenceConfig, SweepConfig
     from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex

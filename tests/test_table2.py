@@ -16,6 +16,7 @@ import torch
 from studio.cli.main import build_parser, main
 from studio.cli.run_flags import sequence_from_args
 from studio.errors import TargetError
+from studio.evaluate.sequences import gather_sequences, sequence_from_masks
 from studio.evaluate.table1 import LOSS_COLUMNS
 from studio.evaluate.table2 import (
     EXTRA_COLUMNS,
@@ -23,8 +24,6 @@ from studio.evaluate.table2 import (
     ROWS,
     STUDIO_ROW,
     VideoEvaluator,
-    gather_sequences,
-    sequence_from_masks,
     summarise,
     to_markdown,
     write_table,

@@ -123,7 +123,8 @@ def _run_video_evaluation(args: argparse.Namespace) -> int:
     import torch
 
     from studio.cli.clip_flags import clip_from_args
-    from studio.evaluate.table2 import VideoEvaluator, gather_sequences, json_rows, prepare_sequence, write_table
+    from studio.evaluate.sequences import gather_sequences, prepare_sequence
+    from studio.evaluate.table2 import VideoEvaluator, json_rows, write_table
     from studio.imitate.config import LossConfig
     from studio.imitate.sequence import SequenceImitator
     from studio.imitate.still import DEFAULT_MODEL

@@ -13,7 +13,8 @@ import threading
 from dataclasses import dataclass, field
 from typing import Any
 
-from studio.evaluate.table2 import ROWS, PreparedSequence, Row, Table2Result, VideoEvaluator, summarise
+from studio.evaluate.sequences import PreparedSequence
+from studio.evaluate.table2 import ROWS, Row, Table2Result, VideoEvaluator, summarise
 from studio.evaluate.worker_models import ModelRecipe
 from studio.fanout import FanoutConfig, fan_out
 from studio.imitate.config import SequenceConfig

@@ -265,6 +265,16 @@ def first_per_class(files: Sequence[Path], n: int) -> list[Path]:
     return out
 
 
+def existing_paths(paths: Sequence[str | Path], what: str) -> list[Path]:
+    """``paths`` as :class:`Path` objects, each an existing file or folder; :class:`TargetError` "<what> not found:
+    <path>" for the first that is neither (what gathers sources from arguments checks them first)."""
+    out = [Path(p) for p in paths]
+    for p in out:
+        if not p.is_file() and not p.is_dir():
+            raise TargetError(f"{what} not found: {p}")
+    return out
+
+
 def gather_targets(
     paths: Sequence[str | Path], per_folder: int | None = None, per_class: int | None = None
 ) -> list[Path]:
@@ -276,12 +286,10 @@ def gather_targets(
     if per_class is not None and per_class < 1:
         raise ValueError(f"per_class (images per class) must be at least 1, not {per_class}")
     out: list[Path] = []
-    for p in map(Path, paths):
+    for p in existing_paths(paths, "target file or folder"):
         if p.is_file():
             out.append(p)
             continue
-        if not p.is_dir():
-            raise TargetError(f"target file or folder not found: {p}")
         folders = [p, *sorted(d for d in p.iterdir() if d.is_dir())]
         found = [f for d in folders for f in find_target_files(d)[:per_folder]]
         if per_class is not None:
