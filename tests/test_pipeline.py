@@ -27,7 +27,7 @@ SEQUENCE = CPU_SEQUENCE.__class__(
     next=SearchConfig(batch=4, iterations=8, lr=CPU_SEQUENCE.next.lr),
     refine=RefineConfig(**{**CPU_SEQUENCE.refine.__dict__, "steps": 15, "restarts": 2}),
     candidates=1, retrieve=CPU_SEQUENCE.retrieve,
-    sweep=SweepConfig(**{**CPU_SEQUENCE.sweep.__dict__, "draws": 64, "passes": 1}),
+    sweep=SweepConfig(**{**CPU_SEQUENCE.sweep.__dict__, "draws": 64, "passes": 1}), joint=CPU_SEQUENCE.joint,
 )  # the notebook's settings, the same budget as TINY  # fmt: skip
 
 

@@ -5,7 +5,8 @@
   flags that override single fields of it, only when given: ``--search-batch/--search-iterations`` (a keyframe
   searched from scratch: a still, a video's first keyframe, every keyframe when independent),
   ``--next-batch/--next-iterations`` (a keyframe that continues from the one before it; video verbs),
-  ``--refine-method/-steps/-restarts/-popsize/-sigma0``, ``--sweep-starts/-draws/-passes``, ``--candidates``,
+  ``--refine-method/-steps/-restarts/-popsize/-sigma0``, ``--sweep-starts/-draws/-passes``, the video verbs'
+  ``--joint-generations/-window/-popsize/-sigma0``, ``--candidates``,
   ``--retrieve/--no-retrieve``, ``--no-refine``, the video verbs' ``--mode``, ``--expressive``, ``--temporal``, and
   ``--seed`` (every search and refinement). ``--help`` shows the studio preset's values as the defaults.
 - :func:`add_show_flags`: ``--allow-late``, the servo limits (``--velocity-scale``, ``--acceleration``,
@@ -28,6 +29,7 @@ from studio.imitate.config import (
     MODES,
     PRESETS,
     STUDIO,
+    JointConfig,
     RefineConfig,
     SearchConfig,
     SequenceConfig,
@@ -41,6 +43,7 @@ BUDGETS = (  # (flag prefix, the SequenceConfig field, its config class, the fie
     ("next-", "next", SearchConfig, ("batch", "iterations"), True),
     ("refine-", "refine", RefineConfig, ("method", "steps", "restarts", "popsize", "sigma0"), False),
     ("sweep-", "sweep", SweepConfig, ("starts", "draws", "passes"), False),
+    ("joint-", "joint", JointConfig, ("generations", "window", "popsize", "sigma0"), True),
 )
 VIDEO_FIELDS = ("mode", "expressive", "temporal", "keep_clock", "clock_margin")  # fields only a video uses
 LIMITS = ("velocity_scale", "acceleration", "jerk")

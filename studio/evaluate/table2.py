@@ -35,7 +35,7 @@ from studio.imitate.config import MODES, SequenceConfig
 from studio.imitate.sequence import SequenceImitator
 from studio.imitate.transitions import TransitionConfig
 from studio.motion.limits import JointLimits, LimitsConfig
-from studio.motion.reach import clock_boxes
+from studio.motion.reach import clock_boxes, reach_pairs
 from studio.motion.video_timing import transition_times, video_keyframes
 from studio.progress import ProgressFn, report, staged, stopped
 from studio.sim.roll import roll_deg
@@ -139,12 +139,14 @@ class VideoEvaluator:
             if choice is None:
                 return None
             roll = choice.roll
-        box_for = None
-        if row.clock:
+        box_for = pairs = None
+        if row.clock:  # within the servos' reach at the video's clock, one after another and then together
             limits = JointLimits.from_hand(self.seq.imitator.hand, self.limits)
-            box_for = clock_boxes(transition_times(self._timing(s)), limits, self.cfg.clock_margin)
+            times = transition_times(self._timing(s))
+            box_for = clock_boxes(times, limits, self.cfg.clock_margin)
+            pairs = reach_pairs(times, limits, self.cfg.clock_margin)
         result = self.seq.imitate(
-            masks, expressive, steps, cancel, cfg=row.config(self.cfg), box_for=box_for, roll=roll
+            masks, expressive, steps, cancel, cfg=row.config(self.cfg), box_for=box_for, roll=roll, pairs=pairs
         )
         if result.cancelled:
             return None
@@ -269,9 +271,12 @@ class VideoEvaluator:
                 "keyframe targets, every pose scored as that mount casts it; every keyframe kept within the "
                 f"servos' rest-to-rest reach of every posed keyframe in {cfg.clock_margin:g} × the time each "
                 "transition on the way between them has (studio.motion.reach.reach_distances), in retrieval, "
-                "sweep, search and refinement. The six rows "
-                "above are the paper's: upright rig, poses chosen without the clock."
-            )
+                "sweep, search and refinement"
+                + (f"; then the keyframes refined together within that reach ({cfg.joint.generations} CMA-ES "
+                   f"generations of {cfg.joint.popsize} per window of {cfg.joint.window}, "
+                   "studio.imitate.joint_refine)" if cfg.joint.generations else "")
+                + ". The six rows above are the paper's: upright rig, poses chosen without the clock."
+            )  # fmt: skip
         if not lc.use_clip:
             notes.append(
                 "CLIP off (no local CLIP weights, or turned off): CLIP and Exp. CLIP not computed (n/a); "

@@ -29,18 +29,18 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from studio.errors import ClosedError
 from studio.imitate.candidates import refine_best, rendered_pool
-from studio.imitate.config import COMPONENTS, CPU_SEQUENCE, LossConfig, SequenceConfig
+from studio.imitate.config import CPU_SEQUENCE, LossConfig, SequenceConfig
 from studio.imitate.live_best import LiveBest
-from studio.imitate.losses import ImageLoss
 from studio.imitate.search import gradient_search
 from studio.imitate.still import Imitator
+from studio.imitate.together import eval_loss, refine_together, score_keyframe
 from studio.imitate.transitions import TransitionConfig, TransitionReport, transition_success
 from studio.learn.selfmodel import SelfModel
 from studio.progress import ProgressFn, staged, stopped
@@ -103,10 +103,6 @@ class SequenceResult:
         return transition_success(self.thetas, self.totals(cfg.total), cfg)[1]
 
 
-def _components(comps: dict[str, np.ndarray]) -> dict[str, float]:
-    return {k: float(comps[k][0]) for k in COMPONENTS}
-
-
 class SequenceImitator:
     """Reusable machinery for sequences: an :class:`~studio.imitate.still.Imitator` (self-model, renderer,
     collision world, CLIP) shared by every keyframe. One made here is closed by ``close()`` (or a ``with`` block);
@@ -149,6 +145,7 @@ class SequenceImitator:
         previous: np.ndarray | None = None,
         box_for: BoxFn | None = None,
         roll: float = 0.0,
+        pairs: Mapping[tuple[int, int], np.ndarray] | None = None,
     ) -> SequenceResult:
         """Keyframe targets ``masks (K, S, S)`` uint8 (1 = shadow) in first-appearance order (all N frames work too:
         each is then its own keyframe), their expressive masks ``(K, S, S)`` or None → :class:`SequenceResult`.
@@ -167,7 +164,11 @@ class SequenceImitator:
         given the poses ``done`` so far (e.g. its reach on the show's clock from the keyframes posed,
         :func:`~studio.motion.reach.clock_boxes`): retrieval, sweep, search and refinement all stay inside it.
         ``roll`` rad: the mount's roll; the masks are as the audience sees them, and every shadow and loss is the
-        rolled mount's (:class:`~studio.imitate.framing.Framed`).
+        rolled mount's (:class:`~studio.imitate.framing.Framed`). ``pairs``: ``(i, j) → (21,)`` rad, the most
+        keyframes ``i`` and ``j`` may differ per joint on the show's clock
+        (:func:`~studio.motion.reach.reach_pairs`); given, with ``cfg.keep_clock`` and ``cfg.joint.generations``,
+        the keyframes are then refined together within them and ``box_for(k, [])`` (stage "together",
+        :mod:`studio.imitate.together`; a cancel there keeps every keyframe, at the best poses found before it).
         """
         if self.refiner.closed:
             raise ClosedError("this SequenceImitator was closed; make a new one (or imitate inside its `with` block)")
@@ -211,7 +212,22 @@ class SequenceImitator:
                 r.seconds,
             )
         cancelled = len(done) < n
+        if not cancelled and pairs is not None and cfg.keep_clock and cfg.joint.generations and n > 1:
+            done = self._together(done, masks, expressive, cfg, pairs, box_for, previous, roll, progress, cancel)
         return SequenceResult(done, cfg, n, time.perf_counter() - t0, cancelled)
+
+    def _together(self, done, masks, expressive, cfg, pairs, box_for, previous, roll, progress, cancel) -> list:
+        """The finished keyframes refined together (:func:`~studio.imitate.together.refine_together`)."""
+        box_of = None if box_for is None else (lambda k: box_for(k, []))
+        scored, got = refine_together(self.imitator, masks, expressive, np.stack([d.theta for d in done]), cfg,
+                                      pairs, box_of, previous, roll, progress, cancel)  # fmt: skip
+        log.info("keyframes together: %.4f → %.4f in %.1f s", got.start_loss, got.loss, got.seconds)
+        share = got.seconds / len(done)  # the together step's time, shared out
+        return [
+            replace(d, theta=g.theta, shadow=g.shadow, loss=g.loss, evaluation=g.evaluation,
+                    collision_free=g.collision_free, seconds=d.seconds + share, timings=d.timings | {"together": share})
+            for d, g in zip(done, scored, strict=True)
+        ]  # fmt: skip
 
     def _keyframe(
         self, cfg, k, n, target, expressive, prev, progress, cancel, best_pose=None, roll=0.0
@@ -253,24 +269,10 @@ class SequenceImitator:
             if best is not None and best.collision_free:
                 theta = best.theta
         t2 = time.perf_counter()
-        _, comps = refiner.score(loss_fn, theta[None], prev_t)
-        eval_fn = (
-            loss_fn
-            if (expressive is None or cfg.expressive)
-            else ImageLoss(target, self.loss_cfg, self.imitator.clip, expressive)
-        )
-        _, evaluation = refiner.score(eval_fn, theta[None], prev)
-        return KeyframeResult(
-            index=k,
-            theta=np.asarray(theta, dtype=np.float64),
-            shadow=refiner.renderer.render_one(theta),
-            loss=_components(comps),
-            evaluation=_components(evaluation),
-            collision_free=not bool(refiner.world.in_collision(theta)[0]),
-            search_loss=search.loss,
-            seconds=t2 - t0,
-            timings={"seed": seed_s, "search": t1 - t_search, "refine": t2 - t1},
-        )
+        got = score_keyframe(refiner, loss_fn, eval_loss(self.imitator, loss_fn, target, expressive, cfg), theta,
+                             prev_t, prev)  # fmt: skip
+        return KeyframeResult(k, got.theta, got.shadow, got.loss, got.evaluation, got.collision_free, search.loss,
+                              t2 - t0, {"seed": seed_s, "search": t1 - t_search, "refine": t2 - t1})  # fmt: skip
 
 
 def imitate_sequence(

@@ -1,4 +1,5 @@
-"""Jobs that run the engine: imitate one keyframe, imitate a whole video, plan a show (play: :mod:`.play`).
+"""Jobs that run the engine: imitate one keyframe, imitate a whole video, refine a show's keyframes together, choose
+the mount roll, plan a show (play: :mod:`.play`).
 
 Each factory returns a :class:`~studio.jobs.queue.Job` whose ``run`` is a ``functools.partial`` of a
 module-level function (so it runs in a thread or a spawned process alike) and whose ``apply`` is the caller's
@@ -168,6 +169,49 @@ def imitate_keyframes(
         cfg = replace(cfg, expressive=False)  # no masks given: the base loss alone
     return seq.imitate(masks, expressive, progress, cancel, cfg=cfg, best_pose=best_pose, previous=previous,
                        box_for=box_for, roll=roll)  # fmt: skip
+
+
+def refine_together_job(
+    masks: np.ndarray,
+    expressive: np.ndarray | None,
+    theta: np.ndarray,
+    *,
+    pairs: dict,
+    boxes: list,
+    cfg: SequenceConfig,
+    loss_cfg: LossConfig | None = None,
+    clip: Any = None,
+    model_path: Path | None = None,
+    previous: np.ndarray | None = None,
+    device: str | None = None,
+    roll: float = 0.0,
+    apply: Apply = None,
+    title: str = "keyframes together",
+) -> Job:
+    """Keyframes already posed at ``theta (K, 21)`` rad (show order; targets ``masks (K, S, S)``, ``expressive``
+    alike or None) refined together within their reach on the show's clock → ``(scores, JointResult)``
+    (:func:`studio.imitate.together.refine_together`: ``pairs`` ``(i, j) → (21,)`` rad by index, ``boxes[k]``
+    ``(lower, upper)`` or None from the poses outside them, ``previous (21,)`` the pose before the first); stage
+    "together"; a cancel keeps the best poses found before it (the job still ends cancelled, nothing applied)."""
+    run = functools.partial(
+        _together, masks=np.asarray(masks), expressive=None if expressive is None else np.asarray(expressive),
+        theta=np.asarray(theta, dtype=np.float64), pairs=pairs, boxes=list(boxes), cfg=cfg, loss_cfg=loss_cfg,
+        clip=clip, model_path=model_path, previous=None if previous is None else np.asarray(previous, np.float64),
+        device=device, roll=roll,
+    )  # fmt: skip
+    return Job("imitate-together", run, apply, title)
+
+
+def _together(report: Reporter, cancel, *, masks, expressive, theta, pairs, boxes, cfg, loss_cfg, clip, model_path,
+              previous, device, roll):  # fmt: skip
+    from studio.imitate.still import Imitator
+    from studio.imitate.together import refine_together
+
+    with Imitator(None, model_path, loss_cfg, clip, device=device) as im:
+        got = refine_together(im, masks, expressive, theta, cfg, pairs, lambda k: boxes[k], previous, roll,
+                              report.engine_progress(), cancel)  # fmt: skip
+        report.check()
+        return got
 
 
 def choose_roll_job(

@@ -105,6 +105,16 @@ class Job:
         self._done.wait(timeout)
         return self.state
 
+    def follow(self, cancel: threading.Event | None) -> JobState:
+        """Wait until the job finished, cancelling it once ``cancel`` is set (looked at every 0.1 s; then up to 2 s
+        for it to stop); returns its state."""
+        while not self.finished:
+            if cancel is not None and cancel.is_set():
+                self.cancel()
+                return self.wait(2.0)
+            self.wait(0.1)
+        return self.state
+
     def info(self) -> dict:
         """One row of a listing (plain data)."""
         return {

@@ -104,6 +104,15 @@ def reach_distances(
     return {a: {b: dist[at[a], at[b]] for b in ids if b != a and np.isfinite(dist[at[a], at[b]]).all()} for a in ids}
 
 
+def reach_pairs(
+    times: Mapping[tuple[int, int], float], limits: JointLimits, margin: float = 0.9
+) -> dict[tuple[int, int], np.ndarray]:
+    """``(a, b) → (J,)`` rad with ``a < b``: :func:`reach_distances` once per pair of keyframes joined on the clock,
+    what refining them together keeps (:mod:`studio.imitate.joint_refine`)."""
+    far = reach_distances(times, limits, margin)
+    return {(a, b): d for a, near in far.items() for b, d in near.items() if a < b}
+
+
 def clock_boxes(
     times: Mapping[tuple[int, int], float], limits: JointLimits, margin: float = 0.9
 ) -> Callable[[int, list], tuple[np.ndarray, np.ndarray] | None]:

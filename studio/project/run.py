@@ -40,6 +40,7 @@ from studio.progress import ProgressFn
 from studio.project.jobs import queue_for, roll_job, video_job
 from studio.project.run_report import RunReport, TooFast, counted, late_transitions, plural
 from studio.project.run_spread import keyframe_config, run_spread, source_keyframes
+from studio.project.run_together import refine_stretches
 from studio.project.show_timing import ShowLayout, keyframe_box, seams_out_of_reach
 from studio.project.state import ProjectError
 from studio.project.status import ProjectHandle, check_sources
@@ -73,15 +74,6 @@ def _previous(project: ProjectHandle, k: int) -> tuple[int, int | None]:
     same = [kf.id for kf in s.keyframes if s.frames[kf.representative].source == src]
     pos = same.index(k)
     return pos, (same[pos - 1] if pos else None)
-
-
-def _wait(job: Job, cancel: threading.Event | None) -> JobState:
-    while not job.finished:
-        if cancel is not None and cancel.is_set():
-            job.cancel()
-            return job.wait(2.0)
-        job.wait(0.1)
-    return job.state
 
 
 def _plan_or_late(report: Reporter, cancel, *, keyframes, cfg, show_title):
@@ -165,7 +157,7 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
         job = queue.submit(roll_job(project, model_path=model_path))
         if on_job is not None:
             on_job(job, f"the mount roll for {counted(len(ids), 'keyframe')}")
-        state = _wait(job, cancel)
+        state = job.follow(cancel)
         if state != JobState.DONE or not project.mount.chosen:
             report.cancelled, report.error = state == JobState.CANCELLED, job.error
             report.message = "choosing the mount roll " + ("cancelled" if report.cancelled else f"failed: {job.error}")
@@ -192,6 +184,9 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
         report.optimised = list(dict.fromkeys(report.optimised))
         if not done:
             return report.finish(project, cfg.transitions, t0)
+    if seq.keep_clock and seq.joint.generations and not refine_stretches(project, cfg, clip, queue, cancel,
+                                                                           model_path, on_job, report):  # fmt: skip
+        return report.finish(project, cfg.transitions, t0)
     if not plan:
         report.message = f"optimised {counted(len(report.optimised), 'keyframe')}"
         return report.finish(project, cfg.transitions, t0)
@@ -218,7 +213,7 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
     job = queue.submit(plan_project_job(project, timing.keyframes, plan_cfg))
     if on_job is not None:
         on_job(job, f"the show ({len(timing.keyframes.times)} planner keyframes, {timing.end_s:.2f} s)")
-    state = _wait(job, cancel)
+    state = job.follow(cancel)
     if state != JobState.DONE:
         report.cancelled, report.error = state == JobState.CANCELLED, job.error
         report.message = "planning the show " + ("cancelled" if report.cancelled else f"failed: {job.error}")
@@ -260,7 +255,7 @@ def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, se
         queue.submit(job)
         if on_job is not None:
             on_job(job, f"keyframe {k} ({n + 1} of {len(pending)}){why}")
-        state = _wait(job, cancel)
+        state = job.follow(cancel)
         if state == JobState.DONE:
             report.optimised.append(k)
             continue

@@ -1,0 +1,101 @@
+"""How a keyframe's pose is scored, and a show's keyframes refined together on the show's clock (engine side).
+
+:func:`score_keyframe` is the one way a keyframe's final pose becomes its shadow and loss components: what its row
+optimised (``loss``) and the common measure (``evaluation``; :mod:`studio.imitate.sequence`). :func:`refine_together`
+refines the poses of keyframes already optimised one after another (:mod:`studio.imitate.joint_refine`), as the
+mount (rolled or not) casts them, and scores each again. Both faces reach it: a sequence within one call
+(:meth:`SequenceImitator.imitate <studio.imitate.sequence.SequenceImitator.imitate>` given the clock's ``pairs``)
+and a project's keyframes after its run (:func:`studio.jobs.engine.refine_together_job`).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from studio.imitate.config import COMPONENTS, SequenceConfig
+from studio.imitate.joint_refine import JointResult, refine_jointly
+from studio.imitate.losses import ImageLoss
+from studio.imitate.refine import Refiner
+from studio.imitate.still import Imitator
+from studio.progress import ProgressFn
+
+Box = tuple[np.ndarray, np.ndarray]  # (lower (21,), upper (21,)) rad
+
+
+@dataclass
+class KeyframeScore:
+    """A keyframe's pose as its shadow and losses (plain data)."""
+
+    theta: np.ndarray  # (21,) rad
+    shadow: np.ndarray  # (R, R) uint8 rendered shadow, as the mount casts it, 1 = shadow
+    loss: dict[str, float]  # components of what its row optimises (NaN = not computed)
+    evaluation: dict[str, float]  # components under the common measure
+    collision_free: bool  # the pose does not penetrate itself
+
+
+def score_keyframe(
+    refiner: Refiner, loss_fn: ImageLoss, eval_fn: ImageLoss, theta: np.ndarray, prev_t: np.ndarray | None,
+    prev: np.ndarray | None,
+) -> KeyframeScore:  # fmt: skip
+    """``theta (21,)`` rad rendered by ``refiner`` (the mount as it is rolled) and scored: ``loss_fn`` with the
+    temporal term against ``prev_t`` (the row's θ*_{k−1}, None: without it), ``eval_fn`` against ``prev`` (the
+    common measure's: the previous keyframe's pose whatever the row)."""
+    theta = np.asarray(theta, dtype=np.float64)
+    _, comps = refiner.score(loss_fn, theta[None], prev_t)
+    _, evaluation = refiner.score(eval_fn, theta[None], prev)
+    return KeyframeScore(
+        theta, refiner.renderer.render_one(theta), {k: float(comps[k][0]) for k in COMPONENTS},
+        {k: float(evaluation[k][0]) for k in COMPONENTS}, not bool(refiner.world.in_collision(theta)[0]),
+    )  # fmt: skip
+
+
+def eval_loss(imitator: Imitator, loss_fn: ImageLoss, target: np.ndarray, expressive: np.ndarray | None,
+              cfg: SequenceConfig) -> ImageLoss:  # fmt: skip
+    """The common measure's loss of a keyframe: its row's own when that row optimises the expressive term (or there
+    is no expressive mask), else the target's with the expressive term."""
+    if expressive is None or cfg.expressive:
+        return loss_fn
+    return ImageLoss(target, imitator.loss_cfg, imitator.clip, expressive)
+
+
+def refine_together(
+    imitator: Imitator,
+    masks: np.ndarray,
+    expressive: np.ndarray | None,
+    theta: np.ndarray,
+    cfg: SequenceConfig,
+    pairs: Mapping[tuple[int, int], np.ndarray],
+    box_of: Callable[[int], Box | None] | None = None,
+    previous: np.ndarray | None = None,
+    roll: float = 0.0,
+    progress: ProgressFn | None = None,
+    cancel: threading.Event | None = None,
+) -> tuple[list[KeyframeScore], JointResult]:
+    """Keyframe targets ``masks (K, S, S)`` (as the audience sees them; ``expressive`` alike or None) posed at
+    ``theta (K, 21)`` rad in show order, refined together by ``cfg.joint`` within ``pairs`` (``(i, j) → (21,)`` rad:
+    the most keyframes ``i`` and ``j`` may differ per joint on the clock) and ``box_of(k)`` (a keyframe's box from
+    poses outside these, None: the joint limits) → each keyframe scored again (:func:`score_keyframe`) and what the
+    refinement gave. ``previous (21,)``: the pose before keyframe 0. Stage "together"; ``cancel`` keeps the best
+    poses found before it."""
+    hand = imitator.hand
+    exp = [None if expressive is None else expressive[k] for k in range(len(masks))]
+    framed = [imitator.framed(masks[k], exp[k] if cfg.expressive else None, roll) for k in range(len(masks))]
+    refiner = framed[0].refiner  # every keyframe's: one mount
+    boxes = []
+    for k in range(len(masks)):
+        box = None if box_of is None else box_of(k)
+        boxes.append((hand.lower, hand.upper) if box is None else box)
+    scorers = [lambda poses, f=f: refiner.score(f.exact, poses)[0] for f in framed]
+    w_temporal = imitator.loss_cfg.w_temporal if cfg.temporal else 0.0
+    got = refine_jointly(scorers, theta, pairs, boxes, refiner.world.in_collision, cfg.joint, previous, w_temporal,
+                         progress, cancel)  # fmt: skip
+    out = []
+    for k, f in enumerate(framed):
+        prev = got.theta[k - 1] if k else previous
+        out.append(score_keyframe(refiner, f.exact, eval_loss(imitator, f.exact, masks[k], exp[k], cfg), got.theta[k],
+                                  prev if cfg.temporal else None, prev))  # fmt: skip
+    return out, got

@@ -1,0 +1,115 @@
+"""Keyframes refined together (studio.imitate.joint_refine): windows that cover the show, every result within the
+pairs' distances and the boxes, never worse than the start, never in collision, and better than one keyframe after
+another where the first one's own optimum holds the next back; cancel keeps the start."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from studio.imitate.config import JointConfig
+from studio.imitate.joint_refine import TOL, objective, refine_jointly, windows
+
+J = 21
+LO, HI = np.full(J, -1.5), np.full(J, 1.5)
+
+
+def quadratic(goal: np.ndarray):
+    """A keyframe whose loss is its squared distance to ``goal (21,)``."""
+    return lambda poses: ((np.asarray(poses) - goal) ** 2).sum(axis=-1)
+
+
+def no_collision(poses: np.ndarray) -> np.ndarray:
+    return np.zeros(len(poses), dtype=bool)
+
+
+def greedy(goals: list[np.ndarray], d: float) -> np.ndarray:
+    """One keyframe after another: each at its own goal, or as near as the one before it lets it be."""
+    out = [goals[0]]
+    for g in goals[1:]:
+        out.append(np.clip(g, out[-1] - d, out[-1] + d))
+    return np.stack(out)
+
+
+def worst_excess(theta: np.ndarray, pairs: dict) -> float:
+    return max(float((np.abs(theta[a] - theta[b]) - d).max()) for (a, b), d in pairs.items())
+
+
+@pytest.mark.parametrize(
+    ("k", "width", "expected"),
+    [(2, 3, [[0, 1]]), (3, 3, [[0, 1, 2]]), (4, 3, [[0, 1, 2], [1, 2, 3]]), (5, 3, [[0, 1, 2], [2, 3, 4]]),
+     (6, 2, [[0, 1], [1, 2], [2, 3], [3, 4], [4, 5]])],
+)  # fmt: skip
+def test_windows_cover_the_show_each_overlapping_the_last(k, width, expected):
+    got = windows(k, width)
+    assert got == expected
+    assert sorted({i for w in got for i in w}) == list(range(k))
+
+
+def test_together_beats_one_after_another_within_the_reach():
+    rng = np.random.default_rng(0)
+    goals = [rng.uniform(-0.6, 0.6, J) for _ in range(3)]
+    d = 0.1
+    pairs = {(0, 1): np.full(J, d), (1, 2): np.full(J, d), (0, 2): np.full(J, 2 * d)}
+    start = greedy(goals, d)
+    cfg = JointConfig(generations=150, popsize=24, sigma0=0.1)
+    got = refine_jointly([quadratic(g) for g in goals], start, pairs, [(LO, HI)] * 3, no_collision, cfg)
+    assert got.start_loss == pytest.approx(sum(((s - g) ** 2).sum() for s, g in zip(start, goals, strict=True)))
+    assert got.loss < 0.8 * got.start_loss  # the first keyframe gives a little for the others to reach theirs
+    assert worst_excess(got.theta, pairs) <= TOL
+    assert (got.theta >= LO).all() and (got.theta <= HI).all() and not got.cancelled
+
+
+def test_held_boxes_and_collisions_are_never_left():
+    rng = np.random.default_rng(1)
+    goals = [rng.uniform(-0.6, 0.6, J) for _ in range(2)]
+    d = 0.1
+    pairs = {(0, 1): np.full(J, d)}
+    start = greedy(goals, d)
+    box0 = (start[0] - 0.05, start[0] + 0.05)  # keyframe 0 held near its start by a pose outside the show
+
+    def collides(poses):  # a forbidden half-space on joint 3 that the goal of keyframe 1 lies in
+        return np.asarray(poses)[:, 3] > start[1, 3] + 0.02
+
+    got = refine_jointly([quadratic(g) for g in goals], start, pairs, [box0, (LO, HI)], collides,
+                         JointConfig(generations=120, popsize=16))  # fmt: skip
+    assert got.loss <= got.start_loss
+    assert (got.theta[0] >= box0[0] - 1e-12).all() and (got.theta[0] <= box0[1] + 1e-12).all()
+    assert not collides(got.theta[1:2])[0]
+    assert worst_excess(got.theta, pairs) <= TOL
+
+
+def test_a_start_at_the_optimum_is_kept_and_the_temporal_term_counts():
+    goal = np.linspace(-0.3, 0.3, J)
+    start = np.stack([goal, goal])
+    pairs = {(0, 1): np.full(J, 0.1)}
+    got = refine_jointly([quadratic(goal)] * 2, start, pairs, [(LO, HI)] * 2, no_collision,
+                         JointConfig(generations=30, popsize=8), previous=goal + 0.2, w_temporal=0.2)  # fmt: skip
+    assert got.loss <= got.start_loss
+    want = objective(start[None], np.zeros((1, 2)), goal + 0.2, 0.2)[0]  # only the term against `previous`
+    assert got.start_loss == pytest.approx(want)
+
+
+def test_cancel_keeps_the_start():
+    goals = [np.zeros(J), np.full(J, 0.5)]
+    start = greedy(goals, 0.1)
+    cancel = threading.Event()
+    cancel.set()
+    got = refine_jointly([quadratic(g) for g in goals], start, {(0, 1): np.full(J, 0.1)}, [(LO, HI)] * 2,
+                         no_collision, JointConfig(generations=50), cancel=cancel)  # fmt: skip
+    assert got.cancelled and np.array_equal(got.theta, start) and got.loss == got.start_loss
+
+
+def test_progress_counts_every_generation_of_every_window():
+    goals = [np.full(J, x) for x in (0.0, 0.3, 0.6, 0.9)]
+    pairs = {(i, i + 1): np.full(J, 0.1) for i in range(3)}
+    seen = []
+    refine_jointly([quadratic(g) for g in goals], greedy(goals, 0.1), pairs, [(LO, HI)] * 4, no_collision,
+                   JointConfig(generations=5, popsize=4, window=3), progress=seen.append)  # fmt: skip
+    assert [p.step for p in seen] == list(range(1, 11)) and {p.total for p in seen} == {10}
+    assert all(p.stage == "together" for p in seen)
+    assert [p.best for p in seen] == sorted((p.best for p in seen[:5]), reverse=True) + sorted(
+        (p.best for p in seen[5:]), reverse=True
+    )  # each window's best only falls
