@@ -174,6 +174,22 @@ def tinted(rgb: np.ndarray) -> np.ndarray:
     return (r - b > 60) & (g - b > 25)
 
 
+def drawn_rig(rgb: np.ndarray) -> tuple[bool, dict]:
+    """Whether a screenshot ``(H, W, 3)`` of the meshcat scene shows the rig, not meshcat's empty default scene (sky,
+    grid, axes): the lit backdrop (near-white, ≥ 2 % of the view), the hand's shadow on it (dark grey pixels inside
+    the backdrop's box, ≥ 3 % of its white ones) and the light (yellow)."""
+    r, g, b = (rgb[..., i].astype(int) for i in range(3))
+    lo, hi = np.minimum(np.minimum(r, g), b), np.maximum(np.maximum(r, g), b)
+    white, grey = (lo > 215) & (hi - lo < 25), (hi > 20) & (hi < 100) & (hi - lo < 25)
+    yellow = (r > 200) & (g > 160) & (b < 120)
+    facts = {"white": round(float(white.mean()), 4), "yellow": round(float(yellow.mean()), 4), "shadow": 0.0}
+    if white.any():
+        ys, xs = np.nonzero(white)
+        box = grey[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]
+        facts["shadow"] = round(float(box.sum() / white.sum()), 4)
+    return facts["white"] >= 0.02 and facts["yellow"] >= 0.001 and facts["shadow"] >= 0.03, facts
+
+
 def red(rgb: np.ndarray) -> np.ndarray:
     """Red-dominant pixels (a latched E-STOP's colour): ``(H, W)`` bool."""
     r, g, b = (rgb[..., i].astype(int) for i in range(3))
@@ -222,6 +238,8 @@ def drawn_recording(rgb: np.ndarray) -> tuple[bool, dict]:
 @pytest.mark.slow
 def test_the_studio_in_jupyterlab(lab, tmp_path):
     sync_playwright = playwright_api()  # the fixture skipped already when it is absent
+    from playwright.sync_api import Error as PlaywrightError
+
     url, proc, project, t0 = lab
     folder = Path(SCREENSHOTS or tmp_path)  # every screenshot is written here as it is taken
     folder.mkdir(parents=True, exist_ok=True)
@@ -314,6 +332,23 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
         assert moved, f"the shadow in the show player does not change while it plays (dark shares {shares})"
         player.locator("button", has_text="Pause").first.dispatch_event("click")  # it moves while it plays
         marks["player plays"] = time.perf_counter() - t0
+        # the rig in meshcat (the Review tab's scene): the hand, its light and its shadow on the backdrop, drawn
+        scene = page.locator(f"{TAB} iframe[srcdoc*='MeshCat']").last
+        drawn, rig_facts, rig = False, {}, None
+        for _ in range(30):  # the panel replaces the snapshot when the pose shown changes (the pause): a new one
+            try:
+                scene.scroll_into_view_if_needed(timeout=2000)
+                rig = picture(scene)
+            except PlaywrightError as e:  # replaced while it was being looked at
+                rig_facts = {"replaced": str(e).splitlines()[0]}
+            else:
+                drawn, rig_facts = drawn_rig(rig)
+                if drawn:
+                    break
+            page.wait_for_timeout(500)
+        if rig is not None:
+            keep(rig, folder / "rig_scene.png")
+        assert drawn, f"the Review tab's meshcat scene does not draw the rig: {rig_facts}"
         shots.append(shoot_tab(page, "Review", folder))
 
         # Optimise: start this keyframe and see a progress bar advance

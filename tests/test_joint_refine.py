@@ -1,16 +1,24 @@
 """Keyframes refined together (studio.imitate.joint_refine): windows that cover the show, every result within the
 pairs' distances and the boxes, never worse than the start, never in collision, and better than one keyframe after
-another where the first one's own optimum holds the next back; cancel keeps the start."""
+another where the first one's own optimum holds the next back; cancel keeps the start; a sequence given the clock
+refines its keyframes together (studio.imitate.together)."""
 
 from __future__ import annotations
 
 import threading
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from studio.imitate.config import JointConfig
+from studio.imitate.config import JointConfig, LossConfig, RefineConfig, SearchConfig, SequenceConfig
 from studio.imitate.joint_refine import TOL, objective, refine_jointly, windows
+from studio.imitate.sequence import SequenceImitator
+from studio.motion.limits import JointLimits
+from studio.motion.reach import clock_boxes, reach_pairs
+from studio.sim.physics import CollisionWorld
+from studio.sim.sampling import sample_poses
+from studio.targets.expressive import expressive_masks
 
 J = 21
 LO, HI = np.full(J, -1.5), np.full(J, 1.5)
@@ -113,3 +121,33 @@ def test_progress_counts_every_generation_of_every_window():
     assert [p.best for p in seen] == sorted((p.best for p in seen[:5]), reverse=True) + sorted(
         (p.best for p in seen[5:]), reverse=True
     )  # each window's best only falls
+
+
+def test_a_sequence_given_the_clock_refines_its_keyframes_together(hand):
+    """SequenceImitator.imitate with the clock's pairs (Table 2's studio row): the keyframes posed one after another,
+    then together; within every pair's reach, each result scored again, and the sum it optimises never higher."""
+    rng = np.random.default_rng(3)
+    with CollisionWorld(hand) as world:
+        q = sample_poses(hand, 1, rng)[0][0]
+        while world.in_collision(q)[0]:
+            q = sample_poses(hand, 1, rng)[0][0]
+    step = np.zeros(J)
+    step[[1, 2, 5, 6, 9, 10]] = 0.3
+    tiny = SequenceConfig(first=SearchConfig(batch=8, iterations=10), next=SearchConfig(batch=8, iterations=8),
+                          refine=RefineConfig(steps=20, restarts=1), candidates=1, retrieve=False)  # fmt: skip
+    with SequenceImitator(cfg=tiny, loss_cfg=LossConfig(use_clip=False, crop_size=128)) as seq:
+        masks = seq.renderer.render(np.clip(q + np.arange(3)[:, None] * step, hand.lower, hand.upper))
+        exp = expressive_masks(masks)
+        times = {(0, 1): 0.25, (1, 2): 0.25}
+        limits = JointLimits.from_hand(hand)
+        boxes, pairs = clock_boxes(times, limits), reach_pairs(times, limits)
+        alone = seq.imitate(masks, exp, box_for=boxes)  # one after another only
+        joint = seq.imitate(masks, exp, box_for=boxes, pairs=pairs,
+                            cfg=replace(tiny, joint=JointConfig(generations=40, popsize=12)))  # fmt: skip
+    assert all("together" not in k.timings for k in alone.keyframes)
+    assert all("together" in k.timings for k in joint.keyframes) and not joint.cancelled
+    got = joint.thetas
+    assert worst_excess(got, pairs) <= TOL and all(k.collision_free for k in joint.keyframes)
+    assert sum(k.loss["total"] for k in joint.keyframes) <= sum(k.loss["total"] for k in alone.keyframes) + 1e-9
+    for k in joint.keyframes:  # scored again at its new pose: the shadow is that pose's
+        np.testing.assert_array_equal(k.shadow, seq.renderer.render_one(k.theta))

@@ -5,12 +5,13 @@ applied and its shadow shown, a "stale" run (run_project) reported."""
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from studio.assets import asset
 
-from studio.imitate.config import RefineConfig, SearchConfig, SequenceConfig
+from studio.imitate.config import JointConfig, RefineConfig, SearchConfig, SequenceConfig
 from studio.jobs import Job, JobState
 from studio.jobs.events import JobEvent
 from studio.project.jobs import queue_for
@@ -147,24 +148,28 @@ def test_the_writer_redraws_on_its_own_at_most_ten_times_a_second(state):
 
 
 @pytest.mark.slow
-def test_the_whole_video_runs_the_sources_keyframes_in_order_one_job_each(tmp_path):
+def test_the_whole_video_runs_the_sources_keyframes_in_order_one_job_each_then_together(tmp_path):
     from studio.targets.video import DEFAULT_VIDEO
 
     project = Project.create(tmp_path / "two.shadow", sources=[asset("targets/asl_o.jpeg"), DEFAULT_VIDEO], roll=0)
     state = StudioState(project, queue_for(project))
-    panel = optimise_panel(state, OptimiseConfig(sequence=TINY))
+    together = replace(TINY, joint=JointConfig(generations=10, popsize=6))
+    panel = optimise_panel(state, OptimiseConfig(sequence=together))
     try:
         state.select(frame=len(project.frames) - 1)  # a frame of the horse
         video = [kf.id for kf in project.keyframes if project.frames[kf.representative].source == 1]
+        assert len(video) >= 2
         panel.start("video")
         assert until(lambda: not panel.busy and panel.report is not None, 240, panel.refresh), panel.status.value
         assert panel.report.optimised == video, panel.report.message  # in first-appearance order (sequential)
-        assert [panel.keyframes_of(j.id) for j in panel.jobs] == [[k] for k in video]
+        # one job a keyframe, then the source's keyframes refined together (studio.project.run_together)
+        assert [panel.keyframes_of(j.id) for j in panel.jobs] == [[k] for k in video] + [video]
         assert all(j.state == JobState.DONE for j in panel.jobs)
         assert sorted(project.results) == sorted(video)  # the still's keyframe was not part of it
         last = panel.jobs[-1]
-        assert until(lambda: "refine" in panel.bars, 10), list(panel.bars)  # the last job's stages, a bar each
-        assert panel.keyframes_of(last.id) == [video[-1]]
+        assert panel.job_line(last.id) == f"keyframes {video[0]}–{video[-1]} together"
+        assert until(lambda: "together" in panel.bars, 10), list(panel.bars)  # the last job's stage, its bar
+        assert panel.bars["together"].description == "keyframes together: done"
     finally:
         panel.close()
         state.close()

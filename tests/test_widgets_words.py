@@ -34,6 +34,8 @@ def test_times_counts_and_stages_in_words():
     )
     assert bar_label("keyframe 1/3: index") == "retrieval index (first use)" and bar_label("search") == "search"
     assert bar_label("compile") == "compiling kernels (first run)"  # not the index's words (the bar labels did)
+    assert stage("together", 400) == "refining the keyframes together, within their reach on the show's clock"
+    assert bar_label("together") == "keyframes together"
     late = {"from_frame": None, "to_frame": 0, "from_keyframe": None, "to_keyframe": 3, "t_start": 0.0,
             "t_end": 0.05, "given_s": 0.05, "needed_s": 0.7999999999999999}  # fmt: skip
     assert late_lines([late]) == ["home → frame 0 (home → k3) at 0.00 s: needs 0.80 s, given 0.05 s"]

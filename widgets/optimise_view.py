@@ -21,7 +21,8 @@ class OptimiseDrawing:
     fields: ``_following``, ``bars``, ``_bar_labels``, ``best``, ``last``, ``step``, ``_target_k``)."""
 
     def job_line(self, job_id: int) -> str:
-        """What a job of this panel does, in the artist's words: ``keyframe 3 (3 of 5)``, ``the show``."""
+        """What a job of this panel does, in the artist's words: ``keyframe 3 (3 of 5)``, ``keyframes 0–4 together``,
+        ``the show``."""
         job = next((j for j in list(self.jobs) if j.id == job_id), None)
         if job is None:
             return f"job #{job_id}"
@@ -29,6 +30,9 @@ class OptimiseDrawing:
             return "the show"
         if job.kind == "choose-roll":
             return "the mount roll"
+        if job.kind == "imitate-together":
+            ids = job.meta.get("keyframes", [])
+            return f"keyframes {ids[0]}–{ids[-1]} together" if ids else "the keyframes together"
         ids = ", ".join(str(k) for k in job.meta.get("keyframes", []))
         of = job.meta.get("of")
         return f"keyframe {ids}" + (f" ({of[0]} of {of[1]})" if of else "")

@@ -48,22 +48,26 @@ def loss(value: float | None) -> str:
 
 def stage(name: str, total: int = 0) -> str:
     """A job's stage as the artist reads it: ``index`` (its total: poses) is the retrieval index being built, once
-    per machine, ``compile`` the kernels compiling, once per install; a prefix (``keyframe 2/5: index``) is kept."""
+    per machine, ``compile`` the kernels compiling, once per install, ``together`` a show's keyframes refined
+    together; a prefix (``keyframe 2/5: index``) is kept."""
     head, _, last = name.rpartition(": ")
     if last == "index":
         size = count(total, "pose") if total else "poses"
         last = f"building the retrieval index of {size} (first use only, cached)"
     elif last == "compile":  # studio.imitate.kernels
         last = "compiling the renderer's and the losses' kernels (first run after this install only)"
+    elif last == "together":  # studio.imitate.joint_refine
+        last = "refining the keyframes together, within their reach on the show's clock"
     return f"{head}: {last}" if head else last
 
 
-BAR_LABELS = {"index": "retrieval index (first use)", "compile": "compiling kernels (first run)"}  # one-off stages
+BAR_LABELS = {"index": "retrieval index (first use)", "compile": "compiling kernels (first run)",
+              "together": "keyframes together"}  # stages whose name alone says little  # fmt: skip
 
 
 def bar_label(name: str) -> str:
-    """A progress bar's short label for a stage: a one-off stage (the index's build, the kernels' compile) in words,
-    any other stage as it is."""
+    """A progress bar's short label for a stage: a one-off stage (the index's build, the kernels' compile) and the
+    keyframes refined together in words, any other stage as it is."""
     return BAR_LABELS.get(name.rpartition(": ")[2], name)
 
 
