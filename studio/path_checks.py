@@ -4,7 +4,8 @@
   project being exported, a frame folder being imitated), and only where a file can be made (the one way every verb
   with ``--out`` does it);
 - :func:`check_text`: a name that is not text (bytes of another encoding, which Python carries as lone surrogates)
-  is refused at once, where it would otherwise fail when printed or written into a JSON file at the very end.
+  is refused at once, where it would otherwise fail when printed or written into a JSON file at the very end;
+- :func:`existing_paths`: the sources a verb gathers from its arguments are each a file or a folder that is there.
 
 A path is compared by what it names on disk (``os.path.samefile`` when both exist: a symlink or a hard link to the
 input is the input), else by its resolved form (``os.path.realpath``).
@@ -17,7 +18,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from studio.atomic import name_max
-from studio.errors import StudioError
+from studio.errors import StudioError, TargetError
 
 PathLike = str | os.PathLike
 
@@ -98,3 +99,13 @@ def _check_creatable(out: Path) -> None:
         raise OutputPathError(f"{out} cannot be made: {blocker} is a file, not a folder")
     if not os.access(folder, os.W_OK | os.X_OK):
         raise OutputPathError(f"{out} cannot be written: the folder {folder} is not writable")
+
+
+def existing_paths(paths: Iterable[PathLike], what: str) -> list[Path]:
+    """``paths`` as :class:`Path` objects, each an existing file or folder; :class:`TargetError` "<what> not found:
+    <path>" for the first that is neither (what gathers sources from arguments checks them first)."""
+    out = [Path(p) for p in paths]
+    for p in out:
+        if not p.is_file() and not p.is_dir():
+            raise TargetError(f"{what} not found: {p}")
+    return out

@@ -305,6 +305,21 @@ def test_gathered_targets_with_names_that_are_not_utf8_are_refused(tmp_path):
         gather_targets([tmp_path])
 
 
+def test_sources_that_are_not_there_are_named_in_one_message_form(tmp_path):
+    from studio.errors import TargetError
+    from studio.evaluate.sequences import gather_sequences
+    from studio.path_checks import existing_paths
+    from studio.targets.images import gather_targets
+
+    (tmp_path / "here.png").write_bytes(b"")
+    assert existing_paths([str(tmp_path / "here.png"), tmp_path], "x") == [tmp_path / "here.png", tmp_path]
+    gone = tmp_path / "gone"
+    with pytest.raises(TargetError, match=f"^target file or folder not found: {gone}$"):
+        gather_targets([tmp_path, gone])
+    with pytest.raises(TargetError, match=r"^sequence \(video file or frame folder\) not found: "):
+        gather_sequences([gone])
+
+
 # ---------------------------------------------------------------- outputs never onto inputs
 
 

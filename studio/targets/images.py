@@ -39,7 +39,7 @@ from PIL import Image, ImageOps, UnidentifiedImageError
 
 from studio.assets import asset
 from studio.errors import TargetError
-from studio.path_checks import check_text
+from studio.path_checks import check_text, existing_paths
 from studio.targets.holes import MIN_CORE_SHARE, MIN_HOLE_AREA, fill_holes, find_holes, threshold_keeping_gaps
 
 log = logging.getLogger(__name__)
@@ -262,16 +262,6 @@ def first_per_class(files: Sequence[Path], n: int) -> list[Path]:
         if seen.get(cls, 0) < n:
             seen[cls] = seen.get(cls, 0) + 1
             out.append(f)
-    return out
-
-
-def existing_paths(paths: Sequence[str | Path], what: str) -> list[Path]:
-    """``paths`` as :class:`Path` objects, each an existing file or folder; :class:`TargetError` "<what> not found:
-    <path>" for the first that is neither (what gathers sources from arguments checks them first)."""
-    out = [Path(p) for p in paths]
-    for p in out:
-        if not p.is_file() and not p.is_dir():
-            raise TargetError(f"{what} not found: {p}")
     return out
 
 
