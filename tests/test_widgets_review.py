@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from studio.jobs.events import JobState
-from studio.jobs.queue import Job
+from studio.jobs.job import Job
 from studio.project.jobs import queue_for
 from studio.project.project import Project
 from studio.review.blueprint import RENDERED, TARGET

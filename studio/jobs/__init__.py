@@ -7,9 +7,9 @@ results applied only on completion. Knows nothing of projects (:mod:`studio.proj
         job = queue.submit(imitate_keyframe_job("asl_v.jpeg", apply=lambda r: ...))
         job.wait()                                        # job.state: done / failed (job.error) / cancelled
 
-Pieces: :mod:`.events` (JobEvent, JobState, JobError, Reporter, PosePreview, EventPoller), :mod:`.queue` (Job,
-JobQueue), :mod:`.workers` (thread and spawned-process workers), :mod:`.engine` (imitate a keyframe, imitate a
-sequence of keyframes, plan a show), :mod:`.bars` (tqdm).
+Pieces: :mod:`.events` (JobEvent, JobState, JobError, Reporter, PosePreview, EventPoller), :mod:`.job` (Job),
+:mod:`.queue` (JobQueue), :mod:`.workers` (thread and spawned-process workers), :mod:`.engine` (imitate a keyframe,
+imitate a sequence of keyframes, refine them together, choose the mount roll, plan a show), :mod:`.bars` (tqdm).
 
 **Thread or process?** ``benchmarks/bench_jobs.py`` on this 2-core machine (shared with other work), the main
 thread's asyncio loop ticking every 20 ms for 10 s while a job runs (lateness p50 / p99, ms):
@@ -44,7 +44,8 @@ from studio.jobs.events import (
     Reporter,
     WorkerDied,
 )  # fmt: skip
-from studio.jobs.queue import DEFAULT_WORKER, Job, JobQueue
+from studio.jobs.job import Job
+from studio.jobs.queue import DEFAULT_WORKER, JobQueue
 
 __all__ = [
     "DEFAULT_WORKER", "EventPoller", "Job", "JobCancelled", "JobError", "JobEvent", "JobQueue", "JobState",

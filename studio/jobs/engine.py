@@ -1,7 +1,7 @@
 """Jobs that run the engine: imitate one keyframe, imitate a whole video, refine a show's keyframes together, choose
 the mount roll, plan a show (play: :mod:`.play`).
 
-Each factory returns a :class:`~studio.jobs.queue.Job` whose ``run`` is a ``functools.partial`` of a
+Each factory returns a :class:`~studio.jobs.job.Job` whose ``run`` is a ``functools.partial`` of a
 module-level function (so it runs in a thread or a spawned process alike) and whose ``apply`` is the caller's
 callback (the Project's ``set_result``/``set_show``, or anything else), called only when the job completes. Every
 engine call gets the job's cancel event and :meth:`~studio.jobs.events.Reporter.engine_progress`
@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from studio.jobs.events import PosePreview, Reporter
-from studio.jobs.queue import Job
+from studio.jobs.job import Job
 
 if TYPE_CHECKING:
     import threading

@@ -21,110 +21,21 @@ for it) and reported ``cancelled``, so the final event always comes within a sec
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 import traceback
 from collections import deque
-from collections.abc import Callable, Mapping
-from typing import Any
+from collections.abc import Callable
 
 from studio.jobs.events import EventPoller, JobError, JobEvent, JobState, WorkerDied
-from studio.jobs.workers import WORKERS, ProcessWorker, Run, ThreadWorker
+from studio.jobs.job import Job
+from studio.jobs.workers import WORKERS, ProcessWorker, ThreadWorker
 from studio.learn.threads import DEFAULT_THREADS
 
 log = logging.getLogger(__name__)
 
 DEFAULT_WORKER = "thread"  # benchmarks/bench_jobs.py: p99 1.4 ms (search) / 5.3 ms (refine); figures in the package doc
 Subscriber = Callable[[JobEvent], None]
-
-
-class Job:
-    """A unit of background work (module doc). Made by the caller or a factory; the queue numbers and runs it."""
-
-    def __init__(
-        self,
-        kind: str,
-        run: Run,
-        apply: Callable[[Any], None] | None = None,
-        title: str = "",
-        meta: Mapping[str, Any] | None = None,
-    ):
-        self.kind = kind  # what runs ("imitate-keyframe", "imitate-video", "plan", "play", ...)
-        self.run = run  # run(report, cancel) -> result, called in the worker
-        self.apply_fn = apply  # apply(result), called once on completion (None: nothing to apply)
-        self.title = title  # one line for listings ("keyframe 3", "muybridge_horse.gif")
-        self.meta = dict(meta or {})  # what the submitter attaches for its own use ({"keyframes": [3]}): plain data
-        self.id = 0  # set by JobQueue.submit (1, 2, ...)
-        self.state = JobState.QUEUED
-        self.result: Any = None  # run's return value (done; cancelled when the engine returned a partial one)
-        self.error: JobError | None = None  # why it failed
-        self.applied = False  # apply ran to the end
-        self.stage, self.step, self.total, self.best, self.item = "", 0, 0, math.nan, ""  # the latest progress
-        self.shadow = None  # the latest (H, W) uint8 preview of the current best shadow
-        self.started: float | None = None  # time.monotonic() when it started running
-        self.ended: float | None = None  # ... and when its final event was emitted
-        self._seq = 0
-        self._lock = threading.RLock()
-        self._done = threading.Event()
-        self._cancel = threading.Event()
-        self._cancel_at: float | None = None
-        self._applying = False
-        self._queue: JobQueue | None = None
-        self._runner = None
-
-    @property
-    def elapsed(self) -> float:
-        """Seconds running so far (or in all, once finished); 0 while queued."""
-        if self.started is None:
-            return 0.0
-        return (self.ended if self.ended is not None else time.monotonic()) - self.started
-
-    @property
-    def finished(self) -> bool:
-        return self.state.finished
-
-    def cancel(self) -> bool:
-        """Ask the job to stop; False when it had already finished or is applying its result (too late). A queued
-        job is cancelled at once."""
-        with self._lock:
-            if self.state.finished or self._applying:
-                return False
-            if self._cancel.is_set():
-                return True
-            self._cancel.set()
-            self._cancel_at = time.monotonic()
-            if self.state == JobState.QUEUED and self._queue is not None:
-                self._queue._finish(self, JobState.CANCELLED)
-            elif self._runner is not None:
-                self._runner.cancel()
-        return True
-
-    def wait(self, timeout: float | None = None) -> JobState:
-        """Block until the job finished (or ``timeout`` s passed); returns its state."""
-        self._done.wait(timeout)
-        return self.state
-
-    def follow(self, cancel: threading.Event | None) -> JobState:
-        """Wait until the job finished, cancelling it once ``cancel`` is set (looked at every 0.1 s; then up to 2 s
-        for it to stop); returns its state."""
-        while not self.finished:
-            if cancel is not None and cancel.is_set():
-                self.cancel()
-                return self.wait(2.0)
-            self.wait(0.1)
-        return self.state
-
-    def info(self) -> dict:
-        """One row of a listing (plain data)."""
-        return {
-            "id": self.id, "kind": self.kind, "title": self.title, "state": self.state.value, "stage": self.stage,
-            "step": self.step, "total": self.total, "best": self.best, "elapsed": round(self.elapsed, 3),
-            "error": None if self.error is None else str(self.error),
-        }  # fmt: skip
-
-    def __repr__(self) -> str:
-        return f"Job(#{self.id} {self.kind} {self.title!r} {self.state.value})"
 
 
 class JobQueue:

@@ -23,7 +23,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from studio.jobs.engine import choose_roll_job, imitate_keyframe_job, imitate_video_job, plan_job
-from studio.jobs.queue import DEFAULT_WORKER, Job, JobQueue
+from studio.jobs.job import Job
+from studio.jobs.queue import DEFAULT_WORKER, JobQueue
 from studio.project.status import ProjectHandle
 
 if TYPE_CHECKING:

@@ -29,7 +29,8 @@ from typing import Any
 import numpy as np
 
 from studio.imitate.config import LossConfig
-from studio.jobs.queue import Job, JobQueue
+from studio.jobs.job import Job
+from studio.jobs.queue import JobQueue
 from studio.motion.show import Show
 from studio.progress import ProgressFn
 from studio.project.outputs import self_model_predictor, write_outputs

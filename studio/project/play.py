@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 from studio.errors import StudioError
 from studio.jobs.events import Reporter
-from studio.jobs.queue import Job
+from studio.jobs.job import Job
 
 if TYPE_CHECKING:
     from hardware.calibration import Calibration

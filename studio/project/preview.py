@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from studio.jobs.queue import Job
+from studio.jobs.job import Job
 from studio.progress import ProgressFn, report
 from studio.project.inputs import show_inputs
 from studio.project.preview_clock import PreviewInputs, preview_clock, preview_inputs

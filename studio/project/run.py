@@ -34,7 +34,8 @@ from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
 from studio.imitate.transitions import TransitionConfig
 from studio.jobs.engine import _plan
 from studio.jobs.events import JobState, Reporter
-from studio.jobs.queue import Job, JobQueue
+from studio.jobs.job import Job
+from studio.jobs.queue import JobQueue
 from studio.motion.plan import PlanConfig
 from studio.progress import ProgressFn
 from studio.project.jobs import queue_for, roll_job, video_job

@@ -21,7 +21,8 @@ import numpy as np
 
 from studio.jobs.engine import refine_together_job
 from studio.jobs.events import JobState
-from studio.jobs.queue import Job, JobQueue
+from studio.jobs.job import Job
+from studio.jobs.queue import JobQueue
 from studio.motion.limits import JointLimits
 from studio.motion.reach import reach_distances
 from studio.project.jobs import project_loss
