@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 
 from studio.evaluate.config import EvalConfig
-from studio.evaluate.table1 import EvalResult, summarise, table_notes
+from studio.evaluate.table1 import EvalResult, summarise
+from studio.evaluate.table1_notes import table_notes
 from studio.evaluate.worker_models import ModelRecipe
 from studio.fanout import FanoutConfig, fan_out
 from studio.imitate.config import ImitateConfig, RefineConfig, SearchConfig, SweepConfig
