@@ -146,8 +146,7 @@ def refine_jointly(
         full = np.repeat(theta[None], len(x), axis=0)
         full[:, members] = x
         image = np.zeros((len(x), k))
-        image[:, members] = np.stack([scorers[m](x[:, i]) for i, m in enumerate(members)], axis=1)
-        image[:, [i for i in range(k) if i not in members]] = 0.0  # held keyframes: the same for every candidate
+        image[:, members] = np.stack([scorers[m](x[:, i]) for i, m in enumerate(members)], axis=1)  # held: 0
         return objective(full, image, previous, w_temporal)
 
     start = float(score(theta[None, :], list(range(k)))[0])

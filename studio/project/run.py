@@ -40,7 +40,7 @@ from studio.motion.plan import PlanConfig
 from studio.progress import ProgressFn
 from studio.project.jobs import queue_for, roll_job, video_job
 from studio.project.run_report import RunReport, TooFast, counted, late_transitions, plural
-from studio.project.run_spread import keyframe_config, run_spread, source_keyframes
+from studio.project.run_spread import keyframe_config, place_in_source, run_spread, source_keyframes
 from studio.project.run_together import refine_stretches
 from studio.project.show_timing import ShowLayout, keyframe_box, seams_out_of_reach
 from studio.project.state import ProjectError
@@ -66,15 +66,6 @@ class RunConfig:
     def spread(self) -> bool:
         """The keyframes run on workers, the sources side by side (:mod:`studio.project.run_spread`)."""
         return self.fanout.workers > 1 or bool(self.fanout.ray)
-
-
-def _previous(project: ProjectHandle, k: int) -> tuple[int, int | None]:
-    """``(position of keyframe k within its source, id of the keyframe before it there or None)``."""
-    s = project.state
-    src = s.frames[s.keyframe(k).representative].source
-    same = [kf.id for kf in s.keyframes if s.frames[kf.representative].source == src]
-    pos = same.index(k)
-    return pos, (same[pos - 1] if pos else None)
 
 
 def _plan_or_late(report: Reporter, cancel, *, keyframes, cfg, show_title):
@@ -241,7 +232,7 @@ def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, se
     keyframe's reach box counts ``settled`` and its own source's keyframes finished before it (run_spread's rule)."""
     seq = cfg.sequence
     for n, k in enumerate(pending):
-        pos, before = _previous(project, k)
+        pos, before = place_in_source(project, k)
         previous = None
         if seq.mode == "sequential" and before is not None:
             previous = project.results[before].theta(_joint_names())

@@ -11,7 +11,7 @@ clock. The box counts the keyframes that were current when the run started and t
 before it in this run (the one-process run counts the same ones), so where a keyframe runs never changes its pose:
 the results equal :func:`~studio.project.run.run_project`'s in one process.
 
-A keyframe's place in its source (:func:`source_keyframes`) and the seeds that place gives it
+A keyframe's place in its source (:func:`source_keyframes`, :func:`place_in_source`) and the seeds that place gives it
 (:func:`keyframe_config`) live here, for both runs.
 
 The driver saves each keyframe (``project.set_result``, one edit) the moment it comes back, and progress counts
@@ -38,8 +38,8 @@ if TYPE_CHECKING:
     from studio.project.status import ProjectHandle
 
 __all__ = [
-    "Chain", "KeyframeStep", "KeyframeTask", "chains_of", "keyframe_config", "optimise_spread", "run_spread",
-    "source_keyframes",
+    "Chain", "KeyframeStep", "KeyframeTask", "chains_of", "keyframe_config", "optimise_spread", "place_in_source",
+    "run_spread", "source_keyframes",
 ]  # fmt: skip
 
 
@@ -48,6 +48,14 @@ def source_keyframes(project: ProjectHandle, k: int) -> list[int]:
     s = project.state
     src = s.frames[s.keyframe(k).representative].source
     return [kf.id for kf in s.keyframes if s.frames[kf.representative].source == src]
+
+
+def place_in_source(project: ProjectHandle, k: int) -> tuple[int, int | None]:
+    """``(position of keyframe k among its source's keyframes, id of the keyframe before it there or None)``: the
+    seeds it gets (:func:`keyframe_config`) and the pose it continues from."""
+    same = source_keyframes(project, k)
+    pos = same.index(k)
+    return pos, (same[pos - 1] if pos else None)
 
 
 def keyframe_config(cfg: SequenceConfig, position: int) -> SequenceConfig:
@@ -155,12 +163,12 @@ def chains_of(project: ProjectHandle, pending: list[int], settled: set[int], lay
     chains = []
     for src, ids in groups.items():
         name = Path(s.sources[src].path).name
-        same = source_keyframes(project, ids[0])
-        before = tuple(same[same.index(k) - 1] if same.index(k) else None for k in ids)
+        places = [place_in_source(project, k) for k in ids]
+        before = tuple(b for _, b in places)
         outside = {b for b in before if b is not None} | {n for pair in times for n in pair}
         poses = {n: s.results[n].theta(names) for n in outside - set(ids) if n in s.results}
         pairs = [project.keyframe_masks(k) for k in ids]
-        chains.append(Chain(name, tuple(ids), tuple(same.index(k) for k in ids), before,
+        chains.append(Chain(name, tuple(ids), tuple(pos for pos, _ in places), before,
                             np.stack([np.array(t) for t, _ in pairs]), np.stack([np.array(e) for _, e in pairs]),
                             times, poses, frozenset(settled & set(poses))))  # fmt: skip
     return chains

@@ -26,7 +26,7 @@ from studio.jobs.queue import JobQueue
 from studio.motion.limits import JointLimits
 from studio.motion.reach import reach_distances
 from studio.project.jobs import project_loss
-from studio.project.run_spread import source_keyframes
+from studio.project.run_spread import place_in_source, source_keyframes
 from studio.project.show_timing import reach_of, transition_times
 from studio.project.status import ProjectHandle
 from studio.sim.hand import load_hand
@@ -66,15 +66,14 @@ def together_job(project: ProjectHandle, ids: list[int], cfg: Any, clip: Any = N
     current = {kf.id for kf in s.keyframes if kf.id in s.results and kf.id not in status.stale}
     held = {n: s.results[n].theta(names) for n in current - set(ids)}  # every other current pose stays put
     boxes = [reach_of(far.get(k, {}), held, limits) for k in ids]
-    same = source_keyframes(project, ids[0])
-    before = same[same.index(ids[0]) - 1] if same.index(ids[0]) else None
+    _, before = place_in_source(project, ids[0])
     sequential = seq.mode == "sequential"  # a run continues a source's keyframe from the one before only then
     previous = held.get(before) if sequential and before is not None else None
     if not sequential:
         seq = replace(seq, temporal=False)  # each keyframe was optimised alone: no temporal chain to keep
-    pairs_masks = [project.keyframe_masks(k) for k in ids]
-    masks = np.stack([np.array(t) for t, _ in pairs_masks])
-    expressive = np.stack([np.array(e) for _, e in pairs_masks])
+    targets = [project.keyframe_masks(k) for k in ids]
+    masks = np.stack([np.array(t) for t, _ in targets])
+    expressive = np.stack([np.array(e) for _, e in targets])
     inputs = {k: project.keyframe_inputs(k) for k in ids}
     start = {k: s.results[k] for k in ids}
 
