@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import subprocess
@@ -10,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+
+from studio.motion.show import Show, save_show
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 
@@ -124,3 +127,22 @@ def write_sources():
 @pytest.fixture
 def sources(tmp_path, write_sources) -> list[Path]:
     return write_sources(tmp_path / "src")
+
+
+@pytest.fixture
+def poses(tmp_path, hand) -> Path:
+    """A keyframes file of two keyframes near rest (plans in about a second; the limits and paths tests)."""
+    q = hand.rest_pose()
+    q2 = q.copy()
+    q2[1] += 0.3
+    path = tmp_path / "kf.json"
+    keyframes = [{"t": 1.0, "pose": hand.pose_to_dict(q2)}, {"t": 2.0, "pose": hand.pose_to_dict(q)}]
+    path.write_text(json.dumps({"keyframes": keyframes}))
+    return path
+
+
+@pytest.fixture
+def show_file(tmp_path, hand) -> Path:
+    """A three-sample show file at rest (the limits and paths tests)."""
+    q = hand.rest_pose()
+    return save_show(Show.from_samples(hand, [0.0, 0.5, 1.0], np.stack([q, q, q])), tmp_path / "show.json")
