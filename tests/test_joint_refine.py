@@ -14,6 +14,7 @@ import pytest
 from studio.imitate.config import JointConfig, LossConfig, RefineConfig, SearchConfig, SequenceConfig
 from studio.imitate.joint_refine import TOL, objective, refine_jointly, windows
 from studio.imitate.sequence import SequenceImitator
+from studio.imitate.together import pose_backwards, refine_show, refine_together
 from studio.motion.limits import JointLimits
 from studio.motion.reach import clock_boxes, reach_pairs
 from studio.sim.physics import CollisionWorld
@@ -100,6 +101,31 @@ def test_a_start_at_the_optimum_is_kept_and_the_temporal_term_counts():
     assert got.start_loss == pytest.approx(want)
 
 
+def test_the_start_with_the_lowest_sum_is_refined():
+    """Of the poses given and the alternatives (the keyframes posed in the other order), refinement starts from the
+    one whose objective is lowest, and says which."""
+    rng = np.random.default_rng(2)
+    goals = [rng.uniform(-0.6, 0.6, J) for _ in range(3)]
+    pairs = {(0, 1): np.full(J, 0.1), (1, 2): np.full(J, 0.1), (0, 2): np.full(J, 0.2)}
+    forward = greedy(goals, 0.1)
+    backward = greedy(goals[::-1], 0.1)[::-1]  # the last keyframe at its goal, each earlier one as near as it can
+    scorers = [quadratic(g) for g in goals]
+    sums = [objective(t[None], np.array([[s(t[i : i + 1])[0] for i, s in enumerate(scorers)]]), None, 0.0)[0]
+            for t in (forward, backward)]  # fmt: skip
+    off = JointConfig(generations=0)
+    for order in ((forward, backward), (backward, forward)):
+        got = refine_jointly(scorers, order[0], pairs, [(LO, HI)] * 3, no_collision, off, alternatives=[order[1]])
+        best = int(np.argmin(sums))
+        assert got.start_loss == pytest.approx(min(sums)) and got.loss == got.start_loss
+        np.testing.assert_array_equal(got.theta, (forward, backward)[best])
+        assert got.chosen == (best if order[0] is forward else 1 - best)
+    got = refine_jointly(scorers, forward, pairs, [(LO, HI)] * 3, no_collision, JointConfig(generations=40),
+                         alternatives=[backward])  # fmt: skip
+    assert got.loss <= min(sums) and worst_excess(got.theta, pairs) <= TOL
+    with pytest.raises(ValueError, match="every start"):
+        refine_jointly(scorers, forward, pairs, [(LO, HI)] * 3, no_collision, off, alternatives=[forward[:2]])
+
+
 def test_cancel_keeps_the_start():
     goals = [np.zeros(J), np.full(J, 0.5)]
     start = greedy(goals, 0.1)
@@ -151,3 +177,52 @@ def test_a_sequence_given_the_clock_refines_its_keyframes_together(hand):
     assert sum(k.loss["total"] for k in joint.keyframes) <= sum(k.loss["total"] for k in alone.keyframes) + 1e-9
     for k in joint.keyframes:  # scored again at its new pose: the shadow is that pose's
         np.testing.assert_array_equal(k.shadow, seq.renderer.render_one(k.theta))
+
+
+def test_keyframes_posed_last_to_first_keep_the_reach_and_the_lower_sum_is_refined(hand):
+    """With ``both_orders`` the keyframes are posed again last to first, each within reach of those after it and
+    inside its own box; the refinement starts from the order whose sum is lower; a cancel while posing them keeps
+    the poses given."""
+    rng = np.random.default_rng(5)
+    with CollisionWorld(hand) as world:
+        q = sample_poses(hand, 1, rng)[0][0]
+        while world.in_collision(q)[0]:
+            q = sample_poses(hand, 1, rng)[0][0]
+    step = np.zeros(J)
+    step[[0, 3, 4, 7, 8, 11]] = 0.35
+    tiny = SequenceConfig(first=SearchConfig(batch=8, iterations=10), next=SearchConfig(batch=8, iterations=8),
+                          refine=RefineConfig(steps=20, restarts=1), candidates=1, retrieve=False)  # fmt: skip
+    both = replace(tiny, joint=JointConfig(generations=20, popsize=8, both_orders=True))
+    with SequenceImitator(cfg=tiny, loss_cfg=LossConfig(use_clip=False, crop_size=128)) as seq:
+        masks = seq.renderer.render(np.clip(q + np.arange(3)[:, None] * step, hand.lower, hand.upper))
+        exp = expressive_masks(masks)
+        limits = JointLimits.from_hand(hand)
+        pairs = reach_pairs({(0, 1): 0.25, (1, 2): 0.25}, limits)
+        held = q - step  # a pose outside the show, 0.25 s before keyframe 0: keyframe k is 1 + k of this clock
+        clock = clock_boxes({(0, 1): 0.25, (1, 2): 0.25, (2, 3): 0.25}, limits)
+        forward = seq.imitate(masks, exp, box_for=lambda k, done: clock(k + 1, [held, *done])).thetas
+
+        def box_of(k):  # each keyframe's box from the held pose
+            return clock(k + 1, [held])
+
+        seen = []
+        back = pose_backwards(seq, masks, exp, tiny, pairs, box_of, progress=seen.append)
+        assert back.shape == (3, J) and worst_excess(back, pairs) <= 1e-9
+        for k in range(3):
+            assert (back[k] >= box_of(k)[0] - 1e-9).all() and (back[k] <= box_of(k)[1] + 1e-9).all()
+        assert seen and all(p.stage.startswith("last to first: keyframe ") for p in seen)
+        named = [p.stage.split(":")[1].strip() for p in seen]  # the show's keyframes, the last one first
+        assert list(dict.fromkeys(named)) == ["keyframe 3/3", "keyframe 2/3", "keyframe 1/3"]
+
+        def start_sum(theta):  # the sum a refinement of no generations keeps: its start's
+            off = replace(tiny, joint=JointConfig(generations=0))
+            return refine_together(seq.imitator, masks, exp, theta, off, pairs, box_of)[1].start_loss
+
+        scored, got = refine_show(seq, masks, exp, forward, both, pairs, box_of)
+        assert got.start_loss <= start_sum(forward) + 1e-9 and got.loss <= got.start_loss
+        assert got.start_loss == pytest.approx(start_sum(forward) if got.chosen == 0 else start_sum(back))
+        assert worst_excess(got.theta, pairs) <= TOL and all(s.collision_free for s in scored)
+        cancel = threading.Event()
+        cancel.set()
+        _, stopped = refine_show(seq, masks, exp, forward, both, pairs, box_of, cancel=cancel)
+        assert stopped.cancelled and stopped.chosen == 0 and np.array_equal(stopped.theta, forward)

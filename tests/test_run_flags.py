@@ -44,6 +44,10 @@ def test_no_flags_is_the_studio_preset_and_paper_keeps_every_size_not_given(verb
     assert cfg.candidates == 2 and cfg.mode == PAPER_SEQUENCE.mode
     swept = config(*verb, "--sweep-draws", "64", "--sweep-passes", "1")
     assert swept == replace(CPU_SEQUENCE, sweep=replace(CPU_SEQUENCE.sweep, draws=64, passes=1))
+    one_order = config(*verb, "--no-joint-both-orders")  # the studio poses the keyframes in both orders
+    assert CPU_SEQUENCE.joint.both_orders and one_order == replace(
+        CPU_SEQUENCE, joint=replace(CPU_SEQUENCE.joint, both_orders=False)
+    )
 
 
 def test_every_verb_reads_the_same_flags_the_same_way():

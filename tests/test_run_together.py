@@ -28,7 +28,7 @@ TINY = SequenceConfig(
     first=SearchConfig(batch=8, iterations=20), next=SearchConfig(batch=8, iterations=10, lr=0.08),
     refine=RefineConfig(steps=30, restarts=2), candidates=1,
 )  # fmt: skip
-TOGETHER = replace(TINY, joint=JointConfig(generations=25, popsize=12))
+TOGETHER = replace(TINY, joint=JointConfig(generations=25, popsize=12, both_orders=True))
 
 
 def poses(project: Project) -> dict[int, np.ndarray]:

@@ -153,7 +153,7 @@ def test_the_whole_video_runs_the_sources_keyframes_in_order_one_job_each_then_t
 
     project = Project.create(tmp_path / "two.shadow", sources=[asset("targets/asl_o.jpeg"), DEFAULT_VIDEO], roll=0)
     state = StudioState(project, queue_for(project))
-    together = replace(TINY, joint=JointConfig(generations=10, popsize=6))
+    together = replace(TINY, joint=JointConfig(generations=10, popsize=6, both_orders=True))
     panel = optimise_panel(state, OptimiseConfig(sequence=together))
     try:
         state.select(frame=len(project.frames) - 1)  # a frame of the horse
@@ -170,6 +170,8 @@ def test_the_whole_video_runs_the_sources_keyframes_in_order_one_job_each_then_t
         assert panel.job_line(last.id) == f"keyframes {video[0]}–{video[-1]} together"
         assert until(lambda: "together" in panel.bars, 10), list(panel.bars)  # the last job's stage, its bar
         assert panel.bars["together"].description == "keyframes together: done"
+        again = [b for b in panel.bars if b.startswith("last to first: keyframe ")]  # posed in the other order first
+        assert again and all(panel.bars[b].value == 1.0 for b in again), list(panel.bars)
     finally:
         panel.close()
         state.close()

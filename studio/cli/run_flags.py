@@ -6,7 +6,7 @@
   searched from scratch: a still, a video's first keyframe, every keyframe when independent),
   ``--next-batch/--next-iterations`` (a keyframe that continues from the one before it; video verbs),
   ``--refine-method/-steps/-restarts/-popsize/-sigma0``, ``--sweep-starts/-draws/-passes``, the video verbs'
-  ``--joint-generations/-window/-popsize/-sigma0``, ``--candidates``,
+  ``--joint-generations/-window/-popsize/-sigma0/--joint-both-orders``, ``--candidates``,
   ``--retrieve/--no-retrieve``, ``--no-refine``, the video verbs' ``--mode``, ``--expressive``, ``--temporal``, and
   ``--seed`` (every search and refinement). ``--help`` shows the studio preset's values as the defaults.
 - :func:`add_show_flags`: ``--allow-late``, the servo limits (``--velocity-scale``, ``--acceleration``,
@@ -43,7 +43,7 @@ BUDGETS = (  # (flag prefix, the SequenceConfig field, its config class, the fie
     ("next-", "next", SearchConfig, ("batch", "iterations"), True),
     ("refine-", "refine", RefineConfig, ("method", "steps", "restarts", "popsize", "sigma0"), False),
     ("sweep-", "sweep", SweepConfig, ("starts", "draws", "passes"), False),
-    ("joint-", "joint", JointConfig, ("generations", "window", "popsize", "sigma0"), True),
+    ("joint-", "joint", JointConfig, ("generations", "window", "popsize", "sigma0", "both_orders"), True),
 )
 VIDEO_FIELDS = ("mode", "expressive", "temporal", "keep_clock", "clock_margin")  # fields only a video uses
 LIMITS = ("velocity_scale", "acceleration", "jerk")

@@ -274,7 +274,9 @@ class VideoEvaluator:
                 "sweep, search and refinement"
                 + (f"; then the keyframes refined together within that reach ({cfg.joint.generations} CMA-ES "
                    f"generations of {cfg.joint.popsize} per window of {cfg.joint.window}, "
-                   "studio.imitate.joint_refine)" if cfg.joint.generations else "")
+                   "studio.imitate.joint_refine"
+                   + (", from whichever order of posing them, first to last or last to first, sums lower"
+                      if cfg.joint.both_orders else "") + ")" if cfg.joint.generations else "")
                 + ". The six rows above are the paper's: upright rig, poses chosen without the clock."
             )  # fmt: skip
         if not lc.use_clip:

@@ -52,6 +52,7 @@ class JointResult:
     start_loss: float  # the objective at the start
     seconds: float  # wall time
     cancelled: bool = False  # the cancel event stopped it: the best poses kept before it
+    chosen: int = 0  # the start refined: 0 the poses given, i ≥ 1 the alternative i − 1
 
 
 def windows(k: int, width: int) -> list[list[int]]:
@@ -129,8 +130,11 @@ def refine_jointly(
     w_temporal: float = 0.0,
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
+    alternatives: Sequence[np.ndarray] = (),
 ) -> JointResult:
-    """Refine the poses ``theta (K, 21)`` rad of a show's keyframes (in show order) together (module doc).
+    """Refine the poses ``theta (K, 21)`` rad of a show's keyframes (in show order) together (module doc), or
+    whichever of them and ``alternatives`` (each ``(K, 21)`` rad, within the same constraints; e.g. the keyframes
+    posed in the other order) has the lowest objective (the first on a tie; ``JointResult.chosen``).
 
     ``scorers[k]``: keyframe ``k``'s image loss of poses; ``pairs``: ``(i, j) → (21,)`` rad the most keyframes ``i``
     and ``j`` may differ per joint; ``boxes[k]``: ``(lower (21,), upper (21,))`` rad keyframe ``k`` keeps;
@@ -139,7 +143,10 @@ def refine_jointly(
     the best poses so far);
     ``cancel`` stops between generations, keeping the best poses found before it."""
     t0 = time.perf_counter()
-    theta = np.array(theta, dtype=np.float64)
+    starts = [np.array(t, dtype=np.float64) for t in (theta, *alternatives)]
+    if any(t.shape != starts[0].shape for t in starts):
+        raise ValueError(f"every start must be (K, 21) like the poses {starts[0].shape}")
+    theta = starts[0]
     k, dof = theta.shape
 
     def score(x: np.ndarray, members: list[int]) -> np.ndarray:  # candidates (B, W, 21) of a window → (B,)
@@ -149,7 +156,9 @@ def refine_jointly(
         image[:, members] = np.stack([scorers[m](x[:, i]) for i, m in enumerate(members)], axis=1)  # held: 0
         return objective(full, image, previous, w_temporal)
 
-    start = float(score(theta[None, :], list(range(k)))[0])
+    at_start = [float(score(t[None, :], list(range(k)))[0]) for t in starts]
+    chosen = int(np.argmin(at_start))
+    theta, start = starts[chosen].copy(), at_start[chosen]
     own = np.array([float(scorers[i](theta[i : i + 1])[0]) for i in range(k)])  # each keyframe's image loss now
     wins = windows(k, cfg.window) if k > 1 else []
     total, done, cancelled = len(wins) * cfg.generations, 0, False
@@ -180,4 +189,4 @@ def refine_jointly(
         if cancelled:
             break
     final = float(score(theta[None, :], list(range(k)))[0])
-    return JointResult(theta, final, start, time.perf_counter() - t0, cancelled)
+    return JointResult(theta, final, start, time.perf_counter() - t0, cancelled, chosen)

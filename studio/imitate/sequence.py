@@ -40,7 +40,7 @@ from studio.imitate.config import CPU_SEQUENCE, LossConfig, SequenceConfig
 from studio.imitate.live_best import LiveBest
 from studio.imitate.search import gradient_search
 from studio.imitate.still import Imitator
-from studio.imitate.together import eval_loss, refine_together, score_keyframe
+from studio.imitate.together import eval_loss, refine_show, score_keyframe
 from studio.imitate.transitions import TransitionConfig, TransitionReport, transition_success
 from studio.learn.selfmodel import SelfModel
 from studio.progress import ProgressFn, staged, stopped
@@ -167,7 +167,8 @@ class SequenceImitator:
         rolled mount's (:class:`~studio.imitate.framing.Framed`). ``pairs``: ``(i, j) → (21,)`` rad, the most
         keyframes ``i`` and ``j`` may differ per joint on the show's clock
         (:func:`~studio.motion.reach.reach_pairs`); given, with ``cfg.keep_clock`` and ``cfg.joint.generations``,
-        the keyframes are then refined together within them and ``box_for(k, [])`` (stage "together",
+        the keyframes are then refined together within them and ``box_for(k, [])`` (stage "together", after posing
+        them last to first too with ``cfg.joint.both_orders``, stages "last to first: keyframe k/K: ...";
         :mod:`studio.imitate.together`; a cancel there keeps every keyframe, at the best poses found before it).
         """
         if self.refiner.closed:
@@ -217,11 +218,13 @@ class SequenceImitator:
         return SequenceResult(done, cfg, n, time.perf_counter() - t0, cancelled)
 
     def _together(self, done, masks, expressive, cfg, pairs, box_for, previous, roll, progress, cancel) -> list:
-        """The finished keyframes refined together (:func:`~studio.imitate.together.refine_together`)."""
+        """The finished keyframes refined together (:func:`~studio.imitate.together.refine_show`: in the better of
+        both orders with ``cfg.joint.both_orders``)."""
         box_of = None if box_for is None else (lambda k: box_for(k, []))
-        scored, got = refine_together(self.imitator, masks, expressive, np.stack([d.theta for d in done]), cfg,
-                                      pairs, box_of, previous, roll, progress, cancel)  # fmt: skip
-        log.info("keyframes together: %.4f → %.4f in %.1f s", got.start_loss, got.loss, got.seconds)
+        scored, got = refine_show(self, masks, expressive, np.stack([d.theta for d in done]), cfg, pairs, box_of,
+                                  previous, roll, progress, cancel)  # fmt: skip
+        log.info("keyframes together (%s): %.4f → %.4f in %.1f s", "last to first" if got.chosen else "first to last",
+                 got.start_loss, got.loss, got.seconds)  # fmt: skip
         share = got.seconds / len(done)  # the together step's time, shared out
         return [
             replace(d, theta=g.theta, shadow=g.shadow, loss=g.loss, evaluation=g.evaluation,

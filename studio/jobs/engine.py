@@ -190,7 +190,8 @@ def refine_together_job(
 ) -> Job:
     """Keyframes already posed at ``theta (K, 21)`` rad (show order; targets ``masks (K, S, S)``, ``expressive``
     alike or None) refined together within their reach on the show's clock → ``(scores, JointResult)``
-    (:func:`studio.imitate.together.refine_together`: ``pairs`` ``(i, j) → (21,)`` rad by index, ``boxes[k]``
+    (:func:`studio.imitate.together.refine_show`: after posing them last to first too with ``cfg.joint.both_orders``,
+    stages "last to first: keyframe k/K: ..."; ``pairs`` ``(i, j) → (21,)`` rad by index, ``boxes[k]``
     ``(lower, upper)`` or None from the poses outside them, ``previous (21,)`` the pose before the first); stage
     "together"; a cancel keeps the best poses found before it (the job still ends cancelled, nothing applied)."""
     run = functools.partial(
@@ -204,12 +205,13 @@ def refine_together_job(
 
 def _together(report: Reporter, cancel, *, masks, expressive, theta, pairs, boxes, cfg, loss_cfg, clip, model_path,
               previous, device, roll):  # fmt: skip
+    from studio.imitate.sequence import SequenceImitator
     from studio.imitate.still import Imitator
-    from studio.imitate.together import refine_together
+    from studio.imitate.together import refine_show
 
-    with Imitator(None, model_path, loss_cfg, clip, device=device) as im:
-        got = refine_together(im, masks, expressive, theta, cfg, pairs, lambda k: boxes[k], previous, roll,
-                              report.engine_progress(), cancel)  # fmt: skip
+    with Imitator(None, model_path, loss_cfg, clip, device=device) as im, SequenceImitator(imitator=im) as seq:
+        got = refine_show(seq, masks, expressive, theta, cfg, pairs, lambda k: boxes[k], previous, roll,
+                          report.engine_progress(), cancel)  # fmt: skip
         report.check()
         return got
 

@@ -6,8 +6,9 @@ A run poses each keyframe within the servos' reach of those posed before it on t
 fixes where the next ones can go. With the clock kept (``SequenceConfig.keep_clock``) and ``SequenceConfig.joint``
 on, every stretch of two or more consecutive keyframes of one source that the run optimised is refined together
 within their reach of one another and of every other current keyframe (held), in one job each. Keyframes the run
-did not optimise (current, or the artist's) never move. A stretch's results are replaced only where a pose moved,
-from the same inputs, so they stay current.
+did not optimise (current, or the artist's) never move. With ``joint.both_orders`` a stretch is first posed again
+last to first, and refined from the order whose sum is lower (:func:`~studio.imitate.together.refine_show`). A
+stretch's results are replaced only where a pose moved, from the same inputs, so they stay current.
 """
 
 from __future__ import annotations
@@ -102,7 +103,9 @@ def refine_stretches(project: ProjectHandle, cfg: Any, clip: Any, queue: JobQueu
     for ids in together_stretches(project, report.optimised):
         job = queue.submit(together_job(project, ids, cfg, clip, model_path))
         if on_job is not None:
-            on_job(job, f"refining keyframes {ids[0]}–{ids[-1]} together, within their reach on the show's clock")
+            again = ", posed last to first too" if cfg.sequence.joint.both_orders else ""
+            on_job(job, f"refining keyframes {ids[0]}–{ids[-1]} together{again}, within their reach on the show's "
+                        "clock")  # fmt: skip
         state = job.follow(cancel)
         if state != JobState.DONE:
             report.cancelled, report.error = state == JobState.CANCELLED, job.error
