@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from studio.imitate.config import JointConfig, LossConfig, RefineConfig, SearchConfig, SequenceConfig
-from studio.imitate.joint_refine import TOL, objective, refine_jointly, windows
+from studio.imitate.joint_refine import TOL, objective, posed_box, refine_jointly, windows
 from studio.imitate.sequence import SequenceImitator
 from studio.imitate.together import pose_backwards, refine_show, refine_together
 from studio.motion.limits import JointLimits
@@ -226,3 +226,19 @@ def test_keyframes_posed_last_to_first_keep_the_reach_and_the_lower_sum_is_refin
         cancel.set()
         _, stopped = refine_show(seq, masks, exp, forward, both, pairs, box_of, cancel=cancel)
         assert stopped.cancelled and stopped.chosen == 0 and np.array_equal(stopped.theta, forward)
+
+
+def test_a_posed_box_keeps_every_posed_pairs_distance_and_pins_crossed_joints_to_the_middle():
+    d = np.full(J, 0.1)
+    pairs = {(0, 1): d, (1, 2): d, (0, 2): 2 * d}
+    posed = {2: np.full(J, 0.5)}
+
+    def box(k, poses, lower=LO, upper=HI):
+        return np.stack(posed_box(k, poses, pairs, lower, upper))
+
+    np.testing.assert_allclose(box(1, posed), [np.full(J, 0.4), np.full(J, 0.6)])
+    own = np.full(J, 0.45)  # keyframe 0's own box ends below keyframe 2's reach
+    np.testing.assert_allclose(box(0, posed, upper=own), [np.full(J, 0.3), own])
+    far = {0: np.full(J, -0.5), 2: np.full(J, 0.5)}  # keyframe 1 cannot reach both: pinned between them
+    np.testing.assert_allclose(box(1, far), np.zeros((2, J)), atol=1e-12)
+    np.testing.assert_array_equal(box(1, {}), [LO, HI])  # nothing posed: its own box

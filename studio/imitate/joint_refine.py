@@ -77,6 +77,25 @@ def objective(theta: np.ndarray, image: np.ndarray, previous: np.ndarray | None,
     return total
 
 
+def posed_box(
+    k: int, posed: Mapping[int, np.ndarray], pairs: Mapping[tuple[int, int], np.ndarray], lower: np.ndarray,
+    upper: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The box ``(lower (21,), upper (21,))`` rad keyframe ``k`` keeps: ``[lower, upper]`` within the ``pairs``
+    distance of every keyframe ``posed`` (index → ``(21,)`` rad). Where two bounds cross (no pose reaches both),
+    that joint is pinned to the middle of the two, within ``[lower, upper]`` (the rule of
+    :func:`studio.motion.reach.distance_box`)."""
+    lo, hi = np.array(lower, dtype=np.float64), np.array(upper, dtype=np.float64)
+    for (a, b), d in pairs.items():
+        other = b if a == k else a if b == k else None
+        if other is not None and other in posed:
+            lo = np.maximum(lo, np.asarray(posed[other], float) - d)
+            hi = np.minimum(hi, np.asarray(posed[other], float) + d)
+    crossed = lo > hi
+    mid = np.clip((lo + hi) / 2.0, lower, upper)
+    return np.where(crossed, mid, lo), np.where(crossed, mid, hi)
+
+
 class _Window:
     """One window's constraints: each member's box (own box ∩ reach of the held keyframes) and the pairs inside."""
 

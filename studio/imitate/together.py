@@ -28,12 +28,10 @@ from typing import Any
 import numpy as np
 
 from studio.imitate.config import COMPONENTS, SequenceConfig
-from studio.imitate.joint_refine import JointResult, refine_jointly
+from studio.imitate.joint_refine import JointResult, posed_box, refine_jointly
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
 from studio.imitate.still import Imitator
-from studio.motion.limits import JointLimits
-from studio.motion.reach import distance_box
 from studio.progress import Progress, ProgressFn
 
 Box = tuple[np.ndarray, np.ndarray]  # (lower (21,), upper (21,)) rad
@@ -133,17 +131,16 @@ def pose_backwards(
     (:func:`refine_together`'s arguments) → ``(K, 21)`` rad in show order; None when ``cancel`` stopped it. Stages
     "last to first: keyframe k/K: ..." (k: the keyframe's place in the show, K first)."""
     n = len(masks)
-    limits = JointLimits.from_hand(seq.imitator.hand)
+    hand = seq.imitator.hand
 
     def box_for(j: int, done: list) -> Box | None:  # j: posed j-th, keyframe n − 1 − j; done: n − 1, n − 2, ...
         k = n - 1 - j
-        posed = {n - 1 - i: theta for i, theta in enumerate(done)}
-        near = [(posed[b if a == k else a], d) for (a, b), d in pairs.items() if k in (a, b) and (b if a == k else a)
-                in posed]  # fmt: skip
         own = None if box_of is None else box_of(k)
-        if own is not None:  # a box is a distance about its middle
-            near.append(((own[0] + own[1]) / 2.0, (own[1] - own[0]) / 2.0))
-        return distance_box(near, limits) if near else None
+        posed = {n - 1 - i: theta for i, theta in enumerate(done)}
+        if own is None and not any(k in pair and (pair[0] in posed or pair[1] in posed) for pair in pairs):
+            return None  # nothing holds it: the joint limits
+        lower, upper = (hand.lower, hand.upper) if own is None else own
+        return posed_box(k, posed, pairs, lower, upper)
 
     def in_show_order(p: Progress) -> None:  # "keyframe 1/3: search" of the reversed masks is the show's keyframe 3
         stage = re.sub(r"^keyframe (\d+)/", lambda m: f"keyframe {n + 1 - int(m[1])}/", p.stage)
