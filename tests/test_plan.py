@@ -29,9 +29,10 @@ from studio.cli.main import main
 from studio.errors import Cancelled
 from studio.motion.errors import KeyframeCollisionError, PlanCancelled, PlanError, SegmentTooFastError
 from studio.motion.limits import JointLimits, LimitsConfig
-from studio.motion.path import PathConfig, build_path, keyframe_spline, spline_path
+from studio.motion.path import PathConfig, build_path
 from studio.motion.plan import Keyframes, PlanConfig, keyframe_velocities, parse_keyframes, plan_show
 from studio.motion.show import load_show
+from studio.motion.spline import keyframe_spline, spline_path
 from studio.motion.timing import TimingConfig
 from studio.progress import Progress
 from studio.sim.hand import DEFAULT_URDF, parse_urdf

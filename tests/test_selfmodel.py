@@ -17,9 +17,10 @@ from studio.cli.runs import advice
 from studio.errors import StudioError
 from studio.learn.checkpoint import CheckpointError, read_checkpoint, save_model
 from studio.learn.config import TrainConfig
+from studio.learn.pairs import BatchesAhead, Pairs
 from studio.learn.selfmodel import SelfModel, SelfModelConfig, load_selfmodel
 from studio.learn.train import train
-from studio.learn.trainer import Pairs, _Ahead, lr_at
+from studio.learn.trainer import lr_at
 from studio.progress import Progress
 
 TINY = dict(resolution=32, hidden=64, channels=16, min_channels=8, res_blocks=1)
@@ -67,7 +68,7 @@ def test_batches_made_ahead_are_the_stream_itself(hand):
     """The background thread hands over the same on-the-fly batches in the same order (uint8 shadows, cast by
     ``fit`` on its device), raises the source's failure where it happened, and ends when closed."""
     pairs = Pairs(TrainConfig(batch_size=6, resolution=32), hand, 32)
-    ahead = _Ahead(pairs.train_batches(4))
+    ahead = BatchesAhead(pairs.train_batches(4))
     for want in [next(pairs.train_batches(k)) for k in (4, 5, 6)]:
         got = next(ahead)
         assert got[1].dtype == torch.uint8 and torch.equal(got[0], want[0]) and torch.equal(got[1], want[1])
@@ -78,7 +79,7 @@ def test_batches_made_ahead_are_the_stream_itself(hand):
         yield from [(torch.zeros(1), torch.zeros(1))] * 2
         raise ValueError("shard 3 is unreadable")
 
-    ahead = _Ahead(failing())
+    ahead = BatchesAhead(failing())
     next(ahead), next(ahead)
     with pytest.raises(ValueError, match="shard 3"):
         next(ahead)

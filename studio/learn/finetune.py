@@ -78,7 +78,7 @@ def resize(masks: torch.Tensor, resolution: int) -> torch.Tensor:
 
 
 class CapturePairs:
-    """The trainer's data source (as ``studio.learn.trainer.Pairs``) over a capture set's two splits.
+    """The trainer's data source (as ``studio.learn.pairs.Pairs``) over a capture set's two splits.
 
     ``train_batches``: batch ``k`` is ``batch_size`` distinct training pairs drawn from ``(seed, k)`` (a resumed run
     continues the same stream); ``held_out("val")`` and ``held_out("test")``: the held-out pairs, both. Masks become

@@ -37,8 +37,9 @@ from studio.jsonfile import JsonFileError, read_json
 from studio.motion.bounds import MAX_KEYFRAMES, MAX_SHOW_S, MAX_SOURCE_FRAME, fmt, is_number, number_problem
 from studio.motion.errors import KeyframeCollisionError, PlanError, check_cancel
 from studio.motion.limits import JointLimits, LimitsConfig
-from studio.motion.path import Path, PathConfig, build_path, keyframe_spline
+from studio.motion.path import Path, PathConfig, build_path
 from studio.motion.show import KeyframeMarker, Show
+from studio.motion.spline import keyframe_spline
 from studio.motion.timing import TimedTrajectory, TimingConfig, time_path
 from studio.progress import ProgressFn, report
 from studio.sim.hand import Hand
@@ -179,7 +180,7 @@ def with_home(hand: Hand, kf: Keyframes) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def keyframe_velocities(times: np.ndarray, poses: np.ndarray, at_rest: np.ndarray, hand: Hand) -> np.ndarray:
-    """(K, 21) rad/s: the keyframe spline's velocity at each keyframe (``studio.motion.path.keyframe_spline``, the
+    """(K, 21) rad/s: the keyframe spline's velocity at each keyframe (``studio.motion.spline.keyframe_spline``, the
     spline the path follows); 0 where at rest or where that joint falls back to linear interpolation."""
     v = keyframe_spline(times, poses, hand.lower, hand.upper).key_velocities()
     v[at_rest] = 0.0

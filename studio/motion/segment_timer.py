@@ -123,7 +123,7 @@ def _allocate(minimum: np.ndarray, weight: np.ndarray, total: float) -> np.ndarr
 def via_spline_velocities(tau: np.ndarray, q: np.ndarray, v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
     """Velocities ``(n, 21)`` rad/s at a segment's states ``q (n, 21)`` at times ``tau (n,)``: a cubic spline through
     them clamped to the end velocities ``v0``/``v1`` (21,). This via-point spline is not the keyframe spline
-    (``studio.motion.path.keyframe_spline``): it threads via-points between two keyframes whose velocities that
+    (``studio.motion.spline.keyframe_spline``): it threads via-points between two keyframes whose velocities that
     spline has already fixed."""
     v = np.zeros_like(q)
     v[0], v[-1] = v0, v1
