@@ -172,6 +172,7 @@ def test_the_whole_video_runs_the_sources_keyframes_in_order_one_job_each_then_t
         assert panel.bars["together"].description == "keyframes together: done"
         again = [b for b in panel.bars if b.startswith("last to first: keyframe ")]  # posed in the other order first
         assert again and all(panel.bars[b].value == 1.0 for b in again), list(panel.bars)
+        assert last.shadow is not None and last.shadow.any()  # live shadows while they were posed again
     finally:
         panel.close()
         state.close()
@@ -297,3 +298,31 @@ def test_the_retrieval_index_is_built_in_the_background_when_the_studio_opens(tm
     finally:
         other.close()
         again.close()
+
+
+def test_keyframes_posed_again_last_to_first_show_each_ones_own_target_beside_its_shadow(tmp_path):
+    """The job refining a stretch together poses it again last to first with live shadows: the target shown beside
+    each is the keyframe its stage names, not the stretch's first."""
+    from studio.targets.keyframes import KeyframeConfig
+    from studio.targets.video import DEFAULT_VIDEO
+
+    project = Project.create(tmp_path / "horse.shadow", sources=[DEFAULT_VIDEO], roll=0,
+                             clustering=KeyframeConfig(tau=0.9))  # fmt: skip
+    state = StudioState(project, queue_for(project))
+    panel = optimise_panel(state, OptimiseConfig(sequence=TINY, warm_index=False))
+    ids = [kf.id for kf in project.keyframes][:3]
+    assert len(ids) == 3
+    pictures = [mask_picture(project.keyframe_masks(k)[0], panel.cfg.image_px) for k in ids]
+    assert len(set(pictures)) == 3  # three targets that differ
+    job = Job("imitate-together", lambda report, cancel: None, title="keyframes together", meta={"keyframes": ids})
+    job.id = 21
+    shadow = np.zeros((64, 64), np.uint8)
+    try:
+        panel.jobs = [job]
+        for seq, (place, k) in enumerate([(3, 2), (2, 1), (1, 0)]):
+            stage = f"last to first: keyframe {place}/3: search"
+            panel._draw_event(JobEvent(21, "imitate-together", JobState.RUNNING, stage, 1, 2, 0.3, shadow, 1.0, seq))
+            assert panel.target_image.value == pictures[k], stage
+    finally:
+        panel.close()
+        state.close()

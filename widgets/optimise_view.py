@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import html
 import math
+import re
 
 import ipywidgets as w
 import numpy as np
@@ -100,8 +101,13 @@ class OptimiseDrawing:
         return text
 
     def _show_target(self, e: JobEvent) -> None:
+        """The target of the keyframe whose shadow the event carries: a job's one keyframe, or of several (posed
+        again last to first, :mod:`studio.imitate.together`) the one its stage names ("keyframe 3/3: search")."""
         ids = self.keyframes_of(e.job_id)
         k = ids[0] if ids else None
+        named = re.search(r"keyframe (\d+)/(\d+)", e.stage)
+        if named and len(ids) == int(named[2]) > 1 and 1 <= int(named[1]) <= len(ids):
+            k = ids[int(named[1]) - 1]
         if k is not None and k != self._target_k:
             self._target_k = k
             self.target_image.value = mask_picture(self.state.project.keyframe_masks(k)[0], self.cfg.image_px)

@@ -124,12 +124,14 @@ def pose_backwards(
     roll: float = 0.0,
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
+    best_pose: Callable[[np.ndarray], None] | None = None,
 ) -> np.ndarray | None:
     """The keyframes ``masks (K, S, S)`` posed last to first by ``seq`` (a
     :class:`~studio.imitate.sequence.SequenceImitator`, as ``cfg``): the last one as a first keyframe is, each earlier
     one from the pose after it, within ``box_of(k)`` and the ``pairs`` distance of every keyframe after it
     (:func:`refine_together`'s arguments) → ``(K, 21)`` rad in show order; None when ``cancel`` stopped it. Stages
-    "last to first: keyframe k/K: ..." (k: the keyframe's place in the show, K first)."""
+    "last to first: keyframe k/K: ..." (k: the keyframe's place in the show, K first); ``best_pose(θ (21,) rad)``
+    gets each keyframe's improving collision-free poses (live previews, as ``SequenceImitator.imitate``)."""
     n = len(masks)
     hand = seq.imitator.hand
 
@@ -148,7 +150,7 @@ def pose_backwards(
 
     flip = None if expressive is None else np.ascontiguousarray(expressive[::-1])
     got = seq.imitate(np.ascontiguousarray(masks[::-1]), flip, None if progress is None else in_show_order, cancel,
-                      cfg=cfg, box_for=box_for, roll=roll)  # fmt: skip
+                      cfg=cfg, box_for=box_for, roll=roll, best_pose=best_pose)  # fmt: skip
     return None if got.cancelled else got.thetas[::-1].copy()
 
 
@@ -164,16 +166,17 @@ def refine_show(
     roll: float = 0.0,
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
+    best_pose: Callable[[np.ndarray], None] | None = None,
 ) -> tuple[list[KeyframeScore], JointResult]:
     """Keyframes posed first to last at ``theta (K, 21)`` rad, posed again last to first when
     ``cfg.joint.both_orders`` (:func:`pose_backwards`), then refined together from the order with the lower sum
     (:func:`refine_together`, same arguments; ``seq`` a :class:`~studio.imitate.sequence.SequenceImitator`). The
     result's ``seconds`` include the second order's posing; ``chosen`` is 1 when it was kept. A cancel while posing
-    backwards refines nothing and keeps ``theta``."""
+    backwards refines nothing and keeps ``theta``. ``best_pose``: as :func:`pose_backwards`'s."""
     t0 = time.perf_counter()
     alternatives = []
     if cfg.joint.both_orders and len(masks) > 1:
-        back = pose_backwards(seq, masks, expressive, cfg, pairs, box_of, roll, progress, cancel)
+        back = pose_backwards(seq, masks, expressive, cfg, pairs, box_of, roll, progress, cancel, best_pose)
         if back is not None:
             alternatives.append(back)
     scored, got = refine_together(seq.imitator, masks, expressive, theta, cfg, pairs, box_of, previous, roll,

@@ -185,6 +185,7 @@ def refine_together_job(
     previous: np.ndarray | None = None,
     device: str | None = None,
     roll: float = 0.0,
+    preview: int = 64,
     apply: Apply = None,
     title: str = "keyframes together",
 ) -> Job:
@@ -193,25 +194,27 @@ def refine_together_job(
     (:func:`studio.imitate.together.refine_show`: after posing them last to first too with ``cfg.joint.both_orders``,
     stages "last to first: keyframe k/K: ..."; ``pairs`` ``(i, j) → (21,)`` rad by index, ``boxes[k]``
     ``(lower, upper)`` or None from the poses outside them, ``previous (21,)`` the pose before the first); stage
-    "together"; a cancel keeps the best poses found before it (the job still ends cancelled, nothing applied)."""
+    "together"; a cancel keeps the best poses found before it (the job still ends cancelled, nothing applied). While
+    they are posed again, events carry ``preview``² shadows of the best pose so far (0: none)."""
     run = functools.partial(
         _together, masks=np.asarray(masks), expressive=None if expressive is None else np.asarray(expressive),
         theta=np.asarray(theta, dtype=np.float64), pairs=pairs, boxes=list(boxes), cfg=cfg, loss_cfg=loss_cfg,
         clip=clip, model_path=model_path, previous=None if previous is None else np.asarray(previous, np.float64),
-        device=device, roll=roll,
+        device=device, roll=roll, preview=preview,
     )  # fmt: skip
     return Job("imitate-together", run, apply, title)
 
 
 def _together(report: Reporter, cancel, *, masks, expressive, theta, pairs, boxes, cfg, loss_cfg, clip, model_path,
-              previous, device, roll):  # fmt: skip
+              previous, device, roll, preview):  # fmt: skip
     from studio.imitate.sequence import SequenceImitator
     from studio.imitate.still import Imitator
     from studio.imitate.together import refine_show
 
     with Imitator(None, model_path, loss_cfg, clip, device=device) as im, SequenceImitator(imitator=im) as seq:
+        pv = PosePreview(im.hand, preview, roll=roll) if preview else None
         got = refine_show(seq, masks, expressive, theta, cfg, pairs, lambda k: boxes[k], previous, roll,
-                          report.engine_progress(), cancel)  # fmt: skip
+                          report.engine_progress(pv), cancel, pv.pose if pv else None)  # fmt: skip
         report.check()
         return got
 
