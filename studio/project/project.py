@@ -40,9 +40,10 @@ from studio.motion.video_timing import VideoTiming
 from studio.progress import ProgressFn
 from studio.project import edits
 from studio.project.containment import check_new_folder
-from studio.project.editing import KEEP, Editing, _mask_arg
+from studio.project.editing import KEEP, Editing, mask_arg
 from studio.project.history import Change, History, now_text
 from studio.project.inputs import keyframe_inputs, show_inputs
+from studio.project.keyframe_editing import KeyframeEditing
 from studio.project.lock import WriterLock, stamp
 from studio.project.project_format import DOC, SUFFIX, save_state
 from studio.project.project_read import load_state
@@ -71,7 +72,7 @@ __all__ = ["KEEP", "Change", "MissingSource", "Project", "ProjectError", "ShowLa
 log = logging.getLogger(__name__)
 
 
-class Project(Editing, Running, History):
+class Project(Editing, KeyframeEditing, Running, History):
     """An open project folder (module doc). Make one with :meth:`create` or :meth:`open`."""
 
     _now = staticmethod(now_text)
@@ -117,7 +118,7 @@ class Project(Editing, Running, History):
         if not sources:
             raise ProjectError("a project needs at least one source (a still, a video or a folder of frames)")
         srcs = [make_source(s) for s in sources]
-        mask = None if first_mask is None else _mask_arg(first_mask, None, "the first mask")
+        mask = None if first_mask is None else mask_arg(first_mask, None, "the first mask")
         path_text = str(first_mask) if isinstance(first_mask, (str, Path)) else None
         seg = {"box": box, "first_mask": mask, "first_mask_path": path_text}
         srcs = [s if s.kind == "still" else replace(s, **seg) for s in srcs]
