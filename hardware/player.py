@@ -36,13 +36,12 @@ from hardware.errors import (
     BusError,
     EStopLatched,
     HardwareError,
-    OverTemperature,
     ProtocolError,
-    ServoFault,
     ServoTimeout,
 )
 from hardware.playback_log import PlaybackResult, Recording, StopReason
-from hardware.safety import SafetyConfig, check_faults, check_temperature, check_voltage, clip_command, tracking_error
+from hardware.player_reads import PlayerReads, StopPlayback
+from hardware.safety import SafetyConfig, clip_command
 from hardware.tick_source import ShowTicks, TickSource
 from studio.progress import Progress, ProgressFn
 
@@ -66,13 +65,7 @@ class PlayerConfig:
     hold_torque_on_stop: bool = True  # after a stop: True keeps torque (hand holds its pose), False releases it
 
 
-class _Stop(Exception):
-    def __init__(self, reason: StopReason, message: str):
-        super().__init__(message)
-        self.reason, self.message = reason, message
-
-
-class Player:
+class Player(PlayerReads):
     """Plays ``(times, positions, joint_names)`` on a connected bus through a calibration."""
 
     def __init__(
@@ -161,7 +154,7 @@ class Player:
             return self._finish(StopReason.ESTOP, self.bus.latch_message(), rec)
         try:
             reason, message = self._run(source, rec, cancel, progress)
-        except _Stop as s:
+        except StopPlayback as s:
             reason, message = s.reason, s.message
         except EStopLatched:
             reason, message = StopReason.ESTOP, "e-stop pressed"
@@ -182,7 +175,7 @@ class Player:
         try:
             start = self.cal.to_rad(np.array([self.bus.read_position(i) for i in ids], dtype=float))
         except (ServoTimeout, ProtocolError) as e:
-            raise _Stop(StopReason.LOST_COMMUNICATION, f"cannot read the starting pose: {e}") from e
+            raise StopPlayback(StopReason.LOST_COMMUNICATION, f"cannot read the starting pose: {e}") from e
         source.begin(start)
         rec.ramp_ticks = source.ramp_ticks
         rec.measured = start.copy()
@@ -236,65 +229,13 @@ class Player:
             fn(*args)
         except Exception as e:
             log.error("the %s callback raised; stopping playback", name, exc_info=True)
-            raise _Stop(StopReason.CALLBACK_ERROR, f"the {name} callback raised {type(e).__name__}: {e}") from e
-
-    def _read_back(self, j: int, rec: Recording) -> None:
-        """Read joint ``j``'s position, log it, and stop on a tracking error."""
-        val = self._read(j, rec.misses, self.bus.read_position)
-        if val is None:
-            return
-        q = self.cal.to_rad(np.full(len(self.cal.ids), float(val)))[j]
-        rec.record_reading(time.perf_counter() - rec.t0, j, q)
-        err = tracking_error(q, rec.history[:, j])
-        rec.worst = max(rec.worst, err)
-        if err > self.safety.max_tracking_error_rad:
-            raise _Stop(
-                StopReason.TRACKING_ERROR,
-                f"{self.cal.joint_names[j]} (servo {self.cal.ids[j]}) is {err:.2f} rad from its command "
-                f"(limit {self.safety.max_tracking_error_rad} rad): blocked, overloaded or stuck",
-            )
+            raise StopPlayback(StopReason.CALLBACK_ERROR, f"the {name} callback raised {type(e).__name__}: {e}") from e
 
     def _check_stop(self, cancel: threading.Event | None) -> None:
         if self.bus.estop_latched:
-            raise _Stop(StopReason.ESTOP, "e-stop pressed")
+            raise StopPlayback(StopReason.ESTOP, "e-stop pressed")
         if cancel is not None and cancel.is_set():
-            raise _Stop(StopReason.CANCELLED, "cancelled")
-
-    def _read(self, j: int, misses: np.ndarray, fn):
-        """One read of joint ``j``'s servo; None on a (tolerated) miss, ``_Stop`` after too many in a row."""
-        sid = self.cal.ids[j]
-        try:
-            val = fn(sid)
-        except (ServoTimeout, ProtocolError) as e:
-            misses[j] += 1
-            log.debug("read of servo %d failed (%d in a row): %s", sid, misses[j], e)  # tolerated; a stop says more
-            if misses[j] >= self.safety.max_missed_reads:
-                raise _Stop(
-                    StopReason.LOST_COMMUNICATION,
-                    f"{self.cal.joint_names[j]} (servo {sid}) failed {misses[j]} reads in a row: {e}",
-                ) from e
-            return None
-        misses[j] = 0
-        return val
-
-    def _health(self, cursor: int, misses: np.ndarray) -> None:
-        j, kind = (cursor // 3) % len(self.cal.ids), cursor % 3
-        sid, name = self.cal.ids[j], self.cal.joint_names[j]
-        reader = (self.bus.read_faults, self.bus.read_temperature, self.bus.read_voltage)[kind]
-        val = self._read(j, misses, reader)
-        if val is None:
-            return
-        try:
-            if kind == 0:
-                check_faults(sid, name, val)
-            elif kind == 1:
-                check_temperature(sid, name, val, self.safety)
-            else:
-                check_voltage(sid, name, val, self.safety)
-        except OverTemperature as e:
-            raise _Stop(StopReason.OVER_TEMPERATURE, str(e)) from e
-        except ServoFault as e:
-            raise _Stop(StopReason.FAULT, str(e)) from e
+            raise StopPlayback(StopReason.CANCELLED, "cancelled")
 
     def _finish(self, reason: StopReason, message: str, rec: Recording) -> PlaybackResult:
         """Halt (unless completed), apply the torque policy, and record the result; never raises."""
