@@ -222,6 +222,11 @@ def test_keyframes_posed_last_to_first_keep_the_reach_and_the_lower_sum_is_refin
         assert got.start_loss <= start_sum(forward) + 1e-9 and got.loss <= got.start_loss
         assert got.start_loss == pytest.approx(start_sum(forward) if got.chosen == 0 else start_sum(back))
         assert worst_excess(got.theta, pairs) <= TOL and all(s.collision_free for s in scored)
+        orders_only = replace(tiny, joint=JointConfig(generations=0, both_orders=True))  # no refinement: the order
+        assert orders_only.joint.enabled and not JointConfig().enabled
+        got = seq.imitate(masks, exp, box_for=lambda k, done: clock(k + 1, [held, *done]), pairs=pairs,
+                          cfg=orders_only)  # fmt: skip
+        assert all("together" in k.timings for k in got.keyframes) and worst_excess(got.thetas, pairs) <= TOL
         cancel = threading.Event()
         cancel.set()
         _, stopped = refine_show(seq, masks, exp, forward, both, pairs, box_of, cancel=cancel)

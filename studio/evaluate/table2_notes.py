@@ -54,11 +54,7 @@ def table_notes(
             f"servos' rest-to-rest reach of every posed keyframe in {cfg.clock_margin:g} × the time each "
             "transition on the way between them has (studio.motion.reach.reach_distances), in retrieval, "
             "sweep, search and refinement"
-            + (f"; then the keyframes refined together within that reach ({cfg.joint.generations} CMA-ES "
-               f"generations of {cfg.joint.popsize} per window of {cfg.joint.window}, "
-               "studio.imitate.joint_refine"
-               + (", from whichever order of posing them, first to last or last to first, sums lower"
-                  if cfg.joint.both_orders else "") + ")" if cfg.joint.generations else "")
+            + _joint_note(cfg)
             + ". The six rows above are the paper's: upright rig, poses chosen without the clock."
         )  # fmt: skip
     if not lc.use_clip:
@@ -69,3 +65,14 @@ def table_notes(
     if finished < runs:
         notes.append(f"Cancelled: {finished} of {runs} (sequence, row) runs finished; only those are shown.")
     return notes
+
+
+def _joint_note(cfg: SequenceConfig) -> str:
+    """What the studio row does once its keyframes are posed one after another (:class:`JointConfig`)."""
+    j = cfg.joint
+    orders = "whichever order of posing them, first to last or last to first, sums lower"
+    if j.generations:
+        return (f"; then the keyframes refined together within that reach ({j.generations} CMA-ES generations of "
+                f"{j.popsize} per window of {j.window}, studio.imitate.joint_refine"
+                + (f", from {orders}" if j.both_orders else "") + ")")  # fmt: skip
+    return f"; then the keyframes posed last to first too, keeping {orders}" if j.both_orders else ""

@@ -107,7 +107,8 @@ PAPER_SWEEP = SweepConfig(starts=0)  # the paper has no sweep
 @dataclass(frozen=True)
 class JointConfig:
     """Refining a show's keyframes together within their reach of one another on the show's clock
-    (:mod:`studio.imitate.joint_refine`; ``generations=0`` turns it off, the paper's one keyframe after another)."""
+    (:mod:`studio.imitate.joint_refine`; ``generations=0`` without ``both_orders`` turns it off, the paper's one
+    keyframe after another)."""
 
     generations: int = 0  # CMA-ES generations per window of keyframes (0: off) [0, 100000]
     window: int = 3  # consecutive keyframes refined together at a time [2, 16]
@@ -119,6 +120,12 @@ class JointConfig:
     def __post_init__(self) -> None:
         if self.generations < 0 or not 2 <= self.window <= 16 or self.popsize < 2 or not 0 < self.sigma0 <= 3.2:
             raise ValueError("joint refinement needs generations ≥ 0, 2 ≤ window ≤ 16, popsize ≥ 2, 0 < sigma0 ≤ 3.2")
+
+    @property
+    def enabled(self) -> bool:
+        """Whether a show's keyframes take this step at all: refined together, or posed in both orders (the better
+        order kept, refined by ``generations``, which may be 0)."""
+        return self.generations > 0 or self.both_orders
 
 
 @dataclass(frozen=True)

@@ -166,7 +166,7 @@ class SequenceImitator:
         ``roll`` rad: the mount's roll; the masks are as the audience sees them, and every shadow and loss is the
         rolled mount's (:class:`~studio.imitate.framing.Framed`). ``pairs``: ``(i, j) → (21,)`` rad, the most
         keyframes ``i`` and ``j`` may differ per joint on the show's clock
-        (:func:`~studio.motion.reach.reach_pairs`); given, with ``cfg.keep_clock`` and ``cfg.joint.generations``,
+        (:func:`~studio.motion.reach.reach_pairs`); given, with ``cfg.keep_clock`` and ``cfg.joint.enabled``,
         the keyframes are then refined together within them and ``box_for(k, [])`` (stage "together", after posing
         them last to first too with ``cfg.joint.both_orders``, stages "last to first: keyframe k/K: ...";
         :mod:`studio.imitate.together`; a cancel there keeps every keyframe, at the best poses found before it).
@@ -213,7 +213,7 @@ class SequenceImitator:
                 r.seconds,
             )
         cancelled = len(done) < n
-        if not cancelled and pairs is not None and cfg.keep_clock and cfg.joint.generations and n > 1:
+        if not cancelled and pairs is not None and cfg.keep_clock and cfg.joint.enabled and n > 1:
             done = self._together(done, masks, expressive, cfg, pairs, box_for, previous, roll, progress, cancel)
         return SequenceResult(done, cfg, n, time.perf_counter() - t0, cancelled)
 

@@ -176,7 +176,7 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
         report.optimised = list(dict.fromkeys(report.optimised))
         if not done:
             return report.finish(project, cfg.transitions, t0)
-    if seq.keep_clock and seq.joint.generations and not refine_stretches(project, cfg, clip, queue, cancel,
+    if seq.keep_clock and seq.joint.enabled and not refine_stretches(project, cfg, clip, queue, cancel,
                                                                            model_path, on_job, report):  # fmt: skip
         return report.finish(project, cfg.transitions, t0)
     if not plan:
