@@ -13,6 +13,7 @@ stretch's results are replaced only where a pose moved, from the same inputs, so
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable, Collection
 from dataclasses import replace
@@ -31,6 +32,8 @@ from studio.project.run_spread import place_in_source, source_keyframes
 from studio.project.show_timing import reach_of, transition_times
 from studio.project.status import ProjectHandle
 from studio.sim.hand import load_hand
+
+log = logging.getLogger(__name__)
 
 
 def together_stretches(project: ProjectHandle, optimised: Collection[int]) -> list[list[int]]:
@@ -80,6 +83,9 @@ def together_job(project: ProjectHandle, ids: list[int], cfg: Any, clip: Any = N
 
     def apply(result: Any) -> None:
         scores, got = result
+        order = ", posed last to first" if got.chosen else ""
+        log.info("keyframes %d–%d together%s: sum %.4f → %.4f in %.1f s", ids[0], ids[-1], order, got.start_loss,
+                 got.loss, got.seconds)  # fmt: skip
         share = got.seconds / len(ids)
         for k, sc in zip(ids, scores, strict=True):
             if not np.array_equal(sc.theta, start[k].theta(names)):
