@@ -29,7 +29,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -146,6 +146,7 @@ class SequenceImitator:
         box_for: BoxFn | None = None,
         roll: float = 0.0,
         pairs: Mapping[tuple[int, int], np.ndarray] | None = None,
+        labels: Sequence[str] | None = None,
     ) -> SequenceResult:
         """Keyframe targets ``masks (K, S, S)`` uint8 (1 = shadow) in first-appearance order (all N frames work too:
         each is then its own keyframe), their expressive masks ``(K, S, S)`` or None → :class:`SequenceResult`.
@@ -170,6 +171,8 @@ class SequenceImitator:
         the keyframes are then refined together within them and ``box_for(k, [])`` (stage "together", after posing
         them last to first too with ``cfg.joint.both_orders``, stages "last to first: keyframe k/K: ...";
         :mod:`studio.imitate.together`; a cancel there keeps every keyframe, at the best poses found before it).
+        ``labels``: what each keyframe is called in its stages and the log (default "keyframe k/K"; one keyframe:
+        its stages unprefixed).
         """
         if self.refiner.closed:
             raise ClosedError("this SequenceImitator was closed; make a new one (or imitate inside its `with` block)")
@@ -177,6 +180,8 @@ class SequenceImitator:
         masks = np.asarray(masks)
         if masks.ndim != 3 or len(masks) == 0:
             raise ValueError(f"masks must be a non-empty sequence (K, S, S), not an array of shape {masks.shape}")
+        if labels is not None and len(labels) != len(masks):
+            raise ValueError(f"{len(labels)} labels for {len(masks)} keyframes: give one a keyframe")
         if expressive is not None and np.shape(expressive) != masks.shape:
             raise ValueError(f"expressive masks {np.shape(expressive)} do not match the targets {masks.shape}")
         if cfg.expressive and expressive is None:
@@ -199,14 +204,15 @@ class SequenceImitator:
             exp_k = None if expressive is None else expressive[k]
             box = None if box_for is None else box_for(k, [d.theta for d in done])
             with self.refiner.bounded(box):
-                r = self._keyframe(cfg, k, n, masks[k], exp_k, prev, progress, cancel, best_pose, roll)
+                label = f"keyframe {k + 1}/{n}" if labels is None else labels[k]
+                stages = progress if n == 1 and labels is None else staged(progress, f"{label}: ")
+                r = self._keyframe(cfg, k, masks[k], exp_k, prev, stages, cancel, best_pose, roll)
             if r is None:  # cancelled half-way
                 break
             done.append(r)
             log.info(
-                "keyframe %d/%d: total %.4f (base %.4f, image %.4f) in %.1f s",
-                k + 1,
-                n,
+                "%s: total %.4f (base %.4f, image %.4f) in %.1f s",
+                label,
                 r.loss["total"],
                 r.evaluation["base"],
                 r.total("image"),
@@ -233,15 +239,15 @@ class SequenceImitator:
         ]  # fmt: skip
 
     def _keyframe(
-        self, cfg, k, n, target, expressive, prev, progress, cancel, best_pose=None, roll=0.0
+        self, cfg, k, target, expressive, prev, stages, cancel, best_pose=None, roll=0.0
     ) -> KeyframeResult | None:
+        """Keyframe ``k`` searched and refined (``stages``: its progress, named as the caller calls it)."""
         t0 = time.perf_counter()
         framed = self.imitator.framed(target, expressive if cfg.expressive else None, roll)
         loss_fn, refiner = framed.exact, framed.refiner
         prev_t = prev if (cfg.temporal and prev is not None) else None  # the temporal term's θ*_{k−1}
         inherit = cfg.mode == "sequential" and prev is not None
         search_cfg = replace(cfg.next if inherit else cfg.first, seed=(cfg.next if inherit else cfg.first).seed + k)
-        stages = progress if n == 1 else staged(progress, f"keyframe {k + 1}/{n}: ")  # "keyframe 2/5: search"
         live = LiveBest(refiner, loss_fn, stages, best_pose, prev_t)  # what is shown: only ever better
         seeds, seed_s = None, 0.0
         if cfg.retrieve and not inherit:  # retrieval's first answer, then the block sweep of its best poses

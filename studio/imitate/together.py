@@ -18,7 +18,6 @@ twice a sequence's time (the reverse order won on bear, dog and flamingo).
 
 from __future__ import annotations
 
-import re
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -32,7 +31,7 @@ from studio.imitate.joint_refine import JointResult, posed_box, refine_jointly
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
 from studio.imitate.still import Imitator
-from studio.progress import Progress, ProgressFn
+from studio.progress import ProgressFn
 
 Box = tuple[np.ndarray, np.ndarray]  # (lower (21,), upper (21,)) rad
 
@@ -144,13 +143,10 @@ def pose_backwards(
         lower, upper = (hand.lower, hand.upper) if own is None else own
         return posed_box(k, posed, pairs, lower, upper)
 
-    def in_show_order(p: Progress) -> None:  # "keyframe 1/3: search" of the reversed masks is the show's keyframe 3
-        stage = re.sub(r"^keyframe (\d+)/", lambda m: f"keyframe {n + 1 - int(m[1])}/", p.stage)
-        progress(Progress(f"last to first: {stage}", p.step, p.total, p.best, p.item))  # type: ignore[misc]
-
     flip = None if expressive is None else np.ascontiguousarray(expressive[::-1])
-    got = seq.imitate(np.ascontiguousarray(masks[::-1]), flip, None if progress is None else in_show_order, cancel,
-                      cfg=cfg, box_for=box_for, roll=roll, best_pose=best_pose)  # fmt: skip
+    labels = [f"last to first: keyframe {n - j}/{n}" for j in range(n)]  # named as the show numbers them
+    got = seq.imitate(np.ascontiguousarray(masks[::-1]), flip, progress, cancel, cfg=cfg, box_for=box_for, roll=roll,
+                      best_pose=best_pose, labels=labels)  # fmt: skip
     return None if got.cancelled else got.thetas[::-1].copy()
 
 
