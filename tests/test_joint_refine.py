@@ -213,6 +213,11 @@ def test_keyframes_posed_last_to_first_keep_the_reach_and_the_lower_sum_is_refin
         assert seen and all(p.stage.startswith("last to first: keyframe ") for p in seen)
         named = [p.stage.split(":")[1].strip() for p in seen]  # the show's keyframes, the last one first
         assert list(dict.fromkeys(named)) == ["keyframe 3/3", "keyframe 2/3", "keyframe 1/3"]
+        seen.clear()
+        again = pose_backwards(seq, masks, exp, tiny, pairs, box_of, progress=seen.append, ids=[7, 8, 9])
+        np.testing.assert_array_equal(again, back)  # the same poses, named by a project's ids
+        named = [p.stage.split(":")[1].strip() for p in seen]
+        assert list(dict.fromkeys(named)) == ["keyframe 9 (3 of 3)", "keyframe 8 (2 of 3)", "keyframe 7 (1 of 3)"]
 
         def start_sum(theta):  # the sum a refinement of no generations keeps: its start's
             off = replace(tiny, joint=JointConfig(generations=0))

@@ -171,6 +171,7 @@ def test_the_whole_video_runs_the_sources_keyframes_in_order_one_job_each_then_t
         assert until(lambda: "together" in panel.bars, 10), list(panel.bars)  # the last job's stage, its bar
         assert panel.bars["together"].description == "keyframes together: done"
         again = [b for b in panel.bars if b.startswith("last to first: keyframe ")]  # posed in the other order first
+        assert f"last to first: keyframe {video[-1]} ({len(video)} of {len(video)}): search" in again  # by its id
         assert again and all(panel.bars[b].value == 1.0 for b in again), list(panel.bars)
         assert last.shadow is not None and last.shadow.any()  # live shadows while they were posed again
     finally:
@@ -319,10 +320,16 @@ def test_keyframes_posed_again_last_to_first_show_each_ones_own_target_beside_it
     shadow = np.zeros((64, 64), np.uint8)
     try:
         panel.jobs = [job]
-        for seq, (place, k) in enumerate([(3, 2), (2, 1), (1, 0)]):
-            stage = f"last to first: keyframe {place}/3: search"
-            panel._draw_event(JobEvent(21, "imitate-together", JobState.RUNNING, stage, 1, 2, 0.3, shadow, 1.0, seq))
-            assert panel.target_image.value == pictures[k], stage
+
+        def draw(stage: str) -> None:
+            panel._draw_event(JobEvent(21, "imitate-together", JobState.RUNNING, stage, 1, 2, 0.3, shadow, 1.0, 0))
+
+        for place, k in [(3, 2), (2, 1), (1, 0)]:
+            for stage in (f"last to first: keyframe {ids[k]} ({place} of 3): search",  # a project's: by id
+                          f"last to first: keyframe {place}/3: search"):  # by place  # fmt: skip
+                draw(stage)
+                assert panel.target_image.value == pictures[k], stage
+                draw("x: keyframe 1/3: search")  # back to the first between the two
     finally:
         panel.close()
         state.close()

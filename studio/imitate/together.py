@@ -124,13 +124,15 @@ def pose_backwards(
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     best_pose: Callable[[np.ndarray], None] | None = None,
+    ids: Sequence[int] | None = None,
 ) -> np.ndarray | None:
     """The keyframes ``masks (K, S, S)`` posed last to first by ``seq`` (a
     :class:`~studio.imitate.sequence.SequenceImitator`, as ``cfg``): the last one as a first keyframe is, each earlier
     one from the pose after it, within ``box_of(k)`` and the ``pairs`` distance of every keyframe after it
     (:func:`refine_together`'s arguments) → ``(K, 21)`` rad in show order; None when ``cancel`` stopped it. Stages
-    "last to first: keyframe k/K: ..." (k: the keyframe's place in the show, K first); ``best_pose(θ (21,) rad)``
-    gets each keyframe's improving collision-free poses (live previews, as ``SequenceImitator.imitate``)."""
+    "last to first: keyframe k/K: ..." (k: the keyframe's place in the show, K first; given the keyframes' ``ids``,
+    a project's: "last to first: keyframe 7 (3 of 3): ..."); ``best_pose(θ (21,) rad)`` gets each keyframe's
+    improving collision-free poses (live previews, as ``SequenceImitator.imitate``)."""
     n = len(masks)
     hand = seq.imitator.hand
 
@@ -144,7 +146,11 @@ def pose_backwards(
         return posed_box(k, posed, pairs, lower, upper)
 
     flip = None if expressive is None else np.ascontiguousarray(expressive[::-1])
-    labels = [f"last to first: keyframe {n - j}/{n}" for j in range(n)]  # named as the show numbers them
+    if ids is not None and len(ids) != n:
+        raise ValueError(f"{len(ids)} keyframe ids for {n} keyframes")
+    places = [n - j for j in range(n)]  # the j-th posed is the show's keyframe n − j (1-based)
+    labels = [f"last to first: keyframe {k}/{n}" if ids is None else f"last to first: keyframe {ids[k - 1]} ({k} of "
+              f"{n})" for k in places]  # fmt: skip
     got = seq.imitate(np.ascontiguousarray(masks[::-1]), flip, progress, cancel, cfg=cfg, box_for=box_for, roll=roll,
                       best_pose=best_pose, labels=labels)  # fmt: skip
     return None if got.cancelled else got.thetas[::-1].copy()
@@ -163,16 +169,17 @@ def refine_show(
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     best_pose: Callable[[np.ndarray], None] | None = None,
+    ids: Sequence[int] | None = None,
 ) -> tuple[list[KeyframeScore], JointResult]:
     """Keyframes posed first to last at ``theta (K, 21)`` rad, posed again last to first when
     ``cfg.joint.both_orders`` (:func:`pose_backwards`), then refined together from the order with the lower sum
     (:func:`refine_together`, same arguments; ``seq`` a :class:`~studio.imitate.sequence.SequenceImitator`). The
     result's ``seconds`` include the second order's posing; ``chosen`` is 1 when it was kept. A cancel while posing
-    backwards refines nothing and keeps ``theta``. ``best_pose``: as :func:`pose_backwards`'s."""
+    backwards refines nothing and keeps ``theta``. ``best_pose``, ``ids``: as :func:`pose_backwards`'s."""
     t0 = time.perf_counter()
     alternatives = []
     if cfg.joint.both_orders and len(masks) > 1:
-        back = pose_backwards(seq, masks, expressive, cfg, pairs, box_of, roll, progress, cancel, best_pose)
+        back = pose_backwards(seq, masks, expressive, cfg, pairs, box_of, roll, progress, cancel, best_pose, ids)
         if back is not None:
             alternatives.append(back)
     scored, got = refine_together(seq.imitator, masks, expressive, theta, cfg, pairs, box_of, previous, roll,

@@ -186,6 +186,7 @@ def refine_together_job(
     device: str | None = None,
     roll: float = 0.0,
     preview: int = 64,
+    ids: list[int] | None = None,
     apply: Apply = None,
     title: str = "keyframes together",
 ) -> Job:
@@ -195,18 +196,19 @@ def refine_together_job(
     stages "last to first: keyframe k/K: ..."; ``pairs`` ``(i, j) → (21,)`` rad by index, ``boxes[k]``
     ``(lower, upper)`` or None from the poses outside them, ``previous (21,)`` the pose before the first); stage
     "together"; a cancel keeps the best poses found before it (the job still ends cancelled, nothing applied). While
-    they are posed again, events carry ``preview``² shadows of the best pose so far (0: none)."""
+    they are posed again, events carry ``preview``² shadows of the best pose so far (0: none); ``ids``: the
+    keyframes' own ids, for their stage names ("last to first: keyframe 7 (3 of 3): search")."""
     run = functools.partial(
         _together, masks=np.asarray(masks), expressive=None if expressive is None else np.asarray(expressive),
         theta=np.asarray(theta, dtype=np.float64), pairs=pairs, boxes=list(boxes), cfg=cfg, loss_cfg=loss_cfg,
         clip=clip, model_path=model_path, previous=None if previous is None else np.asarray(previous, np.float64),
-        device=device, roll=roll, preview=preview,
+        device=device, roll=roll, preview=preview, ids=None if ids is None else list(ids),
     )  # fmt: skip
     return Job("imitate-together", run, apply, title)
 
 
 def _together(report: Reporter, cancel, *, masks, expressive, theta, pairs, boxes, cfg, loss_cfg, clip, model_path,
-              previous, device, roll, preview):  # fmt: skip
+              previous, device, roll, preview, ids):  # fmt: skip
     from studio.imitate.sequence import SequenceImitator
     from studio.imitate.still import Imitator
     from studio.imitate.together import refine_show
@@ -214,7 +216,7 @@ def _together(report: Reporter, cancel, *, masks, expressive, theta, pairs, boxe
     with Imitator(None, model_path, loss_cfg, clip, device=device) as im, SequenceImitator(imitator=im) as seq:
         pv = PosePreview(im.hand, preview, roll=roll) if preview else None
         got = refine_show(seq, masks, expressive, theta, cfg, pairs, lambda k: boxes[k], previous, roll,
-                          report.engine_progress(pv), cancel, pv.pose if pv else None)  # fmt: skip
+                          report.engine_progress(pv), cancel, pv.pose if pv else None, ids)  # fmt: skip
         report.check()
         return got
 

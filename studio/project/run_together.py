@@ -95,7 +95,8 @@ def together_job(project: ProjectHandle, ids: list[int], cfg: Any, clip: Any = N
     job = refine_together_job(
         masks, expressive, np.stack([start[k].theta(names) for k in ids]), pairs=pairs, boxes=boxes, cfg=seq,
         loss_cfg=project_loss(project, masks.shape[-1], clip), clip=clip, model_path=model_path, previous=previous,
-        device=cfg.device, roll=project.mount.roll, apply=apply, title=f"keyframes {ids[0]}–{ids[-1]} together",
+        device=cfg.device, roll=project.mount.roll, ids=list(ids), apply=apply,
+        title=f"keyframes {ids[0]}–{ids[-1]} together",
     )  # fmt: skip
     job.meta["keyframes"] = list(ids)
     return job
