@@ -321,15 +321,16 @@ def test_keyframes_posed_again_last_to_first_show_each_ones_own_target_beside_it
     try:
         panel.jobs = [job]
 
-        def draw(stage: str) -> None:
-            panel._draw_event(JobEvent(21, "imitate-together", JobState.RUNNING, stage, 1, 2, 0.3, shadow, 1.0, 0))
+        def draw(stage: str, item: str) -> None:
+            panel._draw_event(JobEvent(21, "imitate-together", JobState.RUNNING, stage, 1, 2, 0.3, shadow, 1.0, 0,
+                                       item=item))  # fmt: skip
 
         for place, k in [(3, 2), (2, 1), (1, 0)]:
-            for stage in (f"last to first: keyframe {ids[k]} ({place} of 3): search",  # a project's: by id
-                          f"last to first: keyframe {place}/3: search"):  # by place  # fmt: skip
-                draw(stage)
-                assert panel.target_image.value == pictures[k], stage
-                draw("x: keyframe 1/3: search")  # back to the first between the two
+            stage = f"last to first: keyframe {ids[k]} ({place} of 3): search"
+            draw(stage, str(ids[k]))  # the report names its keyframe's id
+            assert panel.target_image.value == pictures[k], stage
+        draw("last to first: keyframe 99 (3 of 3): search", "99")  # not one of the job's: its first keyframe's
+        assert panel.target_image.value == pictures[0]
     finally:
         panel.close()
         state.close()

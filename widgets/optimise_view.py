@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import html
 import math
-import re
 
 import ipywidgets as w
 import numpy as np
@@ -102,16 +101,11 @@ class OptimiseDrawing:
 
     def _show_target(self, e: JobEvent) -> None:
         """The target of the keyframe whose shadow the event carries: a job's one keyframe, or of several (posed
-        again last to first, :mod:`studio.imitate.together`) the one its stage names ("keyframe 7 (3 of 3): search"
-        by its id, "keyframe 3/3: search" by its place)."""
+        again last to first, :mod:`studio.imitate.together`) the one whose id the event's ``item`` names."""
         ids = self.keyframes_of(e.job_id)
         k = ids[0] if ids else None
-        by_id = re.search(r"keyframe (\d+) \(\d+ of \d+\)", e.stage)  # a project's: "keyframe 7 (3 of 3)"
-        by_place = re.search(r"keyframe (\d+)/(\d+)", e.stage)  # "keyframe 3/3": the job's third
-        if by_id and int(by_id[1]) in ids:
-            k = int(by_id[1])
-        elif by_place and len(ids) == int(by_place[2]) > 1 and 1 <= int(by_place[1]) <= len(ids):
-            k = ids[int(by_place[1]) - 1]
+        if e.item.isdigit() and int(e.item) in ids:  # the report names its keyframe (studio.imitate.together)
+            k = int(e.item)
         if k is not None and k != self._target_k:
             self._target_k = k
             self.target_image.value = mask_picture(self.state.project.keyframe_masks(k)[0], self.cfg.image_px)

@@ -147,6 +147,7 @@ class SequenceImitator:
         roll: float = 0.0,
         pairs: Mapping[tuple[int, int], np.ndarray] | None = None,
         labels: Sequence[str] | None = None,
+        items: Sequence[str] | None = None,
     ) -> SequenceResult:
         """Keyframe targets ``masks (K, S, S)`` uint8 (1 = shadow) in first-appearance order (all N frames work too:
         each is then its own keyframe), their expressive masks ``(K, S, S)`` or None → :class:`SequenceResult`.
@@ -172,7 +173,8 @@ class SequenceImitator:
         them last to first too with ``cfg.joint.both_orders``, stages "last to first: keyframe k/K: ...";
         :mod:`studio.imitate.together`; a cancel there keeps every keyframe, at the best poses found before it).
         ``labels``: what each keyframe is called in its stages and the log (default "keyframe k/K"; one keyframe:
-        its stages unprefixed).
+        its stages unprefixed); ``items``: each keyframe's ``item`` on its progress reports (e.g. a project's
+        keyframe id, for a panel to show the right target).
         """
         if self.refiner.closed:
             raise ClosedError("this SequenceImitator was closed; make a new one (or imitate inside its `with` block)")
@@ -180,8 +182,9 @@ class SequenceImitator:
         masks = np.asarray(masks)
         if masks.ndim != 3 or len(masks) == 0:
             raise ValueError(f"masks must be a non-empty sequence (K, S, S), not an array of shape {masks.shape}")
-        if labels is not None and len(labels) != len(masks):
-            raise ValueError(f"{len(labels)} labels for {len(masks)} keyframes: give one a keyframe")
+        for given, what in ((labels, "labels"), (items, "items")):
+            if given is not None and len(given) != len(masks):
+                raise ValueError(f"{len(given)} {what} for {len(masks)} keyframes: give one a keyframe")
         if expressive is not None and np.shape(expressive) != masks.shape:
             raise ValueError(f"expressive masks {np.shape(expressive)} do not match the targets {masks.shape}")
         if cfg.expressive and expressive is None:
@@ -206,6 +209,8 @@ class SequenceImitator:
             with self.refiner.bounded(box):
                 label = f"keyframe {k + 1}/{n}" if labels is None else labels[k]
                 stages = progress if n == 1 and labels is None else staged(progress, f"{label}: ")
+                if items is not None:
+                    stages = staged(stages, "", item=items[k])
                 r = self._keyframe(cfg, k, masks[k], exp_k, prev, stages, cancel, best_pose, roll)
             if r is None:  # cancelled half-way
                 break

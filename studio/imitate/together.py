@@ -12,8 +12,8 @@ Which keyframe is posed first matters: each is kept within the servos' reach of 
 one, posed for its own target alone, decides where the others can go. With ``cfg.joint.both_orders``
 :func:`refine_show` poses the keyframes again last to first (:func:`pose_backwards`), each within reach of those
 after it, and the refinement starts from whichever order's sum is lower. Measured on Table 2's studio row (six DAVIS
-sequences, 13 keyframes): L_base + L_expr 0.349 → 0.327, the paper's literal reading 2/7 → 3/7 transitions, at about
-twice a sequence's time (the reverse order won on bear, dog and flamingo).
+sequences, 13 keyframes): L_base + L_expr 0.349 → 0.325, the paper's literal reading 2/7 → 3/7 transitions, at about
+twice a sequence's time (the reverse order kept on bear, cows, dog and flamingo).
 """
 
 from __future__ import annotations
@@ -131,7 +131,8 @@ def pose_backwards(
     one from the pose after it, within ``box_of(k)`` and the ``pairs`` distance of every keyframe after it
     (:func:`refine_together`'s arguments) → ``(K, 21)`` rad in show order; None when ``cancel`` stopped it. Stages
     "last to first: keyframe k/K: ..." (k: the keyframe's place in the show, K first; given the keyframes' ``ids``,
-    a project's: "last to first: keyframe 7 (3 of 3): ..."); ``best_pose(θ (21,) rad)`` gets each keyframe's
+    a project's: "last to first: keyframe 7 (3 of 3): ...", each report's ``item`` the id, "7");
+    ``best_pose(θ (21,) rad)`` gets each keyframe's
     improving collision-free poses (live previews, as ``SequenceImitator.imitate``)."""
     n = len(masks)
     hand = seq.imitator.hand
@@ -140,7 +141,7 @@ def pose_backwards(
         k = n - 1 - j
         own = None if box_of is None else box_of(k)
         posed = {n - 1 - i: theta for i, theta in enumerate(done)}
-        if own is None and not any(k in pair and (pair[0] in posed or pair[1] in posed) for pair in pairs):
+        if own is None and not any(a in posed or b in posed for a, b in pairs if k in (a, b)):
             return None  # nothing holds it: the joint limits
         lower, upper = (hand.lower, hand.upper) if own is None else own
         return posed_box(k, posed, pairs, lower, upper)
@@ -151,8 +152,9 @@ def pose_backwards(
     places = [n - j for j in range(n)]  # the j-th posed is the show's keyframe n − j (1-based)
     labels = [f"last to first: keyframe {k}/{n}" if ids is None else f"last to first: keyframe {ids[k - 1]} ({k} of "
               f"{n})" for k in places]  # fmt: skip
+    items = None if ids is None else [str(ids[k - 1]) for k in places]  # each report names its keyframe's id
     got = seq.imitate(np.ascontiguousarray(masks[::-1]), flip, progress, cancel, cfg=cfg, box_for=box_for, roll=roll,
-                      best_pose=best_pose, labels=labels)  # fmt: skip
+                      best_pose=best_pose, labels=labels, items=items)  # fmt: skip
     return None if got.cancelled else got.thetas[::-1].copy()
 
 
