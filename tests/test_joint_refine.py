@@ -149,20 +149,33 @@ def test_progress_counts_every_generation_of_every_window():
     )  # each window's best only falls
 
 
-def test_a_sequence_given_the_clock_refines_its_keyframes_together(hand):
-    """SequenceImitator.imitate with the clock's pairs (Table 2's studio row): the keyframes posed one after another,
-    then together; within every pair's reach, each result scored again, and the sum it optimises never higher."""
-    rng = np.random.default_rng(3)
+TINY = SequenceConfig(first=SearchConfig(batch=8, iterations=10), next=SearchConfig(batch=8, iterations=8),
+                      refine=RefineConfig(steps=20, restarts=1), candidates=1, retrieve=False)  # fmt: skip
+
+
+def free_pose(hand, seed: int) -> np.ndarray:
+    """A random pose ``(21,)`` rad of the hand that does not penetrate itself."""
+    rng = np.random.default_rng(seed)
     with CollisionWorld(hand) as world:
         q = sample_poses(hand, 1, rng)[0][0]
         while world.in_collision(q)[0]:
             q = sample_poses(hand, 1, rng)[0][0]
+    return q
+
+
+def three_steps(hand, q: np.ndarray, joints: list[int], size: float) -> np.ndarray:
+    """``(3, 21)`` rad: ``q`` and two steps of ``size`` rad on ``joints`` from it, within the limits."""
     step = np.zeros(J)
-    step[[1, 2, 5, 6, 9, 10]] = 0.3
-    tiny = SequenceConfig(first=SearchConfig(batch=8, iterations=10), next=SearchConfig(batch=8, iterations=8),
-                          refine=RefineConfig(steps=20, restarts=1), candidates=1, retrieve=False)  # fmt: skip
+    step[joints] = size
+    return np.clip(q + np.arange(3)[:, None] * step, hand.lower, hand.upper)
+
+
+def test_a_sequence_given_the_clock_refines_its_keyframes_together(hand):
+    """SequenceImitator.imitate with the clock's pairs (Table 2's studio row): the keyframes posed one after another,
+    then together; within every pair's reach, each result scored again, and the sum it optimises never higher."""
+    tiny = TINY  # a tiny budget: the structure is tested, not the method
     with SequenceImitator(cfg=tiny, loss_cfg=LossConfig(use_clip=False, crop_size=128)) as seq:
-        masks = seq.renderer.render(np.clip(q + np.arange(3)[:, None] * step, hand.lower, hand.upper))
+        masks = seq.renderer.render(three_steps(hand, free_pose(hand, 3), [1, 2, 5, 6, 9, 10], 0.3))
         exp = expressive_masks(masks)
         times = {(0, 1): 0.25, (1, 2): 0.25}
         limits = JointLimits.from_hand(hand)
@@ -183,22 +196,16 @@ def test_keyframes_posed_last_to_first_keep_the_reach_and_the_lower_sum_is_refin
     """With ``both_orders`` the keyframes are posed again last to first, each within reach of those after it and
     inside its own box; the refinement starts from the order whose sum is lower; a cancel while posing them keeps
     the poses given."""
-    rng = np.random.default_rng(5)
-    with CollisionWorld(hand) as world:
-        q = sample_poses(hand, 1, rng)[0][0]
-        while world.in_collision(q)[0]:
-            q = sample_poses(hand, 1, rng)[0][0]
-    step = np.zeros(J)
-    step[[0, 3, 4, 7, 8, 11]] = 0.35
-    tiny = SequenceConfig(first=SearchConfig(batch=8, iterations=10), next=SearchConfig(batch=8, iterations=8),
-                          refine=RefineConfig(steps=20, restarts=1), candidates=1, retrieve=False)  # fmt: skip
+    tiny = TINY  # a tiny budget: the structure is tested, not the method
     both = replace(tiny, joint=JointConfig(generations=20, popsize=8, both_orders=True))
+    q = free_pose(hand, 5)
     with SequenceImitator(cfg=tiny, loss_cfg=LossConfig(use_clip=False, crop_size=128)) as seq:
-        masks = seq.renderer.render(np.clip(q + np.arange(3)[:, None] * step, hand.lower, hand.upper))
+        poses = three_steps(hand, q, [0, 3, 4, 7, 8, 11], 0.35)
+        masks = seq.renderer.render(poses)
         exp = expressive_masks(masks)
         limits = JointLimits.from_hand(hand)
         pairs = reach_pairs({(0, 1): 0.25, (1, 2): 0.25}, limits)
-        held = q - step  # a pose outside the show, 0.25 s before keyframe 0: keyframe k is 1 + k of this clock
+        held = 2 * poses[0] - poses[1]  # 0.25 s before keyframe 0 (keyframe k: 1 + k of this clock)
         clock = clock_boxes({(0, 1): 0.25, (1, 2): 0.25, (2, 3): 0.25}, limits)
         forward = seq.imitate(masks, exp, box_for=lambda k, done: clock(k + 1, [held, *done])).thetas
 
@@ -218,6 +225,7 @@ def test_keyframes_posed_last_to_first_keep_the_reach_and_the_lower_sum_is_refin
         np.testing.assert_array_equal(again, back)  # the same poses, named by a project's ids
         named = [p.stage.split(":")[1].strip() for p in seen]
         assert list(dict.fromkeys(named)) == ["keyframe 9 (3 of 3)", "keyframe 8 (2 of 3)", "keyframe 7 (1 of 3)"]
+        assert list(dict.fromkeys(p.item for p in seen)) == ["9", "8", "7"]  # each report names its keyframe
 
         def start_sum(theta):  # the sum a refinement of no generations keeps: its start's
             off = replace(tiny, joint=JointConfig(generations=0))
