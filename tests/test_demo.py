@@ -21,7 +21,7 @@ from studio.sim.hand import load_hand
 CLI = [sys.executable, "-m", "studio.cli.main"]
 SMALL = ["--search-batch", "8", "--search-iterations", "30", "--next-batch", "8", "--next-iterations", "15",
          "--refine-steps", "40", "--refine-restarts", "2", "--candidates", "1", "--quiet",
-         "--sweep-draws", "96", "--sweep-passes", "1"]  # fmt: skip
+         "--sweep-draws", "96", "--sweep-passes", "1", "--joint-generations", "10"]  # fmt: skip
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="the emulator needs POSIX pseudo-terminals")
 

@@ -205,7 +205,8 @@ def test_the_retrieval_index_built_on_processes_and_on_ray_is_the_one_built_here
 # --- project run over many sources -------------------------------------------------------------------------------
 TINY_RUN = ["--search-batch", "8", "--search-iterations", "20", "--next-batch", "8", "--next-iterations", "10",
             "--refine-steps", "30", "--refine-restarts", "2", "--candidates", "1", "--sweep-draws", "96",
-            "--sweep-passes", "1", "--allow-late", "--threads", "1", "--quiet"]  # fmt: skip
+            "--sweep-passes", "1", "--joint-generations", "10", "--allow-late", "--threads", "1",
+            "--quiet"]  # fmt: skip
 
 
 def test_a_project_runs_its_sources_side_by_side_with_the_poses_of_one_process(tmp_path, hand, ray_cluster, capsys):

@@ -20,7 +20,7 @@ from studio.targets.video import DEFAULT_VIDEO
 
 SMALL = ["--no-clip", "--quiet", "--hz", "4", "--search-batch", "8", "--search-iterations", "20", "--next-batch",
          "4", "--next-iterations", "10", "--refine-steps", "20", "--refine-restarts", "2", "--candidates", "1",
-         "--sweep-draws", "96", "--sweep-passes", "1"]  # fmt: skip
+         "--sweep-draws", "96", "--sweep-passes", "1", "--joint-generations", "10"]  # fmt: skip
 FAST_SERVOS = ["--acceleration", "200", "--jerk", "5000"]  # servos fast enough for a 1.1 s gallop at 4 Hz
 SLOW_SERVOS = ["--velocity-scale", "0.05", "--no-keep-clock"]  # far too slow for it (poses chosen without the clock)
 UNSEEDED = ["--no-retrieve"]  # tests about timing and footage: no seeding sweep (the first fixture run seeds)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ pytestmark = pytest.mark.slow
 
 TINY = ["--search-batch", "8", "--search-iterations", "15", "--next-batch", "4", "--next-iterations", "8",
         "--refine-steps", "15", "--refine-restarts", "2", "--candidates", "1", "--sweep-draws", "64",
-        "--sweep-passes", "1"]  # fmt: skip
+        "--sweep-passes", "1", "--joint-generations", "10"]  # fmt: skip
 SOURCE = ["--fps", "8", "--hz", "4"]
 SERVOS = ["--allow-late"]
 SEQUENCE = CPU_SEQUENCE.__class__(
@@ -27,7 +28,8 @@ SEQUENCE = CPU_SEQUENCE.__class__(
     next=SearchConfig(batch=4, iterations=8, lr=CPU_SEQUENCE.next.lr),
     refine=RefineConfig(**{**CPU_SEQUENCE.refine.__dict__, "steps": 15, "restarts": 2}),
     candidates=1, retrieve=CPU_SEQUENCE.retrieve,
-    sweep=SweepConfig(**{**CPU_SEQUENCE.sweep.__dict__, "draws": 64, "passes": 1}), joint=CPU_SEQUENCE.joint,
+    sweep=SweepConfig(**{**CPU_SEQUENCE.sweep.__dict__, "draws": 64, "passes": 1}),
+    joint=replace(CPU_SEQUENCE.joint, generations=10),
 )  # the notebook's settings, the same budget as TINY  # fmt: skip
 
 

@@ -25,7 +25,7 @@ from studio.targets.video import DEFAULT_VIDEO
 STILL = asset("targets/asl_o.jpeg")
 TINY = ["--search-batch", "8", "--search-iterations", "20", "--next-batch", "8", "--next-iterations", "10",
         "--refine-steps", "30", "--refine-restarts", "2", "--candidates", "1", "--sweep-draws", "96",
-        "--sweep-passes", "1"]  # fmt: skip
+        "--sweep-passes", "1", "--joint-generations", "10"]  # fmt: skip
 TINY_SEQUENCE = SequenceConfig(
     first=SearchConfig(batch=8, iterations=20), next=SearchConfig(batch=8, iterations=10, lr=0.08),
     refine=RefineConfig(steps=30, restarts=2), candidates=1,

@@ -44,7 +44,7 @@ TINY = SequenceConfig(
 )
 TINY_FLAGS = ["--search-batch", "8", "--search-iterations", "15", "--next-batch", "4", "--next-iterations", "8",
               "--refine-steps", "15", "--refine-restarts", "2", "--candidates", "1",
-              "--sweep-draws", "96", "--sweep-passes", "1"]  # fmt: skip
+              "--sweep-draws", "96", "--sweep-passes", "1", "--joint-generations", "10"]  # fmt: skip
 
 
 def test_rows_are_the_papers_six_and_the_studios():
