@@ -14,7 +14,7 @@ import pytest
 from studio.imitate.config import JointConfig, LossConfig, RefineConfig, SearchConfig, SequenceConfig
 from studio.imitate.joint_refine import TOL, objective, posed_box, refine_jointly, windows
 from studio.imitate.sequence import SequenceImitator
-from studio.imitate.together import pose_backwards, refine_show, refine_together
+from studio.imitate.together import Stretch, pose_backwards, refine_show, refine_together
 from studio.motion.limits import JointLimits
 from studio.motion.reach import clock_boxes, reach_pairs
 from studio.sim.physics import CollisionWorld
@@ -212,8 +212,9 @@ def test_keyframes_posed_last_to_first_keep_the_reach_and_the_lower_sum_is_refin
         def box_of(k):  # each keyframe's box from the held pose
             return clock(k + 1, [held])
 
+        stretch = Stretch(masks, exp, pairs, box_of)
         seen = []
-        back = pose_backwards(seq, masks, exp, tiny, pairs, box_of, progress=seen.append)
+        back = pose_backwards(seq, stretch, tiny, progress=seen.append)
         assert back.shape == (3, J) and worst_excess(back, pairs) <= 1e-9
         for k in range(3):
             assert (back[k] >= box_of(k)[0] - 1e-9).all() and (back[k] <= box_of(k)[1] + 1e-9).all()
@@ -221,7 +222,7 @@ def test_keyframes_posed_last_to_first_keep_the_reach_and_the_lower_sum_is_refin
         named = [p.stage.split(":")[1].strip() for p in seen]  # the show's keyframes, the last one first
         assert list(dict.fromkeys(named)) == ["keyframe 3/3", "keyframe 2/3", "keyframe 1/3"]
         seen.clear()
-        again = pose_backwards(seq, masks, exp, tiny, pairs, box_of, progress=seen.append, ids=[7, 8, 9])
+        again = pose_backwards(seq, replace(stretch, ids=[7, 8, 9]), tiny, progress=seen.append)
         np.testing.assert_array_equal(again, back)  # the same poses, named by a project's ids
         named = [p.stage.split(":")[1].strip() for p in seen]
         assert list(dict.fromkeys(named)) == ["keyframe 9 (3 of 3)", "keyframe 8 (2 of 3)", "keyframe 7 (1 of 3)"]
@@ -229,9 +230,9 @@ def test_keyframes_posed_last_to_first_keep_the_reach_and_the_lower_sum_is_refin
 
         def start_sum(theta):  # the sum a refinement of no generations keeps: its start's
             off = replace(tiny, joint=JointConfig(generations=0))
-            return refine_together(seq.imitator, masks, exp, theta, off, pairs, box_of)[1].start_loss
+            return refine_together(seq.imitator, stretch, theta, off)[1].start_loss
 
-        scored, got = refine_show(seq, masks, exp, forward, both, pairs, box_of)
+        scored, got = refine_show(seq, stretch, forward, both)
         assert got.start_loss <= start_sum(forward) + 1e-9 and got.loss <= got.start_loss
         assert got.start_loss == pytest.approx(start_sum(forward) if got.chosen == 0 else start_sum(back))
         assert worst_excess(got.theta, pairs) <= TOL and all(s.collision_free for s in scored)
@@ -242,7 +243,7 @@ def test_keyframes_posed_last_to_first_keep_the_reach_and_the_lower_sum_is_refin
         assert all("together" in k.timings for k in got.keyframes) and worst_excess(got.thetas, pairs) <= TOL
         cancel = threading.Event()
         cancel.set()
-        _, stopped = refine_show(seq, masks, exp, forward, both, pairs, box_of, cancel=cancel)
+        _, stopped = refine_show(seq, stretch, forward, both, cancel=cancel)
         assert stopped.cancelled and stopped.chosen == 0 and np.array_equal(stopped.theta, forward)
 
 

@@ -40,7 +40,7 @@ from studio.imitate.config import CPU_SEQUENCE, LossConfig, SequenceConfig
 from studio.imitate.live_best import LiveBest
 from studio.imitate.search import gradient_search
 from studio.imitate.still import Imitator
-from studio.imitate.together import eval_loss, refine_show, score_keyframe
+from studio.imitate.together import Stretch, eval_loss, refine_show, score_keyframe
 from studio.imitate.transitions import TransitionConfig, TransitionReport, transition_success
 from studio.learn.selfmodel import SelfModel
 from studio.progress import ProgressFn, staged, stopped
@@ -232,8 +232,8 @@ class SequenceImitator:
         """The finished keyframes refined together (:func:`~studio.imitate.together.refine_show`: in the better of
         both orders with ``cfg.joint.both_orders``)."""
         box_of = None if box_for is None else (lambda k: box_for(k, []))
-        scored, got = refine_show(self, masks, expressive, np.stack([d.theta for d in done]), cfg, pairs, box_of,
-                                  previous, roll, progress, cancel)  # fmt: skip
+        stretch = Stretch(masks, expressive, pairs, box_of, previous, roll)
+        scored, got = refine_show(self, stretch, np.stack([d.theta for d in done]), cfg, progress, cancel)
         log.info("keyframes together (%s): %.4f → %.4f in %.1f s", "last to first" if got.chosen else "first to last",
                  got.start_loss, got.loss, got.seconds)  # fmt: skip
         share = got.seconds / len(done)  # the together step's time, shared out

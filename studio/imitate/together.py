@@ -36,6 +36,31 @@ from studio.progress import ProgressFn
 Box = tuple[np.ndarray, np.ndarray]  # (lower (21,), upper (21,)) rad
 
 
+@dataclass(frozen=True)
+class Stretch:
+    """Keyframes of a show on its clock: what posing them again and refining them together needs besides their
+    poses and the sequence's config."""
+
+    masks: np.ndarray  # (K, S, S) keyframe targets in show order, as the audience sees them, 1 = shadow
+    expressive: np.ndarray | None  # (K, S, S) their expressive regions, or None
+    pairs: Mapping[tuple[int, int], np.ndarray]  # (i, j) → (21,) rad: the most keyframes i and j may differ per joint
+    box_of: Callable[[int], Box | None] | None = None  # keyframe k's box from poses outside these (None: the limits)
+    previous: np.ndarray | None = None  # (21,) rad: the pose before keyframe 0 (None: none)
+    roll: float = 0.0  # the mount's roll about the light axis, rad
+    ids: Sequence[int] | None = None  # the keyframes' own ids (a project's), for stage names; None: their places
+
+    def __len__(self) -> int:
+        return len(self.masks)
+
+    def expressive_of(self, k: int) -> np.ndarray | None:
+        """Keyframe ``k``'s expressive region ``(S, S)``, or None."""
+        return None if self.expressive is None else self.expressive[k]
+
+    def box(self, k: int) -> Box | None:
+        """Keyframe ``k``'s box from the poses outside the stretch (None: the joint limits)."""
+        return None if self.box_of is None else self.box_of(k)
+
+
 @dataclass
 class KeyframeScore:
     """A keyframe's pose as its shadow and losses (plain data)."""
@@ -74,37 +99,30 @@ def eval_loss(imitator: Imitator, loss_fn: ImageLoss, target: np.ndarray, expres
 
 def refine_together(
     imitator: Imitator,
-    masks: np.ndarray,
-    expressive: np.ndarray | None,
+    stretch: Stretch,
     theta: np.ndarray,
     cfg: SequenceConfig,
-    pairs: Mapping[tuple[int, int], np.ndarray],
-    box_of: Callable[[int], Box | None] | None = None,
-    previous: np.ndarray | None = None,
-    roll: float = 0.0,
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     alternatives: Sequence[np.ndarray] = (),
 ) -> tuple[list[KeyframeScore], JointResult]:
-    """Keyframe targets ``masks (K, S, S)`` (as the audience sees them; ``expressive`` alike or None) posed at
-    ``theta (K, 21)`` rad in show order, refined together by ``cfg.joint`` within ``pairs`` (``(i, j) → (21,)`` rad:
-    the most keyframes ``i`` and ``j`` may differ per joint on the clock) and ``box_of(k)`` (a keyframe's box from
-    poses outside these, None: the joint limits) → each keyframe scored again (:func:`score_keyframe`) and what the
-    refinement gave. ``previous (21,)``: the pose before keyframe 0. ``alternatives``: other poses ``(K, 21)`` of the
-    same keyframes; the refinement starts from the one of all with the lowest sum (``JointResult.chosen``). Stage
-    "together"; ``cancel`` keeps the best poses found before it."""
-    hand = imitator.hand
-    exp = [None if expressive is None else expressive[k] for k in range(len(masks))]
-    framed = [imitator.framed(masks[k], exp[k] if cfg.expressive else None, roll) for k in range(len(masks))]
+    """The ``stretch``'s keyframes posed at ``theta (K, 21)`` rad in show order, refined together by ``cfg.joint``
+    within its ``pairs`` and boxes → each keyframe scored again (:func:`score_keyframe`) and what the refinement
+    gave. ``alternatives``: other poses ``(K, 21)`` of the same keyframes; the refinement starts from the one of all
+    with the lowest sum (``JointResult.chosen``). Stage "together"; ``cancel`` keeps the best poses found before it."""
+    hand, masks, n = imitator.hand, stretch.masks, len(stretch)
+    exp = [stretch.expressive_of(k) for k in range(n)]
+    framed = [imitator.framed(masks[k], exp[k] if cfg.expressive else None, stretch.roll) for k in range(n)]
     refiner = framed[0].refiner  # every keyframe's: one mount
     boxes = []
-    for k in range(len(masks)):
-        box = None if box_of is None else box_of(k)
+    for k in range(n):
+        box = stretch.box(k)
         boxes.append((hand.lower, hand.upper) if box is None else box)
     scorers = [lambda poses, f=f: refiner.score(f.exact, poses)[0] for f in framed]
     w_temporal = imitator.loss_cfg.w_temporal if cfg.temporal else 0.0
-    got = refine_jointly(scorers, theta, pairs, boxes, refiner.world.in_collision, cfg.joint, previous, w_temporal,
-                         progress, cancel, alternatives)  # fmt: skip
+    previous = stretch.previous
+    got = refine_jointly(scorers, theta, stretch.pairs, boxes, refiner.world.in_collision, cfg.joint, previous,
+                         w_temporal, progress, cancel, alternatives)  # fmt: skip
     out = []
     for k, f in enumerate(framed):
         prev = got.theta[k - 1] if k else previous
@@ -115,75 +133,62 @@ def refine_together(
 
 def pose_backwards(
     seq: Any,
-    masks: np.ndarray,
-    expressive: np.ndarray | None,
+    stretch: Stretch,
     cfg: SequenceConfig,
-    pairs: Mapping[tuple[int, int], np.ndarray],
-    box_of: Callable[[int], Box | None] | None = None,
-    roll: float = 0.0,
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     best_pose: Callable[[np.ndarray], None] | None = None,
-    ids: Sequence[int] | None = None,
 ) -> np.ndarray | None:
-    """The keyframes ``masks (K, S, S)`` posed last to first by ``seq`` (a
+    """The ``stretch``'s keyframes posed last to first by ``seq`` (a
     :class:`~studio.imitate.sequence.SequenceImitator`, as ``cfg``): the last one as a first keyframe is, each earlier
-    one from the pose after it, within ``box_of(k)`` and the ``pairs`` distance of every keyframe after it
-    (:func:`refine_together`'s arguments) → ``(K, 21)`` rad in show order; None when ``cancel`` stopped it. Stages
-    "last to first: keyframe k/K: ..." (k: the keyframe's place in the show, K first; given the keyframes' ``ids``,
-    a project's: "last to first: keyframe 7 (3 of 3): ...", each report's ``item`` the id, "7");
-    ``best_pose(θ (21,) rad)`` gets each keyframe's
-    improving collision-free poses (live previews, as ``SequenceImitator.imitate``)."""
-    n = len(masks)
+    one from the pose after it, within its box and the ``pairs`` distance of every keyframe after it → ``(K, 21)``
+    rad in show order; None when ``cancel`` stopped it. Stages "last to first: keyframe k/K: ..." (k: the keyframe's
+    place in the show, K first; given the keyframes' ``ids``, a project's: "last to first: keyframe 7 (3 of 3): ...",
+    each report's ``item`` the id, "7"); ``best_pose(θ (21,) rad)`` gets each keyframe's improving collision-free
+    poses (live previews, as ``SequenceImitator.imitate``)."""
+    n, ids, pairs = len(stretch), stretch.ids, stretch.pairs
     hand = seq.imitator.hand
 
     def box_for(j: int, done: list) -> Box | None:  # j: posed j-th, keyframe n − 1 − j; done: n − 1, n − 2, ...
         k = n - 1 - j
-        own = None if box_of is None else box_of(k)
+        own = stretch.box(k)
         posed = {n - 1 - i: theta for i, theta in enumerate(done)}
         if own is None and not any(a in posed or b in posed for a, b in pairs if k in (a, b)):
             return None  # nothing holds it: the joint limits
         lower, upper = (hand.lower, hand.upper) if own is None else own
         return posed_box(k, posed, pairs, lower, upper)
 
-    flip = None if expressive is None else np.ascontiguousarray(expressive[::-1])
+    flip = None if stretch.expressive is None else np.ascontiguousarray(stretch.expressive[::-1])
     if ids is not None and len(ids) != n:
         raise ValueError(f"{len(ids)} keyframe ids for {n} keyframes")
     places = [n - j for j in range(n)]  # the j-th posed is the show's keyframe n − j (1-based)
     labels = [f"last to first: keyframe {k}/{n}" if ids is None else f"last to first: keyframe {ids[k - 1]} ({k} of "
               f"{n})" for k in places]  # fmt: skip
     items = None if ids is None else [str(ids[k - 1]) for k in places]  # each report names its keyframe's id
-    got = seq.imitate(np.ascontiguousarray(masks[::-1]), flip, progress, cancel, cfg=cfg, box_for=box_for, roll=roll,
-                      best_pose=best_pose, labels=labels, items=items)  # fmt: skip
+    got = seq.imitate(np.ascontiguousarray(stretch.masks[::-1]), flip, progress, cancel, cfg=cfg, box_for=box_for,
+                      roll=stretch.roll, best_pose=best_pose, labels=labels, items=items)  # fmt: skip
     return None if got.cancelled else got.thetas[::-1].copy()
 
 
 def refine_show(
     seq: Any,
-    masks: np.ndarray,
-    expressive: np.ndarray | None,
+    stretch: Stretch,
     theta: np.ndarray,
     cfg: SequenceConfig,
-    pairs: Mapping[tuple[int, int], np.ndarray],
-    box_of: Callable[[int], Box | None] | None = None,
-    previous: np.ndarray | None = None,
-    roll: float = 0.0,
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     best_pose: Callable[[np.ndarray], None] | None = None,
-    ids: Sequence[int] | None = None,
 ) -> tuple[list[KeyframeScore], JointResult]:
-    """Keyframes posed first to last at ``theta (K, 21)`` rad, posed again last to first when
+    """The ``stretch``'s keyframes posed first to last at ``theta (K, 21)`` rad, posed again last to first when
     ``cfg.joint.both_orders`` (:func:`pose_backwards`), then refined together from the order with the lower sum
-    (:func:`refine_together`, same arguments; ``seq`` a :class:`~studio.imitate.sequence.SequenceImitator`). The
-    result's ``seconds`` include the second order's posing; ``chosen`` is 1 when it was kept. A cancel while posing
-    backwards refines nothing and keeps ``theta``. ``best_pose``, ``ids``: as :func:`pose_backwards`'s."""
+    (:func:`refine_together`; ``seq`` a :class:`~studio.imitate.sequence.SequenceImitator`). The result's
+    ``seconds`` include the second order's posing; ``chosen`` is 1 when it was kept. A cancel while posing backwards
+    refines nothing and keeps ``theta``. ``best_pose``: as :func:`pose_backwards`'s."""
     t0 = time.perf_counter()
     alternatives = []
-    if cfg.joint.both_orders and len(masks) > 1:
-        back = pose_backwards(seq, masks, expressive, cfg, pairs, box_of, roll, progress, cancel, best_pose, ids)
+    if cfg.joint.both_orders and len(stretch) > 1:
+        back = pose_backwards(seq, stretch, cfg, progress, cancel, best_pose)
         if back is not None:
             alternatives.append(back)
-    scored, got = refine_together(seq.imitator, masks, expressive, theta, cfg, pairs, box_of, previous, roll,
-                                  progress, cancel, alternatives)  # fmt: skip
+    scored, got = refine_together(seq.imitator, stretch, theta, cfg, progress, cancel, alternatives)
     return scored, replace(got, seconds=time.perf_counter() - t0)

@@ -211,12 +211,12 @@ def _together(report: Reporter, cancel, *, masks, expressive, theta, pairs, boxe
               previous, device, roll, preview, ids):  # fmt: skip
     from studio.imitate.sequence import SequenceImitator
     from studio.imitate.still import Imitator
-    from studio.imitate.together import refine_show
+    from studio.imitate.together import Stretch, refine_show
 
+    stretch = Stretch(masks, expressive, pairs, lambda k: boxes[k], previous, roll, ids)
     with Imitator(None, model_path, loss_cfg, clip, device=device) as im, SequenceImitator(imitator=im) as seq:
         pv = PosePreview(im.hand, preview, roll=roll) if preview else None
-        got = refine_show(seq, masks, expressive, theta, cfg, pairs, lambda k: boxes[k], previous, roll,
-                          report.engine_progress(pv), cancel, pv.pose if pv else None, ids)  # fmt: skip
+        got = refine_show(seq, stretch, theta, cfg, report.engine_progress(pv), cancel, pv.pose if pv else None)
         report.check()
         return got
 
