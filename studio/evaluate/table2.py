@@ -5,8 +5,9 @@ and temporal switches of :class:`~studio.imitate.config.SequenceConfig`). Each s
 (:func:`~studio.evaluate.sequences.prepare_sequence`: sampled frames, expressive masks, keyframes, in
 first-appearance order) and the same keyframe targets go to all six rows, with the same seeds.
 
-Every row is scored by one measure, :attr:`KeyframeResult.evaluation <studio.imitate.sequence.KeyframeResult>`: the
-rendered shadow of each keyframe's final pose against its target, *with* the expressive term on the keyframe's
+Every row is scored by one measure,
+:attr:`KeyframeResult.evaluation <studio.imitate.sequence_result.KeyframeResult>`: the rendered shadow of each
+keyframe's final pose against its target, *with* the expressive term on the keyframe's
 expressive region even in the Base rows that do not optimise it (as the paper's table shows Exp. columns for
 every row). The table's **Total** is ``L_base + L_expr`` of that measure (``KeyframeResult.total("image")``); the
 temporal term is left out of it (the transition test's Δθ bounds judge the motion, and the first keyframe has

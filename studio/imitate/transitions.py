@@ -23,7 +23,7 @@ depend on how large a sequence's expressive region happens to be:
   ``total="image"`` (``L_base + L_expr``) and ``total="full"`` (+ ``L_temp``) select the other readings;
   ``benchmarks/bench_sequence.py`` reports the base and image readings.
 
-:class:`~studio.imitate.sequence.SequenceResult` computes these totals for every row from its ``evaluation``
+:class:`~studio.imitate.sequence_result.SequenceResult` computes these totals for every row from its ``evaluation``
 components (the expressive term whenever the sequence has expressive masks, the temporal term against the previous
 keyframe).
 """
@@ -94,7 +94,7 @@ def transition_success(
     thetas: np.ndarray, totals: np.ndarray, cfg: TransitionConfig | None = None
 ) -> tuple[np.ndarray, TransitionReport]:
     """Keyframe poses ``thetas (K, 21)`` rad in first-appearance order and their totals ``(K,)`` (the caller's
-    reading, ``cfg.total`` for :class:`~studio.imitate.sequence.SequenceResult`) → ``ok (K-1,)`` bool and the
+    reading, ``cfg.total`` for :class:`~studio.imitate.sequence_result.SequenceResult`) → ``ok (K-1,)`` bool and the
     :class:`TransitionReport`. A NaN total fails its endpoint."""
     cfg = cfg or TransitionConfig()
     thetas = np.asarray(thetas, dtype=np.float64)
