@@ -16,8 +16,9 @@ from PIL import Image
 from studio.errors import TargetError
 from studio.progress import Progress
 from studio.targets.cleanup import clean_shadow, remove_specks, ruled_lines, run_lengths
-from studio.targets.footage import gif_sample, natural_key
+from studio.targets.footage import natural_key
 from studio.targets.images import detect_polarity
+from studio.targets.sampling import gif_sample
 from studio.targets.source import raw_frames
 from studio.targets.video import (
     DEFAULT_VIDEO,

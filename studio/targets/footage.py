@@ -10,9 +10,8 @@ Sources (DESIGN §4 "Video targets"):
 - a folder of image files (PNG, JPEG, …; sorted by name, numbers in names in numeric order) at ``fps`` (default
   24).
 
-Sampling: sample ``k`` is the source frame whose start is nearest ``k / hz`` (ties go to the later frame), for
-every ``k`` whose time falls before the middle of the last frame, so each sampled frame lies within half a source
-frame of ``k / hz``. A rate above the source's is an error saying the most it can be.
+Sampling (:mod:`studio.targets.sampling`): sample ``k`` is the source frame whose start is nearest ``k / hz``. A
+rate above the source's is an error saying the most it can be.
 
 Bad input never ends in a traceback or a silently shorter show: a missing path, an unknown suffix, a file with no
 readable frames, a GIF cut off in the middle, frames of mixed sizes in a folder, an empty folder each raise a
@@ -33,8 +32,9 @@ import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
 from studio.errors import TargetError
-from studio.progress import ProgressFn, report
+from studio.progress import ProgressFn, report, stopped
 from studio.targets.images import IMAGE_SUFFIXES
+from studio.targets.sampling import gif_sample, sample_times
 
 log = logging.getLogger(__name__)
 
@@ -57,40 +57,6 @@ class Footage:
     frames: np.ndarray  # (N, H, W, 3) uint8 RGB
     skipped: list[tuple[int, str]] = field(default_factory=list)  # (source index, reason) of sampled frames left out
     cancelled: bool = False  # the cancel event stopped reading: the arrays hold the frames read before it
-
-
-def sample_times(duration_s: float, fps: float, hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """Sample a constant-rate source (``round(duration_s · fps)`` frames at ``fps``) at ``hz``.
-
-    Returns ``(times (K,) s, indices (K,) int)``: frame ``indices[k]`` starts at ``times[k] = indices[k] / fps``,
-    the frame nearest ``k / hz`` (DESIGN §4), for every ``k`` that falls within the source.
-    """
-    if fps <= 0 or hz <= 0:
-        raise ValueError("fps and hz must be positive")
-    n = int(round(duration_s * fps))
-    return _sample(np.arange(n) / fps, (n - 0.5) / fps, hz)
-
-
-def gif_sample(durations_s: np.ndarray, hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """Sample a GIF whose frames show for ``durations_s`` (N,) s at ``hz``: ``(times (K,), indices (K,))``."""
-    d = np.asarray(durations_s, dtype=np.float64)
-    if len(d) == 0:
-        return np.zeros(0), np.zeros(0, dtype=np.int64)
-    starts = np.concatenate([[0.0], np.cumsum(d)[:-1]])
-    return _sample(starts, starts[-1] + d[-1] / 2, hz)
-
-
-def _sample(starts: np.ndarray, end_s: float, hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """Frames nearest ``k / hz`` for ``k / hz < end_s`` among frames starting at ``starts`` (ties: later frame)."""
-    if hz <= 0:
-        raise ValueError("hz must be positive")
-    if len(starts) == 0 or end_s <= 0:
-        return np.zeros(0), np.zeros(0, dtype=np.int64)
-    k_max = int(np.ceil(end_s * hz - 1e-9))  # k / hz < end_s
-    wanted = np.arange(k_max) / hz
-    middles = (starts[1:] + starts[:-1]) / 2
-    idx = np.searchsorted(middles, wanted + 1e-9, side="right")  # 1e-9 s: float noise never flips a tie
-    return starts[idx], idx.astype(np.int64)
 
 
 def natural_key(path: Path) -> list:
@@ -135,10 +101,6 @@ def _tick(progress: ProgressFn | None, step: int, total: int) -> None:
     report(progress, "read", step, total)
 
 
-def _stopped(cancel: threading.Event | None) -> bool:
-    return cancel is not None and cancel.is_set()
-
-
 def read_folder(
     folder: Path, fps: float, hz: float, max_bad_share: float, progress: ProgressFn | None, cancel
 ) -> Footage:
@@ -168,7 +130,7 @@ def read_folder(
     times, idx = sample_times(len(files) / fps, fps, hz)
     frames, kept, skipped, cancelled = [], [], [], False
     for step, i in enumerate(idx):
-        if _stopped(cancel):
+        if stopped(cancel):
             cancelled = True
             break
         p = files[i]
@@ -196,7 +158,7 @@ def read_gif(path: Path, hz: float, max_bad_share: float, progress: ProgressFn |
         durations, composed = [], []
         try:
             for i in range(10**6):
-                if _stopped(cancel):  # the clock needs every frame: a cancelled GIF gives none
+                if stopped(cancel):  # the clock needs every frame: a cancelled GIF gives none
                     return _footage(path, 1.0, hz, 0.0, 0, [], np.zeros(0, np.int64), [], [], True)
                 try:
                     im.seek(i)
@@ -246,7 +208,7 @@ def read_video_file(path: Path, hz: float, max_bad_share: float, progress: Progr
         for i in range(count):
             if fails >= 25:  # the stream has ended before its header's count
                 break
-            if _stopped(cancel):
+            if stopped(cancel):
                 cancelled = True
                 break
             if not cap.grab():

@@ -35,7 +35,7 @@ from studio.assets import asset
 from studio.errors import TargetError
 from studio.progress import ProgressFn, report
 from studio.targets.cleanup import clean_shadow
-from studio.targets.footage import Footage, read_footage, sample_times
+from studio.targets.footage import Footage, read_footage
 from studio.targets.images import (  # the framing helpers live with the stills' square_frame
     TargetConfig,
     crop_square,
@@ -47,6 +47,7 @@ from studio.targets.images import (  # the framing helpers live with the stills'
     square_mask,
     threshold_level,
 )
+from studio.targets.sampling import sample_times  # (public here: the video face)
 
 __all__ = [
     "DEFAULT_VIDEO",
