@@ -61,7 +61,7 @@ _API: dict[str, str] = {
     "SequenceConfig": "studio.imitate.config",
     "PRESETS": "studio.imitate.config",
     "Imitator": "studio.imitate.still",
-    "ImitationResult": "studio.imitate.still",
+    "ImitationResult": "studio.imitate.still_result",
     "imitate_still": "studio.imitate.one_still",
     "imitate_sequence": "studio.imitate.sequence",
     "find_clip": "studio.imitate.clip_loss",

@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from studio.imitate.config import RefineConfig, SearchConfig
-from studio.imitate.still import ImitationResult, Imitator
+from studio.imitate.still import Imitator
+from studio.imitate.still_result import ImitationResult
 from studio.learn.threads import DEFAULT_THREADS, torch_threads
 from studio.progress import ProgressFn
 from studio.targets.expressive import still_expressive

@@ -9,7 +9,6 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -32,11 +31,12 @@ from studio.imitate.framing import Framed, Framer
 from studio.imitate.kernels import compile_first
 from studio.imitate.live_best import LiveBest
 from studio.imitate.losses import ImageLoss
-from studio.imitate.refine import Refiner, RefineResult
-from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, Retrieved, cached_index
+from studio.imitate.refine import Refiner
+from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, cached_index
 from studio.imitate.roll_search import RollChoice, RollSearchConfig, choose_roll
 from studio.imitate.search import SearchResult, gradient_search
 from studio.imitate.seeding import Seeds, seed_poses
+from studio.imitate.still_result import ImitationResult
 from studio.learn.checkpoint import model_rig
 from studio.learn.selfmodel import SelfModel, load_selfmodel
 from studio.progress import ProgressFn, report, stopped
@@ -44,29 +44,6 @@ from studio.sim.shadow import ShadowRenderer
 from studio.targets.images import TargetConfig, load_target
 
 DEFAULT_MODEL = asset("models/selfmodel_cpu128.pt", must_exist=False)  # the shipped 128² CPU self-model
-
-
-@dataclass
-class ImitationResult:
-    """Everything one imitation produced (plain data)."""
-
-    target: np.ndarray  # (R, R) uint8 target mask at the model's resolution, as the audience sees it, 1 = shadow
-    search: SearchResult  # gradient search through the self-model
-    predicted: np.ndarray  # (R, R) float self-model image of the searched pose (the upright hand's frame)
-    unrefined_theta: np.ndarray  # (21,) rad the pose before refinement (ImitateConfig.select: how it is picked)
-    unrefined_shadow: np.ndarray  # (R, R) uint8 rendered shadow of the searched pose (as the mount casts it)
-    unrefined_loss: dict[str, float]  # rendered-shadow loss components of the searched pose
-    unrefined_collides: bool  # the searched pose penetrates itself
-    refine: RefineResult | None  # hill climbing (None when skipped)
-    theta: np.ndarray  # (21,) rad final pose (refined when refinement ran and found a free pose)
-    shadow: np.ndarray  # (R, R) uint8 rendered shadow of the final pose (as the mount, rolled or not, casts it)
-    loss: dict[str, float]  # rendered-shadow loss components of the final pose
-    collision_free: bool  # the final pose does not penetrate itself
-    seconds: float  # wall time of search + refinement
-    timings: dict[str, float] = field(default_factory=dict)  # seconds: index, first_answer, sweep, search, refine
-    cancelled: bool = False  # the cancel event stopped the search or refinement: the best pose found so far
-    first: Retrieved | None = None  # the retrieval's distinct best poses (first answer: row 0); None when off
-    swept: Retrieved | None = None  # those poses after the block sweep, best first (seconds: the sweep's); None: off
 
 
 class Imitator:
