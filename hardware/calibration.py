@@ -14,8 +14,9 @@ File format (YAML, ``assets/calibration.yaml`` for the shipped hand)::
 
 ``units = zero + direction · θ · UNITS_PER_RAD`` (θ in rad, 1000 units = 240°); ``lower``/``upper`` are soft
 limits in rad, inside the URDF limits and inside the servo's 0..1000 travel. A calibration that records the rig's
-mount roll plays only shows made for that roll (:func:`check_mount`); one that does not (the shipped file, files made
-before the roll existed) plays any, and the player says how the show wants the hand mounted.
+mount roll plays only shows made for that roll (:func:`hardware.show_checks.check_mount`); one that does not (the
+shipped file, files made before the roll existed) plays any, and the player says how the show wants the hand
+mounted.
 """
 
 from __future__ import annotations
@@ -31,11 +32,11 @@ import yaml
 from studio.assets import asset
 
 from hardware import constants as C
-from hardware.errors import CalibrationError, CalibrationMissing, MountMismatch, ShowForAnotherHand
+from hardware.errors import CalibrationError, CalibrationMissing
 from studio.atomic import write_text
 from studio.sim.hand import Hand
 from studio.sim.rig_file import RigFileError, rig_from_mapping
-from studio.sim.roll import file_deg, mount_text, wrap_deg
+from studio.sim.roll import file_deg
 from studio.sim.shadow import Rig
 
 log = logging.getLogger(__name__)
@@ -160,39 +161,6 @@ def validate(cal: Calibration, hand: Hand, path: str | Path | None = None) -> Ca
         log.warning("calibration was made for hand %s, this hand is %s", cal.hand_hash, hand.hash)
     order = {n: k for k, n in enumerate(hand.joint_names)}
     return Calibration(tuple(sorted(cal.joints, key=lambda j: order[j.name])), cal.hand_hash, cal.roll, cal.measured)
-
-
-MOUNT_TOL_DEG = 0.5  # a show's roll and the calibration's may differ by this much, degrees
-
-
-def check_mount(show_roll: float, cal: Calibration, path: str | Path | None = None) -> None:
-    """Raise :class:`MountMismatch` when ``cal`` records a mount roll other than ``show_roll`` rad (beyond
-    ``MOUNT_TOL_DEG``); a calibration that records none accepts every show."""
-    if cal.roll is None:
-        return
-    want, have = wrap_deg(math.degrees(show_roll)), wrap_deg(math.degrees(cal.roll))
-    if abs(wrap_deg(want - have)) > MOUNT_TOL_DEG:
-        where = f" ({path})" if path else ""
-        raise MountMismatch(
-            f"this show wants the hand mounted at roll {want:+.1f}° but the calibration{where} records the rig at "
-            f"{have:+.1f}°: {mount_text(show_roll)}, then record that roll in the calibration"
-        )
-
-
-def check_show_hand(show_hash: str, hand: Hand, path: str | Path | None = None, force: bool = False) -> None:
-    """Raise :class:`ShowForAnotherHand` when a show was planned for another hand model (URDF hash ``show_hash``)
-    than ``hand``: its angles were checked against another hand's limits and speeds. ``force`` plays it anyway
-    (logged as a warning)."""
-    if show_hash == hand.hash:
-        return
-    where = f" {path}" if path else ""
-    if force:
-        log.warning("playing the show%s planned for hand %s on hand %s (forced)", where, show_hash, hand.hash)
-        return
-    raise ShowForAnotherHand(
-        f"the show{where} was planned for another hand model (hand {show_hash}, this one is {hand.hash}): plan it "
-        "again for this hand, or force it if you are sure the two hands move alike"
-    )
 
 
 def default_calibration(hand: Hand, margin: float = 0.05) -> Calibration:

@@ -15,10 +15,11 @@ from __future__ import annotations
 import threading
 
 from hardware.bus import ServoBus
-from hardware.calibration import Calibration, check_mount, check_show_hand, load_calibration
+from hardware.calibration import Calibration, load_calibration
 from hardware.playback_log import PlaybackResult
 from hardware.player import Player, PlayerConfig, SampleHook
 from hardware.session import ServoSession
+from hardware.show_checks import check_mount, check_show_hand
 from studio.motion.show import Show
 from studio.progress import ProgressFn
 from studio.sim.hand import Hand, load_hand

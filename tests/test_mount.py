@@ -9,8 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from hardware.calibration import check_mount, default_calibration, load_calibration, save_calibration
+from hardware.calibration import default_calibration, load_calibration, save_calibration
 from hardware.errors import MountMismatch
+from hardware.show_checks import check_mount
 from studio.motion.show import Show, load_show
 from studio.project.project import Project
 from studio.project.project_format import DOC

@@ -24,9 +24,10 @@ from typing import Any
 
 import ipywidgets as w
 
-from hardware.calibration import check_mount, check_show_hand, load_calibration
+from hardware.calibration import load_calibration
 from hardware.player import Player, PlayerConfig
 from hardware.session import ServoSession
+from hardware.show_checks import check_mount, check_show_hand
 from studio.jobs import Job, JobEvent, JobState
 from studio.project.capture import open_camera_source
 from studio.project.show_capture import ShowCaptureConfig, play_with_camera

@@ -29,8 +29,6 @@ import numpy as np
 from hardware.bus import scan
 from hardware.calibration import (
     Calibration,
-    check_mount,
-    check_show_hand,
     check_writable,
     default_calibration,
     load_calibration,
@@ -45,6 +43,7 @@ from hardware.playback_log import PlaybackResult, StopReason, save_playback_log
 from hardware.player import Player, PlayerConfig
 from hardware.serial_bus import BusConfig
 from hardware.session import ServoSession, load_emulator
+from hardware.show_checks import check_mount, check_show_hand
 from hardware.wizard import CalibrationWizard
 from studio.atomic import write_text
 from studio.cli.flags import add_config_flags, config_from_args, ranged

@@ -1,0 +1,50 @@
+"""May this show play here? A show planned for another hand model, or for a mount rolled otherwise than the rig's
+calibration records, is refused with one clear line before any servo moves (DESIGN §1, §5.13); the player, the
+dry run and the studio's real-vs-sim panel all ask these two checks."""
+
+from __future__ import annotations
+
+import logging
+import math
+from pathlib import Path
+
+from hardware.calibration import Calibration
+from hardware.errors import MountMismatch, ShowForAnotherHand
+from studio.sim.hand import Hand
+from studio.sim.roll import mount_text, wrap_deg
+
+log = logging.getLogger(__name__)
+
+__all__ = ["MOUNT_TOL_DEG", "check_mount", "check_show_hand"]
+
+MOUNT_TOL_DEG = 0.5  # a show's roll and the calibration's may differ by this much, degrees
+
+
+def check_mount(show_roll: float, cal: Calibration, path: str | Path | None = None) -> None:
+    """Raise :class:`MountMismatch` when ``cal`` records a mount roll other than ``show_roll`` rad (beyond
+    ``MOUNT_TOL_DEG``); a calibration that records none accepts every show."""
+    if cal.roll is None:
+        return
+    want, have = wrap_deg(math.degrees(show_roll)), wrap_deg(math.degrees(cal.roll))
+    if abs(wrap_deg(want - have)) > MOUNT_TOL_DEG:
+        where = f" ({path})" if path else ""
+        raise MountMismatch(
+            f"this show wants the hand mounted at roll {want:+.1f}° but the calibration{where} records the rig at "
+            f"{have:+.1f}°: {mount_text(show_roll)}, then record that roll in the calibration"
+        )
+
+
+def check_show_hand(show_hash: str, hand: Hand, path: str | Path | None = None, force: bool = False) -> None:
+    """Raise :class:`ShowForAnotherHand` when a show was planned for another hand model (URDF hash ``show_hash``)
+    than ``hand``: its angles were checked against another hand's limits and speeds. ``force`` plays it anyway
+    (logged as a warning)."""
+    if show_hash == hand.hash:
+        return
+    where = f" {path}" if path else ""
+    if force:
+        log.warning("playing the show%s planned for hand %s on hand %s (forced)", where, show_hash, hand.hash)
+        return
+    raise ShowForAnotherHand(
+        f"the show{where} was planned for another hand model (hand {show_hash}, this one is {hand.hash}): plan it "
+        "again for this hand, or force it if you are sure the two hands move alike"
+    )
