@@ -43,6 +43,7 @@ from widgets.index_warmup import IndexWarmup
 from widgets.mount import MountControl, mount_line
 from widgets.optimise_view import OptimiseDrawing
 from widgets.state import StudioState
+from widgets.weights import clip_encoder
 from widgets.words import ALLOW_LATE
 
 log = logging.getLogger(__name__)
@@ -60,19 +61,6 @@ class OptimiseConfig:
     index: Any = None  # the RetrievalConfig of that index (None: the searches' own; tests give a small one)
     redraw_hz: float = 10.0  # the most redraws a second while a job reports (DESIGN §6: 10–30 Hz)
     image_px: int = 192  # side of the target and shadow images, px
-
-
-def clip_encoder(state: StudioState):
-    """The studio's CLIP encoder by the one CLIP rule (:func:`studio.imitate.clip_loss.find_clip`): the weights file
-    the artist gave (``state.extras["clip_weights"]``), else weights in a local cache; None when there are none (the
-    CLIP terms are then left out). Loaded once and kept in ``state.extras["clip"]``."""
-    if state.extras.get("clip") is None:
-        from studio.imitate.clip_loss import find_clip
-
-        clip, line = find_clip(state.extras.get("clip_weights"))
-        state.extras["clip"], state.extras["clip_line"] = clip, line
-        log.info(line)
-    return state.extras.get("clip")
 
 
 class OptimisePanel(OptimiseDrawing):

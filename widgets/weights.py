@@ -17,6 +17,7 @@ import html
 import logging
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Any
 
 import ipywidgets as w
 
@@ -55,6 +56,19 @@ def paper_weights() -> dict[str, float]:
     """The paper's default of every weight of :data:`SLIDERS` (``LossConfig``'s field defaults)."""
     defaults = {f.name: f.default for f in fields(LossConfig)}
     return {s.field: float(defaults[s.field]) for s in SLIDERS}
+
+
+def clip_encoder(state: StudioState) -> Any:
+    """The studio's CLIP encoder by the one CLIP rule (:func:`studio.imitate.clip_loss.find_clip`): the weights file
+    the artist gave (``state.extras["clip_weights"]``), else weights in a local cache; None when there are none (the
+    CLIP terms are then left out). Loaded once and kept in ``state.extras["clip"]``."""
+    if state.extras.get("clip") is None:
+        from studio.imitate.clip_loss import find_clip
+
+        clip, line = find_clip(state.extras.get("clip_weights"))
+        state.extras["clip"], state.extras["clip_line"] = clip, line
+        log.info(line)
+    return state.extras.get("clip")
 
 
 def clip_unavailable(state: StudioState) -> str | None:
