@@ -24,7 +24,8 @@ import cv2
 import ipywidgets as w
 import numpy as np
 
-from hardware.calibration import MOUNT_TOL_DEG, Calibration
+from hardware.calibration import Calibration
+from hardware.show_checks import MOUNT_TOL_DEG
 from studio.sim.roll import wrap_deg
 from widgets.images import mask_picture, png
 

@@ -38,9 +38,10 @@ TARGET_FIELDS = ("polarity", "min_share", "max_share")
 
 
 def cmd_live(args: argparse.Namespace) -> int:
-    from hardware.calibration import check_mount, load_calibration
+    from hardware.calibration import load_calibration
     from hardware.estop import check_not_latched
     from hardware.playback_log import StopReason, save_playback_log
+    from hardware.show_checks import check_mount
     from studio.cli.servo_logs import log_path, save_log
     from studio.cli.servos import session_for
     from studio.cli.signals import exit_code, stop_on_signals
