@@ -261,28 +261,10 @@ def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, se
 
 
 class Running:
-    """``Project.run`` (mixed into :class:`~studio.project.project.Project`): :func:`run_project` on itself."""
+    """``Project.run`` (mixed into :class:`~studio.project.project.Project`): :func:`run_project` on itself, the one
+    function (``project.run(cfg, clip=..., keyframes=...)`` is ``run_project(project, cfg, clip=..., ...)``)."""
 
-    def run(
-        self,
-        cfg: RunConfig | None = None,
-        *,
-        clip: Any = None,
-        queue: JobQueue | None = None,
-        cancel: threading.Event | None = None,
-        model_path: Any = None,
-        on_job: Callable[[Job, str], None] | None = None,
-        keyframes: list[int] | None = None,
-        plan: bool = True,
-        wait: float = 0.0,
-        progress: ProgressFn | None = None,
-        models: ModelRecipe | None = None,
-    ) -> RunReport:
-        """Bring this project up to date (:func:`run_project`): optimise what is missing or stale (or ``keyframes``),
-        then plan the show; the jobs run on the project's queue unless ``queue`` is given (``cfg.spread``: on
-        workers, reporting to ``progress``)."""
-        return run_project(self, cfg, clip, queue, cancel, model_path, on_job, keyframes, plan, wait,  # type: ignore[arg-type]
-                           progress, models)  # fmt: skip
+    run = run_project
 
 
 def _joint_names() -> list[str]:
