@@ -37,6 +37,7 @@ import numpy as np
 from studio.imitate.cmaes import CMAES
 from studio.imitate.config import JointConfig
 from studio.progress import ProgressFn, report, stopped
+from studio.sim.joint_box import box_near
 
 Scorer = Callable[[np.ndarray], np.ndarray]  # poses (B, 21) rad → (B,) image losses (no temporal term)
 TOL = 1e-6  # rad a repaired candidate may stay outside a constraint (the clock's margin leaves far more room)
@@ -82,18 +83,14 @@ def posed_box(
     upper: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """The box ``(lower (21,), upper (21,))`` rad keyframe ``k`` keeps: ``[lower, upper]`` within the ``pairs``
-    distance of every keyframe ``posed`` (index → ``(21,)`` rad). Where two bounds cross (no pose reaches both),
-    that joint is pinned to the middle of the two, within ``[lower, upper]`` (the rule of
-    :func:`studio.motion.reach.distance_box`)."""
-    lo, hi = np.array(lower, dtype=np.float64), np.array(upper, dtype=np.float64)
+    distance of every keyframe ``posed`` (index → ``(21,)`` rad), by the one rule of
+    :func:`studio.sim.joint_box.box_near` (crossed bounds pinned to their middle)."""
+    near = []
     for (a, b), d in pairs.items():
         other = b if a == k else a if b == k else None
         if other is not None and other in posed:
-            lo = np.maximum(lo, np.asarray(posed[other], float) - d)
-            hi = np.minimum(hi, np.asarray(posed[other], float) + d)
-    crossed = lo > hi
-    mid = np.clip((lo + hi) / 2.0, lower, upper)
-    return np.where(crossed, mid, lo), np.where(crossed, mid, hi)
+            near.append((posed[other], d))
+    return box_near(lower, upper, near)
 
 
 class _Window:

@@ -23,6 +23,7 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 
 from studio.motion.limits import JointLimits
+from studio.sim.joint_box import box_near
 
 
 def _time_to_speed(v: np.ndarray, a: np.ndarray, j: np.ndarray) -> np.ndarray:
@@ -71,17 +72,10 @@ def distance_box(
     neighbours: Sequence[tuple[np.ndarray, np.ndarray]], limits: JointLimits
 ) -> tuple[np.ndarray, np.ndarray]:
     """The joint box ``(lower (J,), upper (J,))`` rad within ``d_n (J,)`` rad of every neighbour ``(θ_n (J,) rad,
-    d_n)``, within the joint limits. Where neighbours ask for more than any pose can give (two far apart with
-    little time), that joint is pinned to the middle of the two bounds that cross: the nearest the servos get to
-    both."""
-    lo, hi = np.asarray(limits.lower, float).copy(), np.asarray(limits.upper, float).copy()
-    for theta, d in neighbours:
-        lo = np.maximum(lo, np.asarray(theta, float) - d)
-        hi = np.minimum(hi, np.asarray(theta, float) + d)
-    crossed = lo > hi
-    mid = (lo + hi) / 2.0
-    lo, hi = np.where(crossed, mid, lo), np.where(crossed, mid, hi)
-    return np.clip(lo, limits.lower, limits.upper), np.clip(hi, limits.lower, limits.upper)
+    d_n)``, within the joint limits (:func:`studio.sim.joint_box.box_near`: where neighbours ask for more than any
+    pose can give, two far apart with little time, that joint is pinned to the middle of the two bounds that cross,
+    the nearest the servos get to both)."""
+    return box_near(limits.lower, limits.upper, neighbours)
 
 
 def reach_distances(
