@@ -1,6 +1,6 @@
 """May this show play here? A show planned for another hand model, or for a mount rolled otherwise than the rig's
-calibration records, is refused with one clear line before any servo moves (DESIGN §1, §5.13); the player, the
-dry run and the studio's real-vs-sim panel all ask these two checks."""
+calibration records, is refused with one clear line before any servo moves (DESIGN §1, §5.13). The player (`play`),
+the dry run, live control (`live`, the Live panel's view) and the real-vs-sim panel all ask these checks."""
 
 from __future__ import annotations
 
