@@ -1,8 +1,9 @@
 """Is roll auto's choice what holds the stills back? Each target imitated in full at every one of the roll search's
 best candidate rolls, and three ways of choosing among them compared.
 
-For each target (MPEG-7 animal images by default: the ``--images`` of camel, cattle, deer, dog, elephant, horse, rat
-and turtle), the roll search's refined candidates (:func:`studio.imitate.roll_search.choose_roll`: the chosen roll
+For each target (``--set mpeg7``, the default: the ``--images`` of camel, cattle, deer, dog, elephant, horse, rat
+and turtle; ``--set asl``: signer 1's ``dif`` image of each letter, which neither Table 1 nor the held-out rows
+use), the roll search's refined candidates (:func:`studio.imitate.roll_search.choose_roll`: the chosen roll
 first, then the other refined angles by their exact first-answer loss) are each imitated in full (as that
 rolled mount casts it; shipped model, no CLIP, one torch thread) and the rolled mount's shadow scored against the
 target as it is. Printed last, as JSON, the mean IoU loss when the roll is:
@@ -10,9 +11,12 @@ target as it is. Printed last, as JSON, the mean IoU loss when the roll is:
 * ``chosen``: roll auto's choice (what the studio does);
 * ``after_sweep``: the candidate whose best loss after the block sweep is lowest (a choice made later, at the cost
   of a sweep per candidate);
+* ``one_pass``: the candidate whose best loss after one pass of the block sweep is lowest (the same, cheaper:
+  ``one_pass_seconds`` is what those sweeps cost a target);
 * ``oracle``: the candidate whose full imitation scored best (hindsight: the most any choice among them can give).
 
     python benchmarks/bench_roll_choice.py [--images 3 4] [--top 3]
+    python benchmarks/bench_roll_choice.py --set asl [--limit N]
 """
 
 from __future__ import annotations
@@ -21,10 +25,11 @@ import argparse
 import json
 import math
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-MPEG7 = ROOT.parent / "shared" / "targets" / "mpeg7"
+SHARED = ROOT.parent / "shared" / "targets"
 ANIMALS = ("camel", "cattle", "deer", "dog", "elephant", "horse", "rat", "turtle")
 
 
@@ -32,14 +37,17 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--images", type=int, nargs="+", default=[3, 4], help="which image of each animal (1–20)")
     ap.add_argument("--top", type=int, default=3, help="candidate rolls imitated in full per target")
+    ap.add_argument("--set", choices=("mpeg7", "asl"), default="mpeg7", help="which targets (module doc)")
+    ap.add_argument("--limit", type=int, default=0, help="only the first N targets (0: all)")
     args = ap.parse_args(argv)
-    if not MPEG7.is_dir():
-        print(f"needs the shared MPEG-7 targets at {MPEG7}", file=sys.stderr)
+    if not (SHARED / args.set).is_dir():
+        print(f"needs the shared targets at {SHARED / args.set}", file=sys.stderr)
         return 2
 
     import numpy as np
 
     from studio.evaluate.table1 import score
+    from studio.imitate.config import SweepConfig
     from studio.imitate.roll_search import RollSearchConfig
     from studio.imitate.still import Imitator
     from studio.learn.threads import DEFAULT_THREADS, set_torch_threads
@@ -47,10 +55,14 @@ def main(argv: list[str] | None = None) -> int:
     from studio.targets.images import image_class, image_number
 
     set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.learn.threads)
-    numbered = {(image_class(p), image_number(p)): p for p in MPEG7.glob("*.gif")}  # "camel-3", "rat-03"
-    paths = [numbered[a, i] for i in args.images for a in ANIMALS if (a, i) in numbered]
+    if args.set == "asl":
+        paths = sorted((SHARED / "asl").glob("*/hand1_*_dif_*"))
+    else:
+        numbered = {(image_class(p), image_number(p)): p for p in (SHARED / "mpeg7").glob("*.gif")}  # "camel-3"
+        paths = [numbered[a, i] for i in args.images for a in ANIMALS if (a, i) in numbered]
+    paths = paths[: args.limit] if args.limit > 0 else paths
     if not paths:
-        print(f"no MPEG-7 animal image numbered {args.images} in {MPEG7} (they run 1–20)", file=sys.stderr)
+        print(f"no {args.set} target matches (MPEG-7 images run 1–20): {SHARED / args.set}", file=sys.stderr)
         return 2
     per_target = []
     with Imitator() as im:
@@ -60,23 +72,33 @@ def main(argv: list[str] | None = None) -> int:
             loss_fn = im.loss_fn(target, exp)
             choice = im.choose_roll(target[None], RollSearchConfig(top=max(3, args.top)))
             rows = []
-            for deg, exact in choice.candidates[: args.top]:
+            t0 = time.perf_counter()
+            one_pass = []
+            for deg, _ in choice.candidates[: args.top]:  # one sweep pass at each candidate: the cheaper choice
+                framed = im.framed(target, exp, math.radians(deg))
+                seeds = im.seed(framed.exact, framed.ranking, sweep=SweepConfig(passes=1), refiner=framed.refiner)
+                one_pass.append(float(seeds.best.loss[0]))
+            one_pass_s = time.perf_counter() - t0
+            for (deg, exact), one in zip(choice.candidates[: args.top], one_pass, strict=True):
                 roll = math.radians(deg)
                 got = im.imitate(target, exp, refine=True, roll=roll)
                 shadow = got.shadow  # as the rolled mount casts it
                 rows.append({"deg": round(deg, 2), "exact_first_answer": round(exact, 4),
                              "after_sweep": round(float(got.swept.loss[0]), 4) if got.swept is not None else None,
+                             "one_pass": round(one, 4),
                              "iou_loss": round(score(loss_fn, shadow)["iou_loss"], 4)})  # fmt: skip
-            rec = {"target": path.name, "candidates": rows}
+            rec = {"target": path.name, "candidates": rows, "one_pass_seconds": round(one_pass_s, 2)}
             per_target.append(rec)
             print(json.dumps(rec), flush=True)
     chosen = [r["candidates"][0]["iou_loss"] for r in per_target]
     oracle = [min(c["iou_loss"] for c in r["candidates"]) for r in per_target]
     swept = [min((c for c in r["candidates"] if c["after_sweep"] is not None), key=lambda c: c["after_sweep"],
                  default=r["candidates"][0])["iou_loss"] for r in per_target]  # fmt: skip
-    out = {"targets": len(per_target), "top": args.top, "iou_loss": {
+    one = [min(r["candidates"], key=lambda c: c["one_pass"])["iou_loss"] for r in per_target]
+    out = {"set": args.set, "targets": len(per_target), "top": args.top, "iou_loss": {
         "chosen": round(float(np.mean(chosen)), 4), "after_sweep": round(float(np.mean(swept)), 4),
-        "oracle": round(float(np.mean(oracle)), 4)}}  # fmt: skip
+        "one_pass": round(float(np.mean(one)), 4), "oracle": round(float(np.mean(oracle)), 4)},
+        "one_pass_seconds": round(float(np.mean([r["one_pass_seconds"] for r in per_target])), 2)}  # fmt: skip
     out["oracle_gain"] = round(out["iou_loss"]["chosen"] - out["iou_loss"]["oracle"], 4)
     out["per_target"] = per_target
     print(json.dumps(out))
