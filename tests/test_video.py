@@ -1,4 +1,5 @@
-"""studio.targets.video: sampling arithmetic, every shared sequence loads, one square frame, bad input is clear."""
+"""studio.targets.video: every shared sequence loads, one square frame, reading footage, bad input is clear (the
+sampling arithmetic: test_sampling.py; cleaning photographed shadows: test_cleanup.py)."""
 
 from __future__ import annotations
 
@@ -9,16 +10,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 from PIL import Image
 
 from studio.errors import TargetError
 from studio.progress import Progress
-from studio.targets.cleanup import clean_shadow, remove_specks, ruled_lines, run_lengths
-from studio.targets.footage import natural_key
 from studio.targets.images import detect_polarity
-from studio.targets.sampling import gif_sample
 from studio.targets.source import raw_frames
 from studio.targets.video import (
     DEFAULT_VIDEO,
@@ -68,65 +64,6 @@ def _write_gif(path: Path, frames: list[np.ndarray], durations_ms: list[int]) ->
     ims = [Image.fromarray(f) for f in frames]
     ims[0].save(path, save_all=True, append_images=ims[1:], duration=durations_ms, loop=0)
     return path
-
-
-# --- sampling arithmetic ----------------------------------------------------------------------------------------
-
-
-def test_sample_times_by_hand():
-    times, idx = sample_times(1.0, 24, 4)  # DAVIS at the default rate: every 6th frame
-    assert idx.tolist() == [0, 6, 12, 18] and np.allclose(times, [0, 0.25, 0.5, 0.75])
-    times, idx = sample_times(82 / 30, 30, 4)  # bear.mp4: 7.5 frames a sample, ties to the later frame
-    assert idx.tolist() == [0, 8, 15, 23, 30, 38, 45, 53, 60, 68, 75]
-    assert np.allclose(times, idx / 30)
-    _, idx = sample_times(2.0, 10, 10)  # the source's own rate: every frame once
-    assert idx.tolist() == list(range(20))
-    _, idx = sample_times(1.0, 24, 2.35)  # the paper's slowest rate
-    assert idx.tolist() == [0, 10, 20]
-    assert len(sample_times(0.0, 24, 4)[0]) == 0
-    with pytest.raises(ValueError):
-        sample_times(1.0, 24, 0)
-
-
-def test_gif_durations_by_hand():
-    times, idx = gif_sample(np.full(11, 0.1), 4)  # Muybridge: 11 frames of 0.1 s
-    assert idx.tolist() == [0, 3, 5, 8, 10] and np.allclose(times, [0, 0.3, 0.5, 0.8, 1.0])
-    times, idx = gif_sample(np.array([0.5, 0.1, 0.1, 0.3]), 10)  # starts 0, .5, .6, .7; clock 1.0 s
-    assert idx.tolist() == [0, 0, 0, 1, 1, 1, 2, 3, 3]
-    assert np.allclose(times, [0, 0, 0, 0.5, 0.5, 0.5, 0.6, 0.7, 0.7])
-
-
-@settings(max_examples=200, deadline=None)
-@given(
-    fps=st.floats(1, 120),
-    share=st.floats(0.01, 1.0),
-    n=st.integers(1, 400),
-)
-def test_sampled_times_within_half_a_frame(fps, share, n):
-    hz = fps * share
-    times, idx = sample_times(n / fps, fps, hz)
-    k = np.arange(len(times))
-    assert np.all(np.abs(times - k / hz) <= 0.5 / fps + 1e-9)
-    assert np.all((idx >= 0) & (idx < n)) and np.all(np.diff(idx) > 0)  # hz ≤ fps: never a frame twice
-    assert len(times) == int(np.sum(np.arange(int(n / share) + 2) / hz < (n - 0.5) / fps))
-
-
-@settings(max_examples=150, deadline=None)
-@given(durations=st.lists(st.floats(0.02, 1.0), min_size=1, max_size=40), hz=st.floats(0.5, 20))
-def test_gif_sample_is_the_nearest_start(durations, hz):
-    d = np.array(durations)
-    starts = np.concatenate([[0.0], np.cumsum(d)[:-1]])
-    times, idx = gif_sample(d, hz)
-    wanted = np.arange(len(times)) / hz
-    assert np.allclose(times, starts[idx])
-    nearest = np.abs(starts[None, :] - wanted[:, None]).min(axis=1)
-    assert np.all(np.abs(times - wanted) <= nearest + 1e-6)
-    assert len(times) == 0 or wanted[-1] < starts[-1] + d[-1] / 2
-
-
-def test_natural_order():
-    names = [Path(f"f{i}.png") for i in (10, 2, 1)]
-    assert [p.name for p in sorted(names, key=natural_key)] == ["f1.png", "f2.png", "f10.png"]
 
 
 # --- real sequences ----------------------------------------------------------------------------------------------
@@ -380,31 +317,3 @@ def test_rate_above_the_source(tmp_path):
         load_video(mp4, VideoConfig(hz=20))
     with pytest.raises(ValueError):
         VideoConfig(hz=0)
-
-
-# --- cleaning photographed shadows -------------------------------------------------------------------------------
-
-
-def test_run_lengths_by_hand():
-    m = np.array([[1, 1, 0, 1], [0, 1, 0, 0]], np.uint8)
-    assert run_lengths(m, 1).tolist() == [[2, 2, 0, 1], [0, 1, 0, 0]]
-    assert run_lengths(m, 0).tolist() == [[1, 2, 0, 1], [0, 2, 0, 0]]
-
-
-def test_ruled_line_goes_legs_and_tail_stay():
-    m = np.zeros((100, 150), np.uint8)
-    m[30:60, 40:110] = 1  # body
-    m[60:85, 45:49] = 1  # a leg down to the ground line
-    m[40:44, 10:40] = 1  # a thin tail
-    m[85:88, :] = 1  # a rule across the frame, touching the leg
-    m[0:2, :] = 1  # the frame's edge
-    lines = ruled_lines(m)
-    assert lines[86, :40].all() and lines[86, 60:].all() and lines[0, 75]
-    assert not lines[30:60].any() and not lines[60:85].any() and not lines[40:44, 10:40].any()
-    clean = clean_shadow(m)
-    assert clean[30:60, 40:110].all() and clean[60:85, 45:49].all() and clean[40:44, 12:40].all()
-    assert not clean[85:88, 60:].any() and not clean[0:2].any()
-    speck = np.zeros((40, 40), np.uint8)
-    speck[5:25, 5:25] = 1
-    speck[30, 30] = 1
-    assert remove_specks(speck, 2)[30, 30] == 0 and remove_specks(speck, 2)[5:25, 5:25].all()
