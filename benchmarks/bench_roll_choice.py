@@ -5,18 +5,15 @@ For each target (``--set mpeg7``, the default: the ``--images`` of camel, cattle
 and turtle; ``--set asl``: signer 1's ``dif`` image of each letter, which neither Table 1 nor the held-out rows
 use), the roll search's refined candidates (:func:`studio.imitate.roll_search.choose_roll`: the chosen roll
 first, then the other refined angles by their exact first-answer loss) are each imitated in full (as that
-rolled mount casts it; shipped model, no CLIP, one torch thread) and the rolled mount's shadow scored against the
-target as it is. Printed last, as JSON, the mean IoU loss when the roll is:
+rolled mount casts it; shipped model, no CLIP, the studio's torch threads) and the rolled mount's shadow scored
+against the target as it is. Printed last, as JSON, the mean IoU loss when the roll is:
 
-* ``chosen``: roll auto's choice (what the studio does);
-* ``after_sweep``: the candidate whose best loss after the block sweep is lowest (a choice made later, at the cost
-  of a sweep per candidate);
-* ``one_pass``: the candidate whose best loss after one pass of the block sweep is lowest (the same, cheaper:
-  ``one_pass_seconds`` is what those sweeps cost a target);
+* ``chosen``: roll auto's choice (what the studio does: the best candidates ranked again by a quick sweep,
+  ``RollSearchConfig.swept``; ``roll_seconds``: the whole roll search, a target);
+* ``first_answer``: the candidate whose exact first-answer loss is lowest (the choice before the sweep pass);
+* ``after_sweep``: the candidate whose best loss after the imitation's full block sweep is lowest (a later
+  choice, at the cost of a full sweep per candidate);
 * ``oracle``: the candidate whose full imitation scored best (hindsight: the most any choice among them can give).
-
-    python benchmarks/bench_roll_choice.py [--images 3 4] [--top 3]
-    python benchmarks/bench_roll_choice.py --set asl [--limit N]
 """
 
 from __future__ import annotations
@@ -47,7 +44,6 @@ def main(argv: list[str] | None = None) -> int:
     import numpy as np
 
     from studio.evaluate.table1 import score
-    from studio.imitate.config import SweepConfig
     from studio.imitate.roll_search import RollSearchConfig
     from studio.imitate.still import Imitator
     from studio.learn.threads import DEFAULT_THREADS, set_torch_threads
@@ -70,35 +66,31 @@ def main(argv: list[str] | None = None) -> int:
             target = im.load(path)
             exp = still_expressive(target)
             loss_fn = im.loss_fn(target, exp)
-            choice = im.choose_roll(target[None], RollSearchConfig(top=max(3, args.top)))
-            rows = []
             t0 = time.perf_counter()
-            one_pass = []
-            for deg, _ in choice.candidates[: args.top]:  # one sweep pass at each candidate: the cheaper choice
-                framed = im.framed(target, exp, math.radians(deg))
-                seeds = im.seed(framed.exact, framed.ranking, sweep=SweepConfig(passes=1), refiner=framed.refiner)
-                one_pass.append(float(seeds.best.loss[0]))
-            one_pass_s = time.perf_counter() - t0
-            for (deg, exact), one in zip(choice.candidates[: args.top], one_pass, strict=True):
-                roll = math.radians(deg)
-                got = im.imitate(target, exp, refine=True, roll=roll)
+            choice = im.choose_roll(target[None], RollSearchConfig(top=max(3, args.top)))
+            roll_s = time.perf_counter() - t0
+            rows = []
+            first_answer = min(range(len(choice.candidates[: args.top])), key=lambda i: choice.candidates[i][1])
+            for i, (deg, exact) in enumerate(choice.candidates[: args.top]):
+                got = im.imitate(target, exp, refine=True, roll=math.radians(deg))
                 shadow = got.shadow  # as the rolled mount casts it
                 rows.append({"deg": round(deg, 2), "exact_first_answer": round(exact, 4),
+                             "quick_sweep": round(choice.swept[i], 4) if i < len(choice.swept) else None,
                              "after_sweep": round(float(got.swept.loss[0]), 4) if got.swept is not None else None,
-                             "one_pass": round(one, 4),
                              "iou_loss": round(score(loss_fn, shadow)["iou_loss"], 4)})  # fmt: skip
-            rec = {"target": path.name, "candidates": rows, "one_pass_seconds": round(one_pass_s, 2)}
+            rec = {"target": path.name, "candidates": rows, "first_answer": first_answer,
+                   "roll_seconds": round(roll_s, 2)}  # fmt: skip
             per_target.append(rec)
             print(json.dumps(rec), flush=True)
     chosen = [r["candidates"][0]["iou_loss"] for r in per_target]
+    first = [r["candidates"][r["first_answer"]]["iou_loss"] for r in per_target]
     oracle = [min(c["iou_loss"] for c in r["candidates"]) for r in per_target]
     swept = [min((c for c in r["candidates"] if c["after_sweep"] is not None), key=lambda c: c["after_sweep"],
                  default=r["candidates"][0])["iou_loss"] for r in per_target]  # fmt: skip
-    one = [min(r["candidates"], key=lambda c: c["one_pass"])["iou_loss"] for r in per_target]
     out = {"set": args.set, "targets": len(per_target), "top": args.top, "iou_loss": {
-        "chosen": round(float(np.mean(chosen)), 4), "after_sweep": round(float(np.mean(swept)), 4),
-        "one_pass": round(float(np.mean(one)), 4), "oracle": round(float(np.mean(oracle)), 4)},
-        "one_pass_seconds": round(float(np.mean([r["one_pass_seconds"] for r in per_target])), 2)}  # fmt: skip
+        "chosen": round(float(np.mean(chosen)), 4), "first_answer": round(float(np.mean(first)), 4),
+        "after_sweep": round(float(np.mean(swept)), 4), "oracle": round(float(np.mean(oracle)), 4)},
+        "roll_seconds": round(float(np.mean([r["roll_seconds"] for r in per_target])), 2)}  # fmt: skip
     out["oracle_gain"] = round(out["iou_loss"]["chosen"] - out["iou_loss"]["oracle"], 4)
     out["per_target"] = per_target
     print(json.dumps(out))

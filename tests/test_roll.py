@@ -157,6 +157,38 @@ def test_roll_auto_keeps_the_upright_rig_for_an_upright_target(small_index, hand
     assert all(abs(wrap_deg(a - b)) >= 0.25 for i, a in enumerate(degs) for b in degs[:i]), degs
 
 
+def test_roll_auto_chooses_the_candidate_whose_sweep_pass_casts_best(small_index, hand):
+    """The refined candidates are ranked again by one block-sweep pass of their held poses: the roll chosen is the
+    one with the lowest swept loss, the candidates are the exact stage's, reordered; ``swept=1``, a cancel and a
+    show (several targets) leave the exact stage's choice."""
+    import threading
+
+    from studio.imitate.roll_search import RollSearchConfig
+
+    index, refiner = small_index
+    lc = LossConfig(use_clip=False, crop_size=R)
+    yy, xx = np.mgrid[:R, :R]
+    target = ((((yy - 60) / 40.0) ** 2 + ((xx - 70) / 18.0) ** 2) <= 1).astype(np.uint8)  # no hand casts it
+    make = lambda t, e: ImageLoss(t, lc, None, e)  # noqa: E731
+    exact = choose_roll(index, refiner, target[None], make, RollSearchConfig(swept=1))
+    steps = []
+    choice = choose_roll(index, refiner, target[None], make, progress=lambda p: steps.append((p.stage, p.step)))
+    assert exact.swept == [] and len(exact.candidates) >= 2, exact.candidates
+    assert len(choice.swept) == min(3, len(choice.candidates))
+    assert choice.swept[0] == min(choice.swept) and choice.deg == pytest.approx(
+        wrap_deg(choice.candidates[0][0]), abs=0.01
+    )
+    assert sorted(choice.candidates) == sorted(exact.candidates)
+    assert all(0 < s < 1 for s in choice.swept)
+    assert steps == [("roll", i + 1) for i in range(len(choice.swept))]
+    cancel = threading.Event()
+    cancel.set()
+    stopped = choose_roll(index, refiner, target[None], make, cancel=cancel)
+    assert stopped.swept == [] and stopped.deg == exact.deg
+    show = choose_roll(index, refiner, np.stack([target, target]), make)  # a show keeps the exact stage's choice
+    assert show.swept == [] and show.deg == exact.deg
+
+
 @pytest.mark.slow
 def test_roll_auto_finds_the_roll_of_rolled_reachable_targets():
     """``benchmarks/bench_reach.py``'s 12 rolled targets (seed 7), on the shipped model and index: the roll is chosen

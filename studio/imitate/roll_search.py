@@ -11,7 +11,18 @@ within the first answer's budget (≈ 3 ms an angle and target, compiled, :meth:
    (the query's shortlist, scored on the renderer) → the angle whose poses cast the targets best; then, with those
    poses held, halving steps on the rendered loss down to ``fine_deg``. These scores are taken as the audience sees
    them: each pose rendered by the *rolled* mount and scored against the target as it is, so a hole or a thin part
-   that turning the target would blur never decides the roll.
+   that turning the target would blur never decides the roll;
+4. **one quick sweep** (a still; ``swept`` candidates): the exact stage's ranking is close between angles whose
+   poses differ a lot (often half a turn apart), so at each of the best candidates the index's best pose for the
+   target (its shortlist scored as the rolled mount casts it, against the target as it is) is block-swept one pass
+   with few draws (:func:`~studio.imitate.seeding.sweep`), and the roll whose swept pose casts it best is chosen.
+   A show keeps the exact stage's choice: its keyframes are posed within each other's reach at its clock, which a
+   free sweep of each keyframe ignores (on Table 2's six sequences the quick sweep moved camel's roll and took the
+   studio row's Total from 0.3255 to 0.3318).
+   On signer 1's ``dif`` letters (``benchmarks/bench_roll_choice.py --set asl``: images no table uses, each
+   candidate imitated in full) the imitations' IoU loss went 0.1571 → 0.1543 for 0.2 s a letter (the imitation's
+   own sweep, 4 starts × 1024 draws, one pass: 0.1542 for 2.1 s; no draws, only the rolled scoring: 0.1558); on 16
+   MPEG-7 animal images 0.2410 → 0.2417 (within the choice's noise: 0.2414–0.2424 over those variants).
 
 Every stage scores the outline (the base loss: MAE + IoU, + CLIP when on), as the index does; the expressive term is
 left to the imitation at the roll chosen. A still's expressive region is its holes, lit in the target, so that term
@@ -26,6 +37,7 @@ chosen and imitates them as usual.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -33,10 +45,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from studio.imitate.config import SweepConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
 from studio.imitate.rendered_loss import fast_loss
 from studio.imitate.retrieval import RetrievalIndex
+from studio.imitate.seeding import sweep
+from studio.progress import ProgressFn, report, stopped
 from studio.sim.roll import into_hand_frame, wrap_deg
 from studio.sim.shadow import ShadowRenderer
 
@@ -51,12 +66,20 @@ class RollSearchConfig:
     fine_deg: float = 0.25  # exact refinement (rendered loss, poses held) stops at this step, degrees (0, ∞)
     exact_k: int = 4  # best distinct index poses per target scored exactly at each refined angle [1, ∞); 1 let an
     # angle whose single best index pose happened to look good win (a half turn off on a rolled reachable target)
+    swept: int = 3  # a still's best candidates (by the exact stage) ranked again by a quick sweep of the index's best
+    # pose at each angle (module doc, 4.) [1, ∞); 1: the exact stage decides. About 0.07 s a candidate
+    sweep_draws: int = 256  # settings drawn per finger block in that sweep's one pass; the wrist a quarter [4, 16384]
 
     def __post_init__(self) -> None:
         if not 0 < self.coarse_deg <= 90 or not 0 < self.index_deg <= self.coarse_deg or self.fine_deg <= 0:
             raise ValueError("roll search needs 0 < index_deg ≤ coarse_deg ≤ 90 and fine_deg > 0 (degrees)")
-        if self.top < 1 or self.exact_k < 1:
-            raise ValueError("roll search needs top ≥ 1 and exact_k ≥ 1")
+        if self.top < 1 or self.exact_k < 1 or self.swept < 1 or not 4 <= self.sweep_draws <= 16384:
+            raise ValueError("roll search needs top ≥ 1, exact_k ≥ 1, swept ≥ 1 and 4 ≤ sweep_draws ≤ 16384")
+
+    @property
+    def quick_sweep(self) -> SweepConfig:
+        """The sweep that ranks the candidates: one start, one pass, ``sweep_draws``."""
+        return SweepConfig(starts=1, draws=self.sweep_draws, wrist_draws=self.sweep_draws // 4, passes=1)
 
 
 @dataclass
@@ -64,12 +87,14 @@ class RollChoice:
     """The roll chosen (plain data)."""
 
     roll: float  # rad, counter-clockwise as the audience sees the backdrop
-    loss: float  # mean rendered outline (base) loss of the held poses over the targets at that roll
+    loss: float  # mean rendered outline (base) loss of the held (first-answer) poses over the targets at that roll
     upright_loss: float  # the same measure at roll 0 (the paper's rig), for the summary
     seconds: float  # wall time of the search
     coarse: dict[float, float] = field(default_factory=dict)  # degrees → mean index pixel loss (the first pass)
     candidates: list[tuple[float, float]] = field(default_factory=list)  # (degrees, loss): the roll chosen, then
     # the other refined angles by their exact loss, each angle once (benchmarks/bench_roll_choice.py imitates each)
+    swept: list[float] = field(default_factory=list)  # the mean loss after the quick sweep (module doc, 4.) of the
+    # first ``RollSearchConfig.swept`` candidates, in their order (empty: not swept); the roll chosen has the lowest
 
     @property
     def deg(self) -> float:
@@ -95,6 +120,23 @@ class _Scorer:
 def _rolled(refiner: Refiner, deg: float) -> ShadowRenderer:
     """The refiner's renderer with the mount rolled by ``deg`` degrees."""
     return ShadowRenderer(refiner.hand, refiner.renderer.rig.with_roll(math.radians(deg)))
+
+
+def _swept(
+    index: RetrievalIndex, refiner: Refiner, targets: np.ndarray, losses: list[ImageLoss], deg: float,
+    one_pass: SweepConfig, cancel,
+) -> list[float]:  # fmt: skip
+    """Each target's loss after ``one_pass`` at the mount rolled by ``deg``: the index's best distinct poses for the
+    turned target, scored and swept as that mount casts them against the target as it is (``losses``); fewer when
+    ``cancel`` stops it."""
+    rolled = refiner.with_roll(math.radians(deg))
+    out = []
+    for turned, fn in zip(_turned(targets, deg), losses, strict=True):
+        if stopped(cancel):
+            break
+        first = index.query(turned, lambda th, fn=fn: rolled.score(fn, th)[0], one_pass.starts)
+        out.append(float(sweep(rolled, one_pass, fn, first, cancel=cancel).loss[0]))
+    return out
 
 
 def _turned(targets: np.ndarray, deg: float) -> np.ndarray:
@@ -130,10 +172,13 @@ def choose_roll(
     targets: np.ndarray,
     make_loss: LossFactory,
     cfg: RollSearchConfig | None = None,
+    progress: ProgressFn | None = None,
+    cancel: threading.Event | None = None,
 ) -> RollChoice:
     """The roll (rad) under which the hand casts ``targets (K, S, S)`` (a still: K = 1; a show: its keyframes) best
     on average; ``make_loss(target, None)`` builds the (outline) loss a target is scored with (module doc: coarse,
-    index refinement, exact)."""
+    index refinement, exact, quick sweep). Stage "roll" (a step per candidate swept). ``cancel`` stops the sweeps:
+    the exact stage's choice is returned (the caller sees the cancel)."""
     cfg = cfg or RollSearchConfig()
     t0 = time.perf_counter()
     targets = np.asarray(targets)
@@ -181,4 +226,21 @@ def choose_roll(
     for d, v, _ in others:  # each angle once: the upright rig kept may be a refined angle too
         if all(abs(wrap_deg(d - c)) >= cfg.fine_deg for c, _ in candidates):
             candidates.append((float(wrap_deg(d)), v))
-    return RollChoice(math.radians(best_deg), loss, upright, time.perf_counter() - t0, coarse, candidates)
+    # a still only (module doc, 4.): a show's keyframes are posed within each other's reach, not freely
+    n, one_pass = (min(cfg.swept, len(candidates)) if len(targets) == 1 else 0), cfg.quick_sweep
+    swept: list[float] = []
+    seen_losses = [s.loss_fn for s in seen]
+    for i, (deg, _) in enumerate(candidates[:n] if n > 1 else []):  # one candidate: nothing to choose between
+        each = _swept(index, refiner, targets, seen_losses, deg, one_pass, cancel)
+        if len(each) < len(targets):  # cancelled: the exact stage's choice stands
+            swept = []
+            break
+        swept.append(float(np.mean(each)))
+        report(progress, "roll", i + 1, n, min(swept))
+    if swept:  # the roll whose swept poses cast the targets best, first
+        pick = int(np.argmin(swept))
+        order = [pick] + [i for i in range(len(candidates)) if i != pick]
+        candidates = [candidates[i] for i in order]
+        swept = [swept[i] for i in order if i < len(swept)]
+    best_deg, loss = candidates[0]
+    return RollChoice(math.radians(best_deg), loss, upright, time.perf_counter() - t0, coarse, candidates, swept)

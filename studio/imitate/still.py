@@ -219,12 +219,14 @@ class Imitator:
     ) -> RollChoice | None:
         """``--roll auto``: the one mount roll for ``targets (K, R, R)`` (a still: K = 1), chosen on their outlines
         (:func:`~studio.imitate.roll_search.choose_roll` on this imitator's index, loss and refiner); stage "index"
-        while the index is built, then "roll". None when ``cancel`` stopped the index build."""
+        while the index is built, then "roll" (a step per candidate swept). None when ``cancel`` stopped it."""
         index = self.retrieval_index(progress, cancel)
         if index is None:
             return None
         report(progress, "roll", 0, 1)
-        choice = choose_roll(index, self.refiner, targets, self.loss_fn, cfg)
+        choice = choose_roll(index, self.refiner, targets, self.loss_fn, cfg, progress, cancel)
+        if stopped(cancel):
+            return None
         report(progress, "roll", 1, 1, choice.loss)
         return choice
 
