@@ -1,16 +1,17 @@
-"""Verbs ``emulate``, ``scan``, ``calibrate``, ``play`` and ``jog``: the terminal face of the hardware layer.
+"""Verbs ``emulate``, ``scan``, ``calibrate`` and ``play``: the terminal face of the hardware layer (``jog``:
+:mod:`studio.cli.jog`, on this module's :func:`session_for`).
 
 They open the servos through :class:`hardware.session.ServoSession` and fail safe (DESIGN §5.13): however a verb
 ends, the session stops every servo and leaves torque held (``play --release-on-stop``: released); a lost port
-(``BusError``) ends the verb with one line and exit code 2 (through ``main``); ``jog`` and ``calibrate`` carry on
-after a servo misses a read; ``calibrate`` checks ``--out`` before it touches the bus and keeps what was calibrated
-in ``<out>.partial.yaml`` when it ends early. ``play`` and ``jog`` write their log however they end (``--log``,
-default ``<studio home>/logs/play-<time>.npz`` / ``jog-<time>.txt``). Ctrl-C, SIGTERM and SIGHUP end ``play``,
-``jog`` and ``calibrate`` alike (``studio.cli.signals``): stop sent, torque as configured, log written, one line,
-exit code 128 + the signal (Ctrl-C 130, SIGTERM 143). ``play`` refuses before it opens the port while the e-stop is
-latched (any process: ``hardware.estop``; ``shadow-studio estop --reset`` clears it) and when the show was planned
-for another hand (unless ``--force``). Servo IDs are 0..253 wherever they are typed. The emulator (POSIX only: pty,
-termios) is imported only by the verbs that use it.
+(``BusError``) ends the verb with one line and exit code 2 (through ``main``); ``calibrate`` carries on after a
+servo misses a read, checks ``--out`` before it touches the bus and keeps what was calibrated in
+``<out>.partial.yaml`` when it ends early. ``play`` writes its log however it ends (``--log``, default
+``<studio home>/logs/play-<time>.npz``). Ctrl-C, SIGTERM and SIGHUP end ``play`` and ``calibrate`` alike
+(``studio.cli.signals``): stop sent, torque as configured, log written, one line, exit code 128 + the signal
+(Ctrl-C 130, SIGTERM 143). ``play`` refuses before it opens the port while the e-stop is latched (any process:
+``hardware.estop``; ``shadow-studio estop --reset`` clears it) and when the show was planned for another hand
+(unless ``--force``). Servo IDs are 0..253 wherever they are typed. The emulator (POSIX only: pty, termios) is
+imported only by the verbs that use it.
 """
 
 from __future__ import annotations
@@ -20,7 +21,6 @@ import math
 import sys
 import time
 from dataclasses import replace
-from datetime import datetime
 from functools import partial
 from pathlib import Path
 
@@ -38,14 +38,12 @@ from hardware.constants import parse_ids
 from hardware.emulator_config import EmulatorConfig, Faults
 from hardware.errors import BusError, EStopLatched, ProtocolError, ServoTimeout
 from hardware.estop import check_not_latched
-from hardware.jog import HELP, Jog
 from hardware.playback_log import PlaybackResult, StopReason, save_playback_log
 from hardware.player import Player, PlayerConfig
 from hardware.serial_bus import BusConfig
 from hardware.session import ServoSession, load_emulator
 from hardware.show_checks import check_mount, check_show_hand
 from hardware.wizard import CalibrationWizard
-from studio.atomic import write_text
 from studio.cli.flags import add_config_flags, config_from_args, ranged
 from studio.cli.play_camera import add_camera_flags, prepare_camera
 from studio.cli.progress import add_quiet_flag
@@ -208,51 +206,6 @@ def _report(result: PlaybackResult) -> None:
         )
 
 
-def cmd_jog(args) -> int:
-    hand = load_hand()
-    cal = load_calibration(args.calibration, hand)
-    started = datetime.now().astimezone().isoformat(timespec="seconds")
-    journal = [f"# shadow-studio jog on {args.port}, started {started}"]
-
-    def say(line: str, typed: bool = False) -> None:  # to the log, then to the terminal (not what was typed)
-        stamp = datetime.now().strftime("%H:%M:%S.%f")[:-3]
-        journal.extend(f"{stamp} {'>' if typed else ' '} {part}" for part in line.splitlines())
-        if not typed:
-            print(line)
-
-    log_to, code, stop, session = log_path(args.log, "jog", ".txt"), 0, None, None
-    try:
-        with stop_on_signals("jog") as caught, session_for(args, cal) as session:
-            try:
-                jog = Jog(session.bus, cal, home_pose=hand.rest_pose())
-                print(HELP)
-                silent = [i for i, q in zip(cal.ids, jog.target) if np.isnan(q)]
-                if silent:
-                    say(f"? servos {silent} did not answer: check their cables; their angles show as ?")
-                if session.bus.estop_latched:
-                    say(f"? {session.bus.latch_message()} (type reset to clear it)")
-                say(jog.status())
-                for line in sys.stdin:
-                    say(line.strip(), typed=True)
-                    if line.strip().lower() in ("q", "quit", "exit"):
-                        break
-                    try:
-                        say(jog.execute(line))
-                    except (ValueError, ServoTimeout, ProtocolError, EStopLatched) as e:  # BusError ends the verb
-                        say(f"? {e}{advice(e)}")
-            except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM, SIGHUP: the session's close stops every servo
-                stop, code = e, exit_code(caught[0] if caught else e)
-            report = session.close()  # inside: a later signal is ignored until the verb has said how it ended
-            end = f"stopped by {stop or 'Ctrl-C'}: {report.message}" if stop is not None else ""
-            if end:
-                print(f"shadow-studio jog: {end}", file=sys.stderr)
-            journal.append(f"end: {end or report.message}")
-    finally:  # however jog ended once the servos were open (a lost port too): what was typed and answered
-        if session is not None:
-            save_log(lambda path: write_text(path, "\n".join(journal) + "\n"), log_to, args.log, "jog log")
-    return code
-
-
 def register(sub) -> None:
     p = sub.add_parser("emulate", help="run 21 virtual LX-15D servos on a pseudo-terminal until Ctrl-C")
     p.add_argument("--ids", type=_ids, default="1-21", help="servo IDs present, 0..253 (default 1-21)")
@@ -292,10 +245,3 @@ def register(sub) -> None:
     add_camera_flags(p)
     add_quiet_flag(p)
     p.set_defaults(func=cmd_play)
-
-    p = sub.add_parser("jog", help="move joints one at a time from the terminal (type help)")
-    bus_args(p)
-    p.add_argument("--calibration", type=Path, help="calibration YAML (default: assets/calibration.yaml)")
-    p.add_argument("--log", type=Path, help="save what was typed and answered to this text file (default: "
-                   "<studio home>/logs/jog-<time>.txt)")  # fmt: skip
-    p.set_defaults(func=cmd_jog)
