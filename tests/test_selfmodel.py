@@ -10,6 +10,7 @@ from dataclasses import astuple
 import numpy as np
 import pytest
 import torch
+from ctrl_c_support import ctrl_c_once_written  # this folder's helper
 from studio.assets import asset
 
 from studio.cli.main import main
@@ -130,6 +131,24 @@ def test_resume_after_cancel_continues_exactly(tmp_path, hand):
     assert set(a) == set(b)
     for k in a:
         torch.testing.assert_close(a[k], b[k], rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_the_train_verb_within_a_step_and_resume_finishes_it(tmp_path, capsys):
+    """`train` in one process: the first Ctrl-C stops the run within its step and leaves a checkpoint of the step it
+    reached (not only of the last validation), the summary says so and the exit status is 130; `--resume` ends it."""
+    out = tmp_path / "m.pt"
+    verb = ["train", "--out", str(out), "--resolution", "16", "--steps", "60", "--batch-size", "8", "--warmup", "2",
+            "--eval-every", "4", "--eval-size", "16", "--threads", "1", "--device", "cpu", "--quiet"]  # fmt: skip
+    with ctrl_c_once_written(out):  # the first checkpoint: step 4 of 60
+        code = main(verb)
+    cut = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    ckpt = read_checkpoint(out, "selfmodel")
+    assert code == 130 and cut["cancelled"] is True and 4 <= cut["steps"] < 60
+    assert ckpt.extra["step"] == cut["steps"] and "optimizer" in ckpt.extra
+    assert main([*verb, "--resume"]) == 0
+    done = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert done["steps"] == 60 and "cancelled" not in done
 
 
 def test_bad_training_options_are_refused(hand):

@@ -20,7 +20,6 @@ FLAGS = ("captures", "model", "out", "steps", "batch_size", "lr", "warmup", "eva
 
 def _finetune(args: argparse.Namespace) -> int:
     from studio.cli.flags import config_from_args
-    from studio.cli.progress import ctrl_c_cancels
     from studio.cli.train import run_training
     from studio.learn.finetune import FinetuneConfig, finetune
     from studio.path_checks import check_outputs
@@ -29,9 +28,7 @@ def _finetune(args: argparse.Namespace) -> int:
     inputs = [cfg.captures, cfg.start_model(), *([cfg.held_out] if cfg.held_out else [])]
     check_outputs([cfg.out], inputs=inputs)  # never replaces the model it starts from
     args.data = cfg.captures  # what run_training checks the output against too
-    with ctrl_c_cancels() as cancel:
-        run_training(args, "finetune", cfg.steps, cfg.out, lambda **kw: finetune(cfg, cancel=cancel, **kw))
-    return 130 if cancel.is_set() else 0
+    return run_training(args, "finetune", cfg.steps, cfg.out, lambda **kw: finetune(cfg, **kw))
 
 
 def register(sub: argparse._SubParsersAction) -> None:

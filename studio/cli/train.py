@@ -42,14 +42,17 @@ def add_trainer_flags(p: argparse.ArgumentParser, base) -> None:
 
 
 def run_training(args: argparse.Namespace, desc: str, steps: int, out: str, train: Callable[..., dict]) -> int:
-    """Run ``train(resume=, overwrite=, progress=)`` under one progress bar named ``desc`` over ``steps`` (the running
-    training loss as its best, the last validation and test losses after it); print the JSON summary last."""
+    """Run ``train(resume=, overwrite=, progress=, cancel=)`` under one progress bar named ``desc`` over ``steps``
+    (the running training loss as its best, the last validation and test losses after it); print the JSON summary
+    last. The first Ctrl-C sets ``cancel``: the trainer stops within the step and leaves a checkpoint that
+    ``--resume`` continues exactly, the summary says ``"cancelled": true`` and the exit status is 130."""
+    from studio.cli.progress import ctrl_c_cancels
     from studio.jobs import TqdmBars
     from studio.path_checks import check_outputs
     from studio.progress import Progress
 
     check_outputs([out], inputs=[args.data])  # the checkpoint never replaces a shard it trains on
-    with TqdmBars(disable=args.quiet, leave=True) as bars:
+    with TqdmBars(disable=args.quiet, leave=True) as bars, ctrl_c_cancels() as cancel:
         held = {"loss": math.nan}  # the trainer's "val" and "test" stages go on the one bar, after the training loss
 
         def progress(p: Progress) -> None:
@@ -61,9 +64,9 @@ def run_training(args: argparse.Namespace, desc: str, steps: int, out: str, trai
             bars(Progress(desc, p.step, p.total, held["loss"], item))
 
         bars(Progress(desc, 0, steps))  # the bar shows while the data and the first batch load
-        metrics = train(resume=args.resume, overwrite=args.force, progress=progress)
+        metrics = train(resume=args.resume, overwrite=args.force, progress=progress, cancel=cancel)
     print(json.dumps({"checkpoint": out, **metrics}))
-    return 0
+    return 130 if metrics.get("cancelled") else 0
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -80,8 +83,6 @@ def _train(args: argparse.Namespace) -> int:
     from functools import partial
     from pathlib import Path
 
-    from studio.cli.progress import ctrl_c_cancels
-
     if cfg.batch_size % fanout.workers:  # before Ray starts (the trainer says it too)
         raise ValueError(f"the batch of {cfg.batch_size} does not split evenly over {fanout.workers} workers: "
                          "choose a batch size that is a multiple of the worker count")  # fmt: skip
@@ -89,12 +90,11 @@ def _train(args: argparse.Namespace) -> int:
         raise ValueError(f"{cfg.out} exists: pass --resume to continue training it, --force to replace it, "
                          "or choose another --out")  # fmt: skip
 
-    def on_ray(resume: bool, overwrite: bool, progress) -> dict:
+    def on_ray(resume: bool, overwrite: bool, progress, cancel) -> dict:
         from studio.learn.ray_train import fit_on_ray
 
         run = partial(train, cfg, resume=resume, overwrite=overwrite)
-        with ctrl_c_cancels() as cancel:
-            return fit_on_ray(run, cfg.out, "selfmodel", cfg.steps, fanout, progress, cancel)
+        return fit_on_ray(run, cfg.out, "selfmodel", cfg.steps, fanout, progress, cancel)
 
     return run_training(args, "train", cfg.steps, cfg.out, on_ray)
 
