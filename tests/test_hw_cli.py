@@ -52,7 +52,8 @@ def emulate():
 
 
 def test_emulate_then_scan(emulate, capsys):
-    assert main(["scan", "--port", emulate("--duplicate", "9"), "--ids", "0-24", "--timeout", "0.01"]) == 1
+    # 0.2 s a read: an emulated servo answers within it even while the other test worker loads the cores
+    assert main(["scan", "--port", emulate("--duplicate", "9"), "--ids", "0-24", "--timeout", "0.2"]) == 1
     out = capsys.readouterr().out
     assert "present: [1, 2, 3, 4, 5, 6, 7, 8, 10" in out and "DUPLICATE IDs" in out and "[9]" in out
 
@@ -223,7 +224,8 @@ def test_jog_survives_missed_reads_and_ends_cleanly_on_a_lost_port(capsys, monke
             yield "read\n"  # the port is gone
 
         monkeypatch.setattr(sys, "stdin", session())
-        assert main(["jog", "--port", port, "--timeout", "0.01", "--retries", "0"]) == 2
+        # 0.2 s a read: only the missing servo misses it, even while the other test worker loads the cores
+        assert main(["jog", "--port", port, "--timeout", "0.2", "--retries", "0"]) == 2
     captured = capsys.readouterr()
     out = captured.out
     assert "? servos [5] did not answer" in out and "? servo 5 did not answer" in out
