@@ -12,7 +12,9 @@ written as it is taken into ``$SHADOW_STUDIO_SCREENSHOT``, a folder, when set, e
   image's white backdrop and black shape in the canvas's pixels, not a blank canvas or Rerun's dark welcome page);
   the show player is there and plays the planned show: its shadow column holds a dark shadow, and that shadow
   changes between two pictures taken at different show times (the time written on the source column does not
-  count);
+  count); while it plays, the rig scene (meshcat) follows the pose played and is never blank: every picture of it
+  taken over 6 s shows the lit backdrop, the light and the hand's shadow, not meshcat's empty default scene, and
+  the pictures change;
 - **Optimise**: a job started from the panel shows its progress advancing;
 - **Jog**: after connecting to the emulator and pressing the E-STOP, the button looks latched: its computed
   background is red, and so are most of its pixels in a screenshot;
@@ -28,6 +30,7 @@ import signal
 import subprocess
 import sys
 import time
+from itertools import pairwise
 from pathlib import Path
 from urllib.parse import urlparse
 
@@ -263,10 +266,23 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
         shares = [round(float(d.mean()), 3) for _, d in played]
         assert all(0.01 < share < 0.7 for share in shares), f"the show player's shadow column is blank: {shares}"
         assert moved, f"the shadow in the show player does not change while it plays (dark shares {shares})"
+        # while it plays the rig scene follows the pose played, snapshot after snapshot: never a blank moment
+        stack = page.locator(f"{TAB} .scene-snapshot").last  # holds the snapshots (widgets.scene_snapshot)
+        stack.scroll_into_view_if_needed()
+        box, during = stack.bounding_box(), []
+        end = time.monotonic() + 6.0  # the scene is redrawn every follow_interval_s (0.5 s) while the show plays
+        while time.monotonic() < end:
+            during.append(rgb_of(page.screenshot(clip=box)))
+        blank = [i for i, shot in enumerate(during) if not drawn_rig(shot)[0]]
+        if blank:
+            keep(during[blank[0]], folder / "rig_scene_blank.png")
+        assert not blank, f"the rig scene went blank while the show played: {len(blank)} of {len(during)} pictures"
+        changed = [float((np.abs(b.astype(int) - a.astype(int)).max(axis=-1) > 30).mean()) for a, b in pairwise(during)]
+        assert max(changed, default=0.0) > 0.001, f"the rig scene does not follow the show as it plays: {changed}"
         player.locator("button", has_text="Pause").first.dispatch_event("click")  # it moves while it plays
         marks["player plays"] = time.perf_counter() - t0
         # the rig in meshcat (the Review tab's scene): the hand, its light and its shadow on the backdrop, drawn
-        scene = page.locator(f"{TAB} iframe[srcdoc*='MeshCat']").last
+        scene = page.locator(f"{TAB} .scene-snapshot").last
         drawn, rig_facts, rig = False, {}, None
         for _ in range(30):  # the panel replaces the snapshot when the pose shown changes (the pause): a new one
             try:

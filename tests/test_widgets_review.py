@@ -58,8 +58,8 @@ def test_review_panel_follows_the_selection_and_results_and_closes_its_scene(sta
             assert "pip install rerun-notebook" in text and f"rerun {panel.rrd}" in text
         assert panel.shown_frame == 0 and panel.shown_shadow is None and "no result yet" in panel.caption.value
         assert panel.target_image.value == mask_picture(p.state.targets[0], panel.cfg.image_px)
-        assert np.allclose(panel.scene_pose, hand.rest_pose()) and "<iframe srcdoc=" in panel.scene_html.value
-        first_html = panel.scene_html.value
+        assert np.allclose(panel.scene_pose, hand.rest_pose()) and "MeshCat" in panel.scene_view.page
+        first_html = panel.scene_view.page
         rows = read_recording(panel.rrd)[f"/{RENDERED}"]["rows"]  # flushed: readable while it is written
 
         last = len(p.frames) - 1
@@ -75,7 +75,7 @@ def test_review_panel_follows_the_selection_and_results_and_closes_its_scene(sta
         state.edit("set_result", k, pose, {"total": 0.25, "base": 0.2}, shadow, inputs=p.keyframe_inputs(k))
         assert np.array_equal(panel.shown_shadow, shadow) and "loss 0.2500" in panel.caption.value
         assert panel.shadow_image.value == mask_picture(shadow, panel.cfg.image_px)
-        assert np.allclose(panel.scene_pose, pose) and panel.scene_html.value != first_html
+        assert np.allclose(panel.scene_pose, pose) and panel.scene_view.page != first_html
         assert np.array_equal(panel.scene.theta, pose)
         pid = panel.scene.server_pid
         assert pid is not None and alive(pid)
@@ -94,7 +94,7 @@ def test_without_rerun_notebook_the_panel_says_how_to_get_it(state, monkeypatch)
     assert "pip install rerun-notebook" in notebook_viewer_missing()
     panel = review_panel(state, ReviewConfig(scene=False))
     try:
-        assert panel.viewer is None and panel.scene is None and panel.scene_html.value == ""
+        assert panel.viewer is None and panel.scene is None and panel.scene_view.page == ""
         text = panel.viewer_box.children[0].value
         assert "pip install rerun-notebook" in text and f"rerun {panel.rrd}" in text
         assert panel.recording.server_url is None  # nothing served that no viewer would read

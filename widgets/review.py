@@ -12,7 +12,8 @@ job, the show player and a finished play). The project is logged again after eve
 ``rerun-notebook`` the panel says how to install it and how to open the file instead. The meshcat scene
 (:class:`studio.review.scene.ShadowScene`, framed on the light, the hand and the backdrop) shows the pose of the
 frame's keyframe (the rest pose before it has a result) as an offline snapshot, redrawn when the selection changes,
-and the pose the show player plays (:meth:`ReviewPanel.follow_player`). The show
+and the pose the show player plays (:meth:`ReviewPanel.follow_player`); :class:`widgets.scene_snapshot.SceneSnapshot`
+swaps the snapshots in the browser only once the new one is drawn, so the scene never goes blank. The show
 preview (:mod:`widgets.show_player`: source | target | the show's shadow played in the browser, and the strip of
 every frame) and a frame picker select the frame in view in every tab.
 """
@@ -37,6 +38,7 @@ from studio.review.scene import ShadowScene
 from widgets.frame_picker import frame_picker
 from widgets.images import Messages, mask_picture, title
 from widgets.review_viewer import ViewerBox, log_finished_play
+from widgets.scene_snapshot import SceneSnapshot
 from widgets.show_player import ShowPreviewPanel
 from widgets.state import StudioState
 
@@ -85,7 +87,7 @@ class ReviewPanel:
         self.target_image = w.Image(format="png", width=self.cfg.image_px, height=self.cfg.image_px)
         self.shadow_image = w.Image(format="png", width=self.cfg.image_px, height=self.cfg.image_px)
         self.caption = w.HTML("")
-        self.scene_html = w.HTML("")
+        self.scene_view = SceneSnapshot(height=self.cfg.scene_height)  # the meshcat snapshot on show
         self.shown_frame: int | None = None  # the frame whose target and shadow are shown
         self.shown_shadow: np.ndarray | None = None  # that frame's keyframe's result shadow (None: no result yet)
         self.scene_pose: np.ndarray | None = None  # (21,) rad shown in the meshcat scene
@@ -100,7 +102,7 @@ class ReviewPanel:
         self.follow_player(self.preview.player)
         self.widget = w.VBox([
             title("Review"), self.viewer_box, self.preview.widget, self.frame_picker, self.caption, pictures,
-            w.HTML("<b>the rig</b>"), self.scene_html, self.messages.widget,
+            w.HTML("<b>the rig</b>"), self.scene_view, self.messages.widget,
         ])  # fmt: skip
         self._stop = state.on_change(self._on_change)
         self.show_frame()
@@ -174,7 +176,7 @@ class ReviewPanel:
         if self.messages.run(self.scene.set_pose, theta) is None:
             return False
         self.scene_pose = np.asarray(theta)
-        self.scene_html.value = self.scene.render_static(height=self.cfg.scene_height).data
+        self.scene_view.page = self.scene.static_html()
         self._scene_drawn = time.monotonic()
         return True
 
