@@ -14,7 +14,8 @@ written as it is taken into ``$SHADOW_STUDIO_SCREENSHOT``, a folder, when set, e
   changes between two pictures taken at different show times (the time written on the source column does not
   count); while it plays, the rig scene (meshcat) follows the pose played and is never blank: every picture of it
   taken over 6 s shows the lit backdrop, the light and the hand's shadow, not meshcat's empty default scene, and
-  the pictures change;
+  the pictures change; paused, the Rerun viewer (moved onto ``show_time`` with the player) still draws the frame's
+  target image;
 - **Optimise**: a job started from the panel shows its progress advancing;
 - **Jog**: after connecting to the emulator and pressing the E-STOP, the button looks latched: its computed
   background is red, and so are most of its pixels in a screenshot;
@@ -298,6 +299,17 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
         if rig is not None:
             keep(rig, folder / "rig_scene.png")
         assert drawn, f"the Review tab's meshcat scene does not draw the rig: {rig_facts}"
+        # the Rerun viewer followed the player onto show_time: its views show the frame played there, not "No data"
+        canvas.scroll_into_view_if_needed()
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            on_show = picture(canvas)
+            ok, facts = drawn_recording(on_show)
+            if ok:
+                break
+            page.wait_for_timeout(1000)
+        keep(on_show, folder / "rerun_on_show_time.png")
+        assert ok, f"the Rerun viewer shows no frame at the show time the player stopped at: {facts}"
         shots.append(shoot_tab(page, "Review", folder))
 
         # Optimise: start this keyframe and see a progress bar advance

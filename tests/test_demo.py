@@ -89,7 +89,9 @@ def test_demo_review_holds_every_stage_and_the_played_show(first_run):
     # frames: every frame's target and expressive mask, and the keyframe it plays, on frame
     for path in ("images/target", "images/expressive", "frames/keyframe"):
         assert "frame" in entity(rec, path)["timelines"]
-    assert entity(rec, "images/target")["rows"] == len(project.frames)
+    # and the frames' images on show_time, where the show plays each: one row a frame on each timeline
+    assert "show_time" in entity(rec, "images/target")["timelines"]
+    assert entity(rec, "images/target")["rows"] == 2 * len(project.frames)
     # the show on show_time: the backdrop carrying its shadow (and the hand's pose)
     assert "show_time" in entity(rec, "world/backdrop")["timelines"]
     assert any(p.lstrip("/").startswith("world/pose") and "show_time" in rec[p]["timelines"] for p in rec)

@@ -113,8 +113,9 @@ def test_side_by_side_reads_back_at_the_source_rate(horse):
 def test_review_is_the_one_project_format_with_the_source_and_the_show(horse):
     out, s = horse
     rec = {e.lstrip("/"): v for e, v in read_recording(out / "review.rrd").items()}
-    for entity in (TARGET, SOURCE):
-        assert rec[entity]["timelines"] - {"log_time"} == {FRAME} and rec[entity]["rows"] == s["frames"], entity
+    for entity in (TARGET, SOURCE):  # on frame, and on show_time where the show plays each frame
+        assert rec[entity]["timelines"] - {"log_time"} == {FRAME, "show_time"}, entity
+        assert rec[entity]["rows"] == 2 * s["frames"], entity
     show = json.loads((out / "show.json").read_text())
     poses = [e for e, v in rec.items() if e.startswith(POSE + "/") and not v["static"]]
     assert len(poses) == 21  # one transform per joint (and the root link's, static, at the world origin)
@@ -188,7 +189,7 @@ def test_raw_footage_is_segmented_from_a_first_mask(shared_targets, tmp_path):
     doc = json.loads((out / "keyframes.json").read_text())
     assert doc["sources"][0]["footage"] == "segmented" and [f["source_frame"] for f in doc["frames"]] == [0, 6, 12, 18]
     rec = {e.lstrip("/"): v for e, v in read_recording(out / "review.rrd").items()}
-    assert rec[TARGET]["rows"] == 4
+    assert rec[TARGET]["rows"] == 2 * 4  # on frame and on show_time
     box = cli("imitate-video", rgb, "--out", tmp_path / "o", "--box", "1,2,3", "--quiet")
     _one_line_error(box, "--box", "x,y,w,h")
 

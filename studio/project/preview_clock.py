@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from studio.motion.show import Show
 from studio.motion.video_timing import VideoTiming
 from studio.project.show_timing import project_timing
 from studio.project.state import ProjectState
@@ -75,7 +76,7 @@ def preview_clock(inp: PreviewInputs, fps: float, home: float | None = None) -> 
 
     s, status = inp.state, inp.status
     names = list(inp.joint_names)
-    show = s.show if s.show is not None and not status.show_stale and not status.pending else None
+    show = _current_show(s, status)
     if show is None or list(show.joint_names) != names:
         return _keyframe_clock(inp, fps, home)
     timing = project_timing(s, status, names)
@@ -91,6 +92,21 @@ def preview_clock(inp: PreviewInputs, fps: float, home: float | None = None) -> 
     if late:
         note += f"; {len(late)} late transition(s), stretched (shaded red)"
     return PreviewClock(t, frame, theta, float(t[0]), float(show.times[-1]), fps, True, ticks, late, note)
+
+
+def _current_show(s: ProjectState, status: ProjectStatus) -> Show | None:
+    """The project's show when it is current (planned from the project as it is now), else None."""
+    return s.show if s.show is not None and not status.show_stale and not status.pending else None
+
+
+def frame_show_times(s: ProjectState, status: ProjectStatus) -> np.ndarray | None:
+    """Show time ``(N,)`` s at which each project frame starts to play in the current show, on the clock the
+    preview plays (a stretched late transition moves the frames after it); None without a current show."""
+    show = _current_show(s, status)
+    if show is None:
+        return None
+    marks, asked = show_clock_map(show)
+    return remap(project_timing(s, status, list(show.joint_names)).frame_times, asked, marks)
 
 
 def _from_home(inp: PreviewInputs, t: np.ndarray, theta: np.ndarray, fps: float, home: float | None):

@@ -266,6 +266,12 @@ class Project(Editing, KeyframeEditing, Running, History):
 
         return project_timing(self._state, self.status(), load_hand().joint_names, layout)
 
+    def frame_show_times(self) -> np.ndarray | None:
+        """Show time ``(N,)`` s at which each frame starts to play in the current show (None: no current show)."""
+        from studio.project.preview_clock import frame_show_times
+
+        return frame_show_times(self._state, self.status())
+
     def export_show(self, out: str | Path) -> Path:
         """Write the planned show to ``out`` (a show file); a ProjectError when none is planned or it is stale."""
         if self._state.show is None:

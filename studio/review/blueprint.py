@@ -5,11 +5,13 @@ steps), ``show_time`` (s into the planned show) and ``play_time`` (s since a pla
 
 Entities (images in display convention: dark shadow on a light backdrop)::
 
-    images/source      RGB source frame (when given)              frame
-    images/target      the frame's shadow mask                    frame
-    images/expressive  the mask with its expressive region tinted frame
-    images/self_model  the self-model's shadow of the frame's keyframe pose   frame
-    images/rendered    the rendered shadow of that pose (a job's live best shadow on opt_step)   frame, opt_step
+    images/source      RGB source frame (when given)              frame, show_time
+    images/target      the frame's shadow mask                    frame, show_time
+    images/expressive  the mask with its expressive region tinted frame, show_time
+    images/self_model  the self-model's shadow of the frame's keyframe pose   frame, show_time
+    images/rendered    its rendered shadow (a job's live best shadow on opt_step)   frame, opt_step, show_time
+
+On ``show_time`` the images are those of the frame a current show plays then (:mod:`studio.review.show_frames`).
     frames/keyframe    which keyframe each frame plays (its position in first-appearance order)   frame
     loss/frame/*       the loss of each frame's keyframe result   frame
     loss/<job>/<stage> a job's best loss so far                   opt_step

@@ -36,6 +36,7 @@ from studio.review.frames import JobProgressLog, KeyframeReview, log_frames
 from studio.review.notebook_viewer import DEFAULT_HEIGHT, NotebookViewerError, notebook_viewer
 from studio.review.playback import PlaybackSampleLog, log_playback
 from studio.review.rig3d import RigReview, log_mount, log_rig, log_show, urdf_tree
+from studio.review.show_frames import log_show_frames
 from studio.sim.hand import Hand, load_hand
 from studio.sim.shadow import Rig
 
@@ -133,6 +134,7 @@ class ProjectRecording:
         self.rec = rr.RecordingStream(APPLICATION, recording_id=recording_id)
         self.rec.set_sinks(*sinks, default_blueprint=self.blueprint)
         self._tree = urdf_tree(self.hand)
+        self._show_times: np.ndarray | None = None  # the show times the frames' images were last logged at
         log_rig(self.rec, self.hand, self.rig, self.cfg)
         self.closed = False
 
@@ -173,10 +175,12 @@ class ProjectRecording:
         self, project: Any, self_model: SelfModel | None = None, sources: Sequence[np.ndarray | None] | None = None
     ) -> np.ndarray:
         """A project's current state: every frame's target and expressive mask, its keyframes with their results
-        (pose, rendered shadow, losses, stale or not) and the planned show. ``project`` is a
+        (pose, rendered shadow, losses, stale or not) and the planned show, with every frame's images also on
+        ``show_time`` where a current show plays it (:mod:`studio.review.show_frames`). ``project`` is a
         ``studio.project.Project`` (read through ``state.targets``, ``combined_masks()``, ``frames``,
-        ``keyframes``, ``results``, ``is_stale(id)``, ``show``); ``self_model`` predicts the self-model's shadows of
-        the keyframes' poses; ``sources``: every frame's RGB source image framed like its target (None for none).
+        ``keyframes``, ``results``, ``is_stale(id)``, ``show``, ``frame_show_times()``); ``self_model`` predicts the
+        self-model's shadows of the keyframes' poses; ``sources``: every frame's RGB source image framed like its
+        target (None for none).
         Returns the frames' assignment."""
         names = self.hand.joint_names
         roll = project.state.mount.roll
@@ -198,9 +202,14 @@ class ProjectRecording:
             for kf in project.keyframes
         ]  # fmt: skip
         times = np.array([f.time_s for f in project.frames], dtype=float)
-        which = self.log_frames(project.state.targets, project.combined_masks(), keyframes, sources, times)
+        targets, masks = project.state.targets, project.combined_masks()
+        which = self.log_frames(targets, masks, keyframes, sources, times)
         if project.show is not None:
             self.log_show(project.show)
+            show_times = project.frame_show_times()  # None while the show is stale
+            if show_times is not None:
+                self._show_times = log_show_frames(self.rec, targets, masks, keyframes, which, show_times, sources,
+                                                   self._show_times)  # fmt: skip
         return which
 
     # ---------------------------------------------------------------- viewers and the end
