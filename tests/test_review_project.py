@@ -29,7 +29,7 @@ from studio.review.frames import KeyframeReview
 from studio.review.readback import read_recording, scalar_series
 from studio.review.recording import ProjectRecording, ReviewError
 from studio.review.rig3d import RigReview, show_instants
-from studio.review.sheets import SHADOW, tint
+from studio.review.sheets import SHADOW, display, tint
 from studio.sim.hand import load_hand
 from studio.sim.kinematics import fk_numpy
 from studio.sim.shadow import Rig, ShadowRenderer
@@ -352,3 +352,29 @@ def test_log_project_reads_a_real_project(tmp_path):
         angle = qb[J("wrist")] if which[k] == 0 else 0.0
         assert Rotation.from_quat(wrist[k]["Transform3D:quaternion"][0]).magnitude() == pytest.approx(abs(angle))
     assert len(rows(rec, "/log/keyframes", "frame")) == len(project.keyframes)
+
+
+def test_the_self_model_view_shows_the_shadow_as_the_rolled_mount_casts_it(tmp_path):
+    """The self-model draws the upright hand's shadow; on a mount rolled by 25° the review shows it turned by the roll,
+    as the rendered view and the audience see it (a view upright beside a rolled one would read as a wrong pose)."""
+    from studio.assets import asset
+
+    from studio.project.project import Project
+    from studio.sim.roll import turn
+
+    project = Project.create(tmp_path / "o.shadow", sources=[asset("targets/asl_o.jpeg")], roll=25.0)
+    kf = project.keyframes[0]
+    _, qb = poses()
+    rig = Rig(resolution=project.state.targets.shape[-1], roll=project.mount.roll)
+    project.set_result(kf.id, qb, {"total": 0.5}, ShadowRenderer(HAND, rig).render_one(qb),
+                       inputs=project.keyframe_inputs(kf.id))  # fmt: skip
+    upright = np.zeros((32, 32), np.float32)
+    upright[4:12, 4:28] = 1.0  # a bar across the top: turned, it slants
+    with ProjectRecording(tmp_path / "o.rrd", rig=RIG, cfg=CFG) as review:
+        review.log_project(project, self_model=lambda th: np.repeat(upright[None], len(th), axis=0))
+    logged = rows(read_recording(tmp_path / "o.rrd"), "/images/self_model", "frame")
+    drawn = [r for r in logged if r.get("Image:buffer")]
+    assert len(drawn) == 1 and math.radians(25.0) == pytest.approx(project.mount.roll)
+    shown = np.asarray(drawn[0]["Image:buffer"][0], np.uint8)
+    assert np.array_equal(shown, display(turn(upright, project.mount.roll)).ravel())
+    assert not np.array_equal(shown, display(upright).ravel())

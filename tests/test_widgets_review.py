@@ -17,7 +17,7 @@ from studio.jobs.events import JobState
 from studio.jobs.job import Job
 from studio.project.jobs import queue_for
 from studio.project.project import Project
-from studio.review.blueprint import RENDERED, TARGET
+from studio.review.blueprint import RENDERED, SELF_MODEL, TARGET
 from studio.review.readback import read_recording
 from studio.targets.video import DEFAULT_VIDEO
 from widgets.images import mask_picture
@@ -85,6 +85,9 @@ def test_review_panel_follows_the_selection_and_results_and_closes_its_scene(sta
     assert panel.recording.closed
     recording = read_recording(panel.rrd)  # the file holds the project, re-logged after the result
     assert recording[f"/{RENDERED}"]["rows"] > rows and f"/{TARGET}" in recording  # the result's shadow was logged
+    # and the self-model's shadow of its pose, which the viewer's self-model view shows beside the rendered one
+    predicted = [b for b in recording[f"/{SELF_MODEL}"]["batches"] if "Image:buffer" in b.schema.names]
+    assert predicted and any(v is not None for b in predicted for v in b.column("Image:buffer").to_pylist())
     state.select(frame=0)  # a closed panel ignores later changes
     assert panel.shown_frame == last
 

@@ -7,8 +7,10 @@ The recording is a :class:`studio.review.recording.ProjectRecording`: written to
 folder ``NAME.shadow`` (open it in the standalone viewer with ``rerun NAME.rrd``) and, when the ``rerun-notebook``
 package is installed, streamed live to the viewer embedded here (:class:`widgets.review_viewer.ViewerBox`: as wide as
 the output area, a height control, offline, and a "follow" switch that moves its time with the selection, a running
-job, the show player and a finished play). The project is logged again after every edit, job progress as it comes
-(the queue's events on ``opt_step``) and a finished play's commanded vs measured angles when it ends. Without
+job, the show player and a finished play). Its self-model view shows the shipped self-model's shadow of each
+keyframe pose (the model the studio's jobs search, loaded once). The project is logged again after every edit, job
+progress as it comes (the queue's events on ``opt_step``) and a finished play's commanded vs measured angles when it
+ends. Without
 ``rerun-notebook`` the panel says how to install it and how to open the file instead. The meshcat scene
 (:class:`studio.review.scene.ShadowScene`, framed on the light, the hand and the backdrop) shows the pose of the
 frame's keyframe (the rest pose before it has a result) as an offline snapshot, redrawn when the selection changes,
@@ -33,6 +35,7 @@ import ipywidgets as w
 import numpy as np
 
 from studio.errors import StudioError
+from studio.project.outputs import self_model_predictor
 from studio.review.recording import ProjectRecording
 from studio.review.scene import ShadowScene
 from widgets.frame_picker import frame_picker
@@ -57,6 +60,8 @@ class ReviewConfig:
     follow_interval_s: float = 0.5  # s, the least time between two moves of the viewer or the scene while a job runs
     # or the show player plays
     image_px: int = 192  # side of the target and shadow images, px
+    self_model: bool = True  # draw the self-model's shadow of every keyframe pose in the viewer (loads the shipped
+    # self-model once, as the studio's jobs use it)
 
 
 def notebook_viewer_missing() -> str | None:
@@ -82,6 +87,7 @@ class ReviewPanel:
         self.scene: ShadowScene | None = None
         self.viewer: w.Widget | None = None  # the Rerun viewer widget (inside viewer_controls.widget)
         self.viewer_controls: ViewerBox | None = None  # the viewer with its height control and "follow" switch
+        self.self_model = None  # θ (K, 21) → the self-model's shadows (K, R, R) for the viewer (None: not drawn)
         self._unsubscribe = lambda: None
         self.viewer_box = w.VBox([])
         self.target_image = w.Image(format="png", width=self.cfg.image_px, height=self.cfg.image_px)
@@ -110,9 +116,11 @@ class ReviewPanel:
     # ---------------------------------------------------------------- the recording
     def _open_recording(self) -> None:
         serve = self.missing is None
+        if self.cfg.self_model:
+            self.self_model = self.messages.run(self_model_predictor)  # None (and the reason said) when it fails
         try:
             self.recording = ProjectRecording(path=self.rrd, notebook=serve)
-            self.recording.log_project(self.state.project)
+            self.recording.log_project(self.state.project, self.self_model)
             self.recording.flush()
             queue = self.state.queue
             if serve:
@@ -142,7 +150,7 @@ class ReviewPanel:
     def relog(self) -> None:
         """Log the project's current state to the recording again (after an edit or an applied result)."""
         if self.recording is not None and not self.recording.closed:
-            self.messages.run(self.recording.log_project, self.state.project)
+            self.messages.run(self.recording.log_project, self.state.project, self.self_model)
             self.recording.flush()
 
     # ---------------------------------------------------------------- the frame in view

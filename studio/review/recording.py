@@ -38,6 +38,7 @@ from studio.review.playback import PlaybackSampleLog, log_playback
 from studio.review.rig3d import RigReview, log_mount, log_rig, log_show, urdf_tree
 from studio.review.show_frames import log_show_frames
 from studio.sim.hand import Hand, load_hand
+from studio.sim.roll import turn
 from studio.sim.shadow import Rig
 
 log = logging.getLogger(__name__)
@@ -179,9 +180,9 @@ class ProjectRecording:
         ``show_time`` where a current show plays it (:mod:`studio.review.show_frames`). ``project`` is a
         ``studio.project.Project`` (read through ``state.targets``, ``combined_masks()``, ``frames``,
         ``keyframes``, ``results``, ``is_stale(id)``, ``show``, ``frame_show_times()``); ``self_model`` predicts the
-        self-model's shadows of the keyframes' poses; ``sources``: every frame's RGB source image framed like its
-        target (None for none).
-        Returns the frames' assignment."""
+        self-model's shadows of the keyframes' poses (the upright hand's: they are turned by the mount roll here);
+        ``sources``: every frame's RGB source image framed like its target (None for none). Returns the frames'
+        assignment."""
         names = self.hand.joint_names
         roll = project.state.mount.roll
         if roll != self.rig.roll:  # the hand mounted as the project's show wants it
@@ -192,7 +193,8 @@ class ProjectRecording:
         predicted = {}
         if self_model is not None and theta:
             ids = list(theta)
-            predicted = dict(zip(ids, np.asarray(self_model(np.stack([theta[k] for k in ids])))))
+            upright = np.asarray(self_model(np.stack([theta[k] for k in ids])))  # the self-model's: the upright hand's
+            predicted = dict(zip(ids, turn(upright, roll)))  # as the rolled mount casts them (the roll law)
         keyframes = [
             KeyframeReview(
                 id=kf.id, representative=kf.representative, members=tuple(kf.members), theta=theta.get(kf.id),
