@@ -5,7 +5,7 @@ horse clip (its square frames padded with black bars, as the artist sees them) w
 its show planned, so the studio has a show to play. Then, tab by tab, with a screenshot of each (``tab_<name>.png``,
 written as it is taken into ``$SHADOW_STUDIO_SCREENSHOT``, a folder, when set, else the test's own folder):
 
-- every panel shows its label, none is "unavailable";
+- every panel shows its label, none is "unavailable", none shows the browser's broken-picture icon (an empty image);
 - **Targets**: the preview tints the horse, not the backdrop nor the black bars: its tinted pixels match the mask
   the project stored;
 - **Review**: the embedded Rerun viewer fills the output area's width and its canvas draws the recording (the target
@@ -56,6 +56,9 @@ KERNEL_IDLE = """() => {
   const k = w && w.sessionContext && w.sessionContext.session && w.sessionContext.session.kernel;
   return !!k && k.connectionStatus === 'connected' && k.status === 'idle';
 }"""
+BROKEN_PICTURES = """() => Array.from(document.querySelectorAll(
+  ".jp-OutputArea-output .shadow-studio [data-shown-tab='1'] img"))
+  .filter(i => i.offsetParent !== null && i.complete && i.naturalWidth === 0).length"""  # drawn as the broken icon
 SHOWN_TAB = """() => {  // the studio tab on show (ipywidgets 8 hides the others with lm-mod-hidden)
   const tab = document.querySelector('.jp-OutputArea-output .shadow-studio .jupyter-widget-tab, '
                                      + '.jp-OutputArea-output .shadow-studio .widget-tab');
@@ -202,6 +205,7 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
             texts[name] = open_tab(page, name)
             assert name in texts[name], f"the {name} tab shows no {name!r} label: {texts[name][:200]!r}"
             assert "unavailable" not in texts[name], texts[name][:300]
+            assert not page.evaluate(BROKEN_PICTURES), f"the {name} tab shows a broken-picture icon (an empty image)"
             if name in ("Keyframes", "Masks", "Weights", "Rig", "Live", "Export"):
                 shots.append(shoot_tab(page, name, folder))
 

@@ -84,6 +84,18 @@ def png(image: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
+def shown_when_drawn(image: w.Image) -> w.Image:
+    """``image``, laid out only while it holds a picture: an empty ``ipywidgets.Image`` is drawn as the browser's
+    broken-picture icon, so a picture not made yet (a camera frame, a comparison) takes no room instead."""
+
+    def fit(_change: object = None) -> None:
+        image.layout.display = None if image.value else "none"
+
+    image.observe(fit, names="value")
+    fit()
+    return image
+
+
 def image_widget(side: int) -> w.Image:
     """An empty square PNG image widget ``side`` px wide."""
     return w.Image(format="png", width=side, height=side)

@@ -33,7 +33,7 @@ from studio.project.capture import open_camera_source
 from studio.project.show_capture import ShowCaptureConfig, play_with_camera
 from studio.project.show_capture_data import LOSSES, ShowCaptureResult, show_targets
 from studio.sim.hand import Hand, load_hand
-from widgets.images import Messages, png
+from widgets.images import Messages, png, shown_when_drawn
 from widgets.state import StudioState
 from widgets.words import seconds
 
@@ -71,7 +71,7 @@ class RealVsSimView:
         self.play_button = w.Button(description="play with camera", icon="camera", button_style="info")
         self.stop_button = w.Button(description="stop", icon="stop", button_style="danger", disabled=True)
         self.status = w.Label("")
-        self.image = w.Image(format="png", layout=w.Layout(max_width="100%"))
+        self.image = shown_when_drawn(w.Image(format="png", layout=w.Layout(max_width="100%")))
         self.table = w.HTML()
         self.play_button.on_click(lambda _: self.play())
         self.stop_button.on_click(lambda _: self.stop())

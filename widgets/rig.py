@@ -35,7 +35,7 @@ from studio.progress import Progress
 from studio.project.capture import open_camera_source
 from studio.project.rig_calibration import RigCalibration, RigCalibrationConfig, calibrate_rig
 from studio.sim.hand import Hand, load_hand
-from widgets.images import Messages, title
+from widgets.images import Messages, shown_when_drawn, title
 from widgets.rig_view import WindowView, progress_line, summary_lines
 from widgets.state import StudioState
 
@@ -101,7 +101,7 @@ class RigPanel:
         self.cancel_button = w.Button(description="Cancel", button_style="danger", icon="stop", disabled=True)
         self.progress = w.FloatProgress(value=0.0, min=0.0, max=1.0, description="idle")
         self.status, self.summary = w.Label(""), w.HTML("")
-        self.compare = w.Image(format="png", layout=lay(max_width="660px"))
+        self.compare = shown_when_drawn(w.Image(format="png", layout=lay(max_width="660px")))
         self.save_path = w.Text(value=str(calibration_path(self.state)), description="calibration",
                                 layout=lay(width="520px"))  # fmt: skip
         self.save_button = w.Button(description="Save to calibration", icon="save", disabled=True)

@@ -22,7 +22,7 @@ from studio.progress import Progress
 from studio.review.sheets import shadow_tile
 from studio.sim.backdrop import window_corners_m
 from studio.targets.backdrop import BackdropNotFound, backdrop_from_corners, binarise, find_backdrop, rectify
-from widgets.images import Messages, png
+from widgets.images import Messages, png, shown_when_drawn
 
 try:  # clicking needs ipycanvas (a dependency); the picture still shows without it
     import ipycanvas
@@ -85,7 +85,7 @@ class CornerPicker:
         self.on_corners = on_corners
         self.corners: list[tuple[float, float]] = []  # clicked so far, camera px, in CORNERS order
         self.scale = 1.0  # camera px per screen px of the photograph on show
-        self.image = w.Image(format="png", layout=w.Layout(width=f"{width}px"))
+        self.image = shown_when_drawn(w.Image(format="png", layout=w.Layout(width=f"{width}px")))
         self.canvas = None
         self.note = NO_CANVAS if ipycanvas is None else ""  # why clicking is off ("" when it works)
         if ipycanvas is not None:
@@ -144,7 +144,7 @@ class WindowView:
                                     description="window")  # fmt: skip
         self.clear_button = w.Button(description="clear corners")
         self.picker = CornerPicker(photo_px, lambda _: messages.run(self.locate))
-        self.mask = w.Image(format="png", layout=w.Layout(width=f"{mask_px}px"))
+        self.mask = shown_when_drawn(w.Image(format="png", layout=w.Layout(width=f"{mask_px}px")))
         self.mode.observe(lambda _: messages.run(self._mode_changed), "value")
         self.clear_button.on_click(lambda _: messages.run(self._clear))
         note = w.HTML(f"<i>{self.picker.note}</i>" if self.picker.note else "")
