@@ -5,7 +5,8 @@ horse clip (its square frames padded with black bars, as the artist sees them) w
 its show planned, so the studio has a show to play. Then, tab by tab, with a screenshot of each (``tab_<name>.png``,
 written as it is taken into ``$SHADOW_STUDIO_SCREENSHOT``, a folder, when set, else the test's own folder):
 
-- every panel shows its label, none is "unavailable", none shows the browser's broken-picture icon (an empty image);
+- every panel shows its label, none is "unavailable", none shows the browser's broken-picture icon (an empty image)
+  or cuts a button's label short (an ellipsis where its words should be);
 - **Targets**: the preview tints the horse, not the backdrop nor the black bars: its tinted pixels match the mask
   the project stored;
 - **Review**: the embedded Rerun viewer fills the output area's width and its canvas draws the recording (the target
@@ -59,6 +60,9 @@ KERNEL_IDLE = """() => {
 BROKEN_PICTURES = """() => Array.from(document.querySelectorAll(
   ".jp-OutputArea-output .shadow-studio [data-shown-tab='1'] img"))
   .filter(i => i.offsetParent !== null && i.complete && i.naturalWidth === 0).length"""  # drawn as the broken icon
+CUT_LABELS = """() => Array.from(document.querySelectorAll(
+  ".jp-OutputArea-output .shadow-studio [data-shown-tab='1'] button"))
+  .filter(b => b.offsetParent !== null && b.scrollWidth > b.clientWidth + 1).map(b => b.textContent.trim())"""
 SHOWN_TAB = """() => {  // the studio tab on show (ipywidgets 8 hides the others with lm-mod-hidden)
   const tab = document.querySelector('.jp-OutputArea-output .shadow-studio .jupyter-widget-tab, '
                                      + '.jp-OutputArea-output .shadow-studio .widget-tab');
@@ -206,6 +210,8 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
             assert name in texts[name], f"the {name} tab shows no {name!r} label: {texts[name][:200]!r}"
             assert "unavailable" not in texts[name], texts[name][:300]
             assert not page.evaluate(BROKEN_PICTURES), f"the {name} tab shows a broken-picture icon (an empty image)"
+            cut = page.evaluate(CUT_LABELS)
+            assert not cut, f"the {name} tab cuts these button labels short: {cut}"
             if name in ("Keyframes", "Masks", "Weights", "Rig", "Live", "Export"):
                 shots.append(shoot_tab(page, name, folder))
 

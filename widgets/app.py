@@ -75,9 +75,13 @@ def build_panel(state: StudioState, name: str, module: str) -> w.Widget:
     return widget
 
 
+# a button is at least as wide as its label (ipywidgets' fixed 148 px cut "save as keyframe" to "save as keyfra…")
+STYLE = "<style>.shadow-studio button.jupyter-button { min-width: max-content; }</style>"
+
+
 def _header(state: StudioState) -> w.HTML:
     p = state.project
-    text = f"<b>Shadow Studio</b> — {html.escape(p.state.title)} <code>{html.escape(str(p.path))}</code>"
+    text = f"{STYLE}<b>Shadow Studio</b> — {html.escape(p.state.title)} <code>{html.escape(str(p.path))}</code>"
     missing = ", ".join(html.escape(m.path) for m in p.missing_sources)
     if missing:
         text += f"<br>missing sources (relink them in Targets): {missing}"
