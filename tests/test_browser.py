@@ -6,7 +6,7 @@ its show planned, so the studio has a show to play. Then, tab by tab, with a scr
 written as it is taken into ``$SHADOW_STUDIO_SCREENSHOT``, a folder, when set, else the test's own folder):
 
 - every panel shows its label, none is "unavailable", none shows the browser's broken-picture icon (an empty image)
-  or cuts a button's label short (an ellipsis where its words should be);
+  or cuts a button's or a field's label short (an ellipsis where its words should be);
 - **Targets**: the preview tints the horse, not the backdrop nor the black bars: its tinted pixels match the mask
   the project stored;
 - **Review**: the embedded Rerun viewer fills the output area's width and its canvas draws the recording (the target
@@ -61,7 +61,7 @@ BROKEN_PICTURES = """() => Array.from(document.querySelectorAll(
   ".jp-OutputArea-output .shadow-studio [data-shown-tab='1'] img"))
   .filter(i => i.offsetParent !== null && i.complete && i.naturalWidth === 0).length"""  # drawn as the broken icon
 CUT_LABELS = """() => Array.from(document.querySelectorAll(
-  ".jp-OutputArea-output .shadow-studio [data-shown-tab='1'] button"))
+  ".jp-OutputArea-output .shadow-studio [data-shown-tab='1'] :is(button, .widget-label)"))
   .filter(b => b.offsetParent !== null && b.scrollWidth > b.clientWidth + 1).map(b => b.textContent.trim())"""
 SHOWN_TAB = """() => {  // the studio tab on show (ipywidgets 8 hides the others with lm-mod-hidden)
   const tab = document.querySelector('.jp-OutputArea-output .shadow-studio .jupyter-widget-tab, '
@@ -211,7 +211,7 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
             assert "unavailable" not in texts[name], texts[name][:300]
             assert not page.evaluate(BROKEN_PICTURES), f"the {name} tab shows a broken-picture icon (an empty image)"
             cut = page.evaluate(CUT_LABELS)
-            assert not cut, f"the {name} tab cuts these button labels short: {cut}"
+            assert not cut, f"the {name} tab cuts these labels short: {cut}"
             if name in ("Keyframes", "Masks", "Weights", "Rig", "Live", "Export"):
                 shots.append(shoot_tab(page, name, folder))
 

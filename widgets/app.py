@@ -75,8 +75,9 @@ def build_panel(state: StudioState, name: str, module: str) -> w.Widget:
     return widget
 
 
-# a button is at least as wide as its label (ipywidgets' fixed 148 px cut "save as keyframe" to "save as keyfra…")
-STYLE = "<style>.shadow-studio button.jupyter-button { min-width: max-content; }</style>"
+# a button or a field's description is at least as wide as its words (ipywidgets' fixed widths cut "save as
+# keyframe" to "save as keyfra…" and "sampling Hz" to "sampling …")
+STYLE = "<style>.shadow-studio button.jupyter-button, .shadow-studio .widget-label { min-width: max-content; }</style>"
 
 
 def _header(state: StudioState) -> w.HTML:
