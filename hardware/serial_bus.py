@@ -20,6 +20,12 @@ from hardware.bus import Request, ServoBus
 from hardware.errors import BusError, ChecksumError, HardwareError, ServoTimeout, UnexpectedReply
 from hardware.protocol import StreamDecoder, encode_request
 
+PORT_TIMEOUT_S = 0.02  # s a servo has to answer on a serial port: it answers in ~1 ms + 0.7 ms on the wire
+# s the built-in emulator has to answer: its servos answer from a thread of this process, which shares the cores (and
+# the GIL) with the studio's jobs; measured with four busy threads beside it, 0.02 s lost 43 of 100 reads of 21
+# servos, 0.2 s none
+EMULATOR_TIMEOUT_S = 0.2
+
 
 @dataclass
 class BusConfig:
@@ -27,7 +33,7 @@ class BusConfig:
 
     port: str  # serial device, e.g. /dev/ttyUSB0 or the emulator's /dev/pts/N
     baud: int = C.BAUD  # bus rate, 8N1
-    timeout_s: float = 0.02  # seconds to wait for one answer (a servo answers in ~1 ms + 0.7 ms on the wire) (0, 10]
+    timeout_s: float | None = None  # s to wait for one answer (None: 0.02 on a port, 0.2 on the emulator) (0, 10]
     retries: int = 2  # extra attempts after a failed read [0, 20]
     echo: bool = False  # the adapter echoes what the host sends (single-wire adapters); discarded here
     batch_size: int = 7  # servos per batch of moves (paper)
@@ -41,6 +47,7 @@ class SerialServoBus(ServoBus):
     def __init__(self, config: BusConfig | str):
         super().__init__()
         self.config = BusConfig(config) if isinstance(config, str) else config
+        self.timeout_s = PORT_TIMEOUT_S if self.config.timeout_s is None else self.config.timeout_s  # s, per answer
         self.batch_size = self.config.batch_size
         self.batch_gap_s = self.config.batch_gap_s
         self.label = f"servo bus {self.config.port!r}"
@@ -58,7 +65,7 @@ class SerialServoBus(ServoBus):
             try:
                 lock = cfg.exclusive or None  # None: pyserial leaves the port unlocked
                 self._serial = serial.Serial(
-                    cfg.port, cfg.baud, bytesize=8, parity="N", stopbits=1, timeout=cfg.timeout_s, exclusive=lock
+                    cfg.port, cfg.baud, bytesize=8, parity="N", stopbits=1, timeout=self.timeout_s, exclusive=lock
                 )
             except _port_errors() as e:
                 raise BusError(f"cannot open servo bus {cfg.port!r}: {_open_failure(e)}") from e
@@ -141,7 +148,7 @@ class SerialServoBus(ServoBus):
         dec = self._decoder
         bad_before = dec.checksum_errors
         want = command.reply_len + 3
-        deadline = time.perf_counter() + self.config.timeout_s
+        deadline = time.perf_counter() + self.timeout_s
         stray = None
         while True:
             left = deadline - time.perf_counter()

@@ -31,7 +31,7 @@ from types import ModuleType
 
 from hardware.calibration import Calibration
 from hardware.errors import BusError
-from hardware.serial_bus import BusConfig, SerialServoBus
+from hardware.serial_bus import EMULATOR_TIMEOUT_S, BusConfig, SerialServoBus
 
 log = logging.getLogger(__name__)
 
@@ -118,7 +118,10 @@ class ServoSession:
                 if self.port is None:
                     em = load_emulator()
                     emulator = em.ServoEmulator(self.ids, em.EmulatorConfig(echo=self.config.echo)).start()
-                bus = SerialServoBus(replace(self.config, port=self.port or emulator.port))
+                timeout = self.config.timeout_s
+                if timeout is None and emulator is not None:  # its servos answer from a thread beside the jobs
+                    timeout = EMULATOR_TIMEOUT_S
+                bus = SerialServoBus(replace(self.config, port=self.port or emulator.port, timeout_s=timeout))
                 bus.connect()
             except BaseException:
                 if emulator is not None:

@@ -31,10 +31,9 @@ def calibrated(tmp_path_factory):
     folder = tmp_path_factory.mktemp("rigcal")
     (folder / "true.yaml").write_text(TRUE_RIG)
     out = folder / "out"
-    # --timeout 0.2: the in-process emulator answers within it even while the other test worker loads the cores
+    # no --timeout: the in-process emulator's default (0.2 s) holds even while the other test worker loads the cores
     argv = ["calibrate-rig", "--camera", "virtual", "--true-rig", str(folder / "true.yaml"), "--emulator",
-            "--out", str(out), "--poses", "4", "--max-evals", "250", "--supersample", "2", "--quiet",
-            "--timeout", "0.2"]  # fmt: skip
+            "--out", str(out), "--poses", "4", "--max-evals", "250", "--supersample", "2", "--quiet"]  # fmt: skip
     return folder, out, argv
 
 
@@ -124,9 +123,8 @@ def test_walk_poses_stay_within_a_step_and_out_of_collision():
 @pytest.mark.slow
 def test_capture_then_finetune_on_a_held_out_walk(tmp_path, capsys):
     (tmp_path / "true.yaml").write_text(TRUE_RIG)
-    # the timeout: as the calibration's, above
     base = ["capture", "--camera", "virtual", "--true-rig", str(tmp_path / "true.yaml"), "--emulator", "--quiet",
-            "--settle-s", "0.02", "--timeout", "0.2"]  # fmt: skip
+            "--settle-s", "0.02"]  # fmt: skip
     assert main([*base, "--out", str(tmp_path / "train"), "--pairs", "24"]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["pairs"] == 24
     assert main([*base, "--out", str(tmp_path / "held"), "--pairs", "8", "--seed", "1"]) == 0

@@ -15,7 +15,7 @@ import pytest
 from hardware import constants as C
 from hardware.calibration import default_calibration
 from hardware.errors import BusError
-from hardware.serial_bus import BusConfig
+from hardware.serial_bus import EMULATOR_TIMEOUT_S, PORT_TIMEOUT_S, BusConfig
 from hardware.session import ServoSession
 
 FDS = Path("/proc/self/fd")
@@ -59,6 +59,16 @@ def test_opens_the_emulator_and_reads_back_every_servo(cal):
         s.emulator.inject(missing_ids={7})
         got = s.read_back()
     assert got[3] == 321 and got[7] is None and sum(v is not None for v in got.values()) == 20
+
+
+def test_the_emulator_is_given_longer_to_answer_than_a_port_unless_the_link_says(cal):
+    # its servos answer from a thread of this process, beside the studio's jobs (EMULATOR_TIMEOUT_S's comment)
+    with ServoSession(calibration=cal) as s:
+        assert s.bus.timeout_s == EMULATOR_TIMEOUT_S and s.read_back()[1] == C.CENTER_UNITS
+        with ServoSession(s.emulator.port, config=BusConfig(s.emulator.port, exclusive=False), ids=[1]) as port:
+            assert port.bus.timeout_s == PORT_TIMEOUT_S < EMULATOR_TIMEOUT_S  # a port: a servo answers in ~2 ms
+    with ServoSession(calibration=cal, config=BusConfig("", timeout_s=0.05)) as s:
+        assert s.bus.timeout_s == 0.05  # what the link asks for is kept
 
 
 @pytest.mark.parametrize("release", [False, True], ids=["hold", "release"])

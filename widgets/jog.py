@@ -44,7 +44,7 @@ class JogPanelConfig:
 
     jog: JogConfig = field(default_factory=JogConfig)  # step size, jog speed, e-stop torque
     refresh_hz: float = 4.0  # periodic read-back rate when "refresh" is ticked (capped at 10 Hz) (0, 10]
-    timeout_s: float = 0.02  # seconds to wait for one servo's answer (0, 10]
+    timeout_s: float | None = None  # s to wait for a servo's answer (None: 0.02 on a port, 0.2 on the emulator) (0, 10]
     release_on_close: bool = False  # on disconnect: stop, then release torque (True) or hold the pose (False)
 
 

@@ -60,7 +60,7 @@ class LivePanelConfig:
     retrieval: RetrievalConfig | None = None  # the retrieval index (None: the searches' own, 200,000 poses)
     tile: int = 240  # side of each picture on screen, px [64, 1024]
     redraw_hz: float = 10.0  # picture redraws a second at most, from the session's threads (0, 10]
-    timeout_s: float = 0.02  # seconds to wait for one servo's answer, on servos the panel opens (0, 10]
+    timeout_s: float | None = None  # s to wait for a servo's answer (None: 0.02 on a port, 0.2 on the emulator) (0, 10]
     stop_wait_s: float = 3.0  # how long Stop waits for the session to end before it says "stopping…", s [0, 60]
 
 

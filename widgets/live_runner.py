@@ -60,7 +60,7 @@ class LiveSettings(Protocol):
     pose: LivePoseConfig | None  # how a frame becomes a pose (None: the defaults)
     target: LiveTargetConfig | None  # how a frame becomes a target (None: the defaults)
     retrieval: RetrievalConfig | None  # the retrieval index (None: the searches' own)
-    timeout_s: float  # seconds to wait for one servo's answer, on servos the runner opens
+    timeout_s: float | None  # s to wait for one servo's answer, on servos the runner opens (None: the bus's default)
 
 
 @dataclass(frozen=True)

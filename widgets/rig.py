@@ -50,7 +50,7 @@ class RigPanelConfig:
     photo_px: int = 480  # width of the photograph on screen, px
     mask_px: int = 240  # side of the rectified shadow on screen, px
     redraw_hz: float = 10.0  # progress redraws a second at most, from the calibration's thread (0, 30]
-    timeout_s: float = 0.02  # seconds to wait for one servo's answer, on servos the panel opens (0, 10]
+    timeout_s: float | None = None  # s to wait for a servo's answer (None: 0.02 on a port, 0.2 on the emulator) (0, 10]
 
 
 def calibration_path(state: StudioState) -> Path:
