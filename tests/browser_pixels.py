@@ -73,3 +73,14 @@ def drawn_recording(rgb: np.ndarray) -> tuple[bool, dict]:
         shapes += bool((grey[y0:y1, x0:x1][ring] > 225).mean() > 0.6)
     facts = {"std": round(float(grey.std()), 1), "shapes_on_white": shapes}
     return facts["std"] > 20 and shapes >= 1, facts
+
+
+def plotted(rgb: np.ndarray, colour: tuple[int, int, int], tolerance: int = 40) -> tuple[bool, dict]:
+    """Whether a Rerun canvas of the project's layout (``studio.review.blueprint``: the plots under the images in the
+    left 60 %) draws a series line of ``colour`` (RGB) in its plots: ≥ 30 pixels of it, spread over ≥ 20 columns.
+    → (ok, the measurements)."""
+    h, w = rgb.shape[:2]
+    plots = rgb[int(0.5 * h) : int(0.93 * h), : int(0.6 * w)].astype(int)
+    ys, xs = np.nonzero((np.abs(plots - np.array(colour)) <= tolerance).all(axis=-1))
+    facts = {"pixels": int(len(xs)), "columns": int(len(set(xs.tolist())))}
+    return facts["pixels"] >= 30 and facts["columns"] >= 20, facts

@@ -16,7 +16,7 @@ written as it is taken into ``$SHADOW_STUDIO_SCREENSHOT``, a folder, when set, e
   count); while it plays, the rig scene (meshcat) follows the pose played and is never blank: every picture of it
   taken over at least 4 s shows the lit backdrop, the light and the hand's shadow, not meshcat's empty default scene,
   and the pictures change; paused, the Rerun viewer (moved onto ``show_time`` with the player) still draws the frame's
-  target image;
+  target image, and its loss plot the total loss's line along the show;
 - **Optimise**: a job started from the panel shows its progress advancing;
 - **Jog**: after connecting to the emulator and pressing the E-STOP, the button looks latched: its computed
   background is red, and so are most of its pixels in a screenshot;
@@ -38,12 +38,14 @@ from urllib.parse import urlparse
 import cv2
 import numpy as np
 import pytest
-from browser_pixels import drawn_recording, drawn_rig, over_the_shape, red, shadow_tile
+from browser_pixels import drawn_recording, drawn_rig, over_the_shape, plotted, red, shadow_tile
 from test_show_preview import dark, give_results, horse, plan
 
 from studio.cli.lab import free_port
+from studio.review.series import series_colour
 
 CHROMIUM = Path("/usr/bin/chromium")
+TOTAL_LINE = series_colour("loss/frame/total")  # the colour of the total loss's line in Rerun's plots
 CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--disable-background-networking",
                   "--disable-component-update", "--disable-sync", "--no-first-run"]  # fmt: skip
 VIEWPORT = {"width": 1600, "height": 2300}  # the tester's 1,600 px wide window, tall enough for a whole tab
@@ -313,17 +315,19 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
         if rig is not None:
             keep(rig, folder / "rig_scene.png")
         assert drawn, f"the Review tab's meshcat scene does not draw the rig: {rig_facts}"
-        # the Rerun viewer followed the player onto show_time: its views show the frame played there, not "No data"
+        # the Rerun viewer followed the player onto show_time: its views show the frame played there, not "No data",
+        # and its loss plot the frames' losses along the show (the total's line, in its colour)
         canvas.scroll_into_view_if_needed()
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:
             on_show = picture(canvas)
-            ok, facts = drawn_recording(on_show)
-            if ok:
+            (ok, facts), (line, line_facts) = drawn_recording(on_show), plotted(on_show, TOTAL_LINE)
+            if ok and line:
                 break
             page.wait_for_timeout(1000)
         keep(on_show, folder / "rerun_on_show_time.png")
         assert ok, f"the Rerun viewer shows no frame at the show time the player stopped at: {facts}"
+        assert line, f"the Rerun viewer's loss plot draws no loss along the show: {line_facts}"
         shots.append(shoot_tab(page, "Review", folder))
 
         # Optimise: start this keyframe and see a progress bar advance

@@ -12,8 +12,8 @@ Entities (images in display convention: dark shadow on a light backdrop)::
     images/rendered    its rendered shadow (a job's live best shadow on opt_step)   frame, opt_step, show_time
 
 On ``show_time`` the images are those of the frame a current show plays then (:mod:`studio.review.show_frames`).
-    frames/keyframe    which keyframe each frame plays (its position in first-appearance order)   frame
-    loss/frame/*       the loss of each frame's keyframe result   frame
+    frames/keyframe    which keyframe each frame plays (its position in first-appearance order)   frame, show_time
+    loss/frame/*       the loss of each frame's keyframe result   frame, show_time
     loss/<job>/<stage> a job's best loss so far                   opt_step
     log/*              keyframes, jobs, the show, playbacks (text)
     world/hand/...     the hand's shell and skeleton, loaded from the URDF (static)
@@ -21,6 +21,9 @@ On ``show_time`` the images are those of the frame a current show plays then (:m
     world/light        the point light and its rays to the window's corners (static)
     world/backdrop     the backdrop window (z = backdrop_z) textured with the shadow then   frame, show_time
     servo/<joint>/commanded, servo/<joint>/measured   rad   play_time, show_time
+
+``frames/keyframe``, ``loss/frame/*`` and a finished playback's ``servo/*`` are series logged whole, each version
+replacing the last (:mod:`studio.review.series`: version n > 0 at ``PATH/vN``).
 """
 
 from __future__ import annotations

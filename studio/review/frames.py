@@ -5,6 +5,8 @@ expressive mask, which keyframe it plays and that keyframe's self-model and rend
 hand and rig) the hand at that keyframe's pose with the backdrop carrying its shadow. A keyframe's images and pose
 are logged only where the frame's keyframe changes (Rerun shows the latest row at or before the time), so a long
 clip of few keyframes stays small; where the new keyframe has none yet, the old ones are cleared (the hand rests).
+The keyframe per frame and the losses are whole series (:func:`log_frame_series`) that replace the ones logged
+before, on ``show_time`` too when the show is current: a plot drawn under the show player follows the show.
 :class:`JobProgressLog` subscribes to a job queue and draws every job's best loss on ``opt_step`` (its stages one
 after another) with its live best shadow.
 """
@@ -30,12 +32,15 @@ from studio.review.blueprint import (
     LOSS,
     RENDERED,
     SELF_MODEL,
+    SHOW_TIME,
     SOURCE,
     TARGET,
     part,
     set_time,
+    time_column,
 )
 from studio.review.rig3d import RigReview, backdrop, log_poses, urdf_tree
+from studio.review.series import ScalarSeries
 from studio.review.sheets import display, tint
 from studio.sim.hand import Hand
 from studio.sim.shadow import Rig, ShadowRenderer
@@ -82,12 +87,16 @@ def log_frames(
     hand: Hand | None = None,
     rig: Rig | None = None,
     cfg: RigReview | None = None,
+    series: ScalarSeries | None = None,
+    show_times: np.ndarray | None = None,
 ) -> np.ndarray:
     """Frames ``targets (N, S, S)`` (1 = shadow) with their ``expressive (N, S, S)`` masks, RGB ``sources`` (one
     ``(H, W, 3)`` image or None per frame) when given, and their ``keyframes`` (first-appearance order), on ``frame``
     (module doc). ``times (N,)`` s, when given, go into the keyframes' log lines. With ``hand`` and ``rig`` the 3D
     rig shows each frame's keyframe pose, the backdrop its shadow (rendered at ``cfg.texture`` when a keyframe has a
-    pose but no shadow). Returns the assignment ``(N,)`` (:func:`assignment`)."""
+    pose but no shadow). The keyframe per frame and the losses are series (:func:`log_frame_series`, on ``series``: the
+    recording's, so that they replace what it logged before; given ``show_times (N,)``, on ``show_time`` too).
+    Returns the assignment ``(N,)`` (:func:`assignment`)."""
     n = len(targets)
     if expressive.shape != targets.shape:
         raise ValueError(f"expressive masks {expressive.shape} must match the targets {targets.shape}")
@@ -97,24 +106,54 @@ def log_frames(
         set_time(rec, frame=k)
         rec.log(TARGET, rr.Image(display(targets[k])))
         rec.log(EXPRESSIVE, rr.Image(tint(targets[k], expressive[k])))
-        rec.log(KEYFRAME_OF_FRAME, rr.Scalars(float(which[k])))
         if sources is not None and sources[k] is not None:
             rec.log(SOURCE, rr.Image(np.asarray(sources[k])))
         kf = keyframes[which[k]] if which[k] >= 0 else None
         if kf is None:
             continue
-        for name, value in _finite(kf.loss).items():
-            rec.log(f"{FRAME_LOSS}/{part(name)}", rr.Scalars(value))
         if k in changed:  # a keyframe without them clears the previous keyframe's images
             rec.log(RENDERED, rr.Clear(recursive=False) if kf.shadow is None else rr.Image(display(kf.shadow)))
             predicted = kf.self_model
             rec.log(SELF_MODEL, rr.Clear(recursive=False) if predicted is None else rr.Image(display(predicted)))
         if k == kf.representative:
             rec.log(KEYFRAMES_LOG, rr.TextLog(_keyframe_line(which[k], kf, times)))
+    log_frame_series(series or ScalarSeries(rec), keyframes, which, show_times)
     if hand is not None and rig is not None:
         _log_frame_rig(rec, hand, rig, keyframes, which, cfg or RigReview())
     rec.reset_time()
     return which
+
+
+def log_frame_series(
+    series: ScalarSeries, keyframes: Sequence[KeyframeReview], which: np.ndarray, show_times: np.ndarray | None = None
+) -> None:
+    """Which keyframe each frame plays (``which (N,)``, -1: none) on ``frames/keyframe``, and the loss components
+    of each frame's keyframe result on ``loss/frame/<component>`` (frames without one left out), on ``frame`` and,
+    given ``show_times (N,)`` s (where each frame starts to play in a current show), on ``show_time`` too; each
+    series replaces the one logged before (:mod:`studio.review.series`)."""
+    n = len(which)
+    if show_times is not None and np.shape(show_times) != (n,):
+        raise ValueError(f"{n} frames need as many show times, not {np.shape(show_times)}")
+
+    def index(rows: np.ndarray) -> list[rr.TimeColumn]:
+        cols = [time_column(FRAME, rows)]
+        return cols if show_times is None else [*cols, time_column(SHOW_TIME, np.asarray(show_times, float)[rows])]
+
+    series.send(KEYFRAME_OF_FRAME, index(np.arange(n)), which.astype(np.float64), name="keyframe")
+    losses: dict[str, list[tuple[int, float]]] = {}
+    for k in range(n):
+        if which[k] >= 0:
+            for name, value in _finite(keyframes[which[k]].loss).items():
+                losses.setdefault(part(name), []).append((k, value))
+    for name in sorted(set(losses) | _loss_names(series)):
+        rows = np.array([k for k, _ in losses.get(name, [])], dtype=np.int64)
+        series.send(f"{FRAME_LOSS}/{name}", index(rows), np.array([v for _, v in losses.get(name, [])]))
+
+
+def _loss_names(series: ScalarSeries) -> set[str]:
+    """The loss components with a series on show (a component no result has now is hidden)."""
+    prefix = f"{FRAME_LOSS}/"
+    return {path[len(prefix) :] for path in series.paths() if path.startswith(prefix) and series.shown(path)}
 
 
 def _keyframe_line(pos: int, kf: KeyframeReview, times: np.ndarray | None) -> str:

@@ -11,7 +11,8 @@ os.environ.setdefault("RERUN_NOTEBOOK_ASSET", "inline")  # notebooks must not fe
 
 
 def read_recording(path: Path) -> dict[str, dict]:
-    """Read an ``.rrd`` back: ``{entity_path: {"static": bool, "rows": int, "columns": [...], "timelines": [...]}}``.
+    """Read an ``.rrd`` back: ``{entity_path: {"static": bool, "rows": int, "columns": [...], "timelines": [...],
+    "static_columns": [...]}}`` (``static``: its first chunk is; ``static_columns``: those any static chunk holds).
 
     For tests and tools that check what a recording holds (reads Rerun's own file format).
     """
@@ -35,6 +36,7 @@ def read_recording(path: Path) -> dict[str, dict]:
         entry["rows"] += chunk.num_rows
         entry["columns"] |= set(batch.schema.names)
         entry["timelines"] |= set(chunk.timeline_names)
+        entry.setdefault("static_columns", set()).update(batch.schema.names if chunk.is_static else ())
         entry.setdefault("batches", []).append(batch)
     return out
 
@@ -55,3 +57,13 @@ def scalar_series(recording: dict[str, dict], entity: str, timeline: str = "opt_
             if t is not None and v is not None:
                 values.append((t / 1e9 if seconds else int(t), float(v[0])))
     return sorted(values)
+
+
+def shown_series(recording: dict[str, dict], path: str) -> str | None:
+    """The entity of the version of the series at ``path`` that a plot shows (:mod:`studio.review.series`: version
+    0 at ``path``, version n at ``PATH/vN``, each hidden by a static ``Scalars`` when the next is logged); None when
+    every version is hidden or none was logged."""
+    versions = [path] + sorted((e for e in recording if e.startswith(f"{path}/v") and e[len(path) + 2:].isdigit()),
+                               key=lambda e: int(e[len(path) + 2:]))  # fmt: skip
+    shown = [e for e in versions if e in recording and "Scalars:scalars" not in recording[e]["static_columns"]]
+    return shown[-1] if shown else None

@@ -1,0 +1,167 @@
+"""Plotted series that replace their last version (studio.review.series), read back from real recordings, and drawn
+by Rerun's own web viewer in a real headless Chromium: a frame's loss logged again after an edit shows the new
+value only, never the average of the two that Rerun draws for rows sharing a time."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from test_browser import CHROMIUM, CHROMIUM_FLAGS, playwright_api
+
+from studio.cli.lab import free_port
+from studio.review.blueprint import time_column
+from studio.review.frames import KeyframeReview
+from studio.review.readback import read_recording, scalar_series, shown_series
+from studio.review.recording import ProjectRecording
+from studio.review.series import PALETTE, ScalarSeries, series_colour
+
+N = 10
+MASKS = np.zeros((N, 16, 16), np.uint8)
+MASKS[:, 4:12, 4:12] = 1
+BEFORE = [KeyframeReview(0, 0, tuple(range(N)), loss={"total": 0.2, "base": 0.5})]  # one keyframe plays every frame
+AFTER = [  # the artist split it: the first half's keyframe scored 0.8, the second half's has no total
+    KeyframeReview(0, 0, tuple(range(5)), loss={"total": 0.8, "base": 0.5}),
+    KeyframeReview(1, 5, tuple(range(5, N)), loss={"base": 0.5, "total": float("nan")}),
+]
+
+
+def edited(path: Path, show_times: np.ndarray | None = None) -> dict:
+    """A recording of the frames logged before and after the edit (the Review panel logs the project again)."""
+    with ProjectRecording(path=path) as review:
+        review.log_frames(MASKS, MASKS, BEFORE)
+        review.log_frames(MASKS, MASKS, AFTER, show_times=show_times)
+    return read_recording(path)
+
+
+def series_style(rec: dict, entity: str) -> tuple[list, list]:
+    """The legend names and colours a series' static SeriesLines give."""
+    names, colours = [], []
+    for batch in rec[entity]["batches"]:
+        if "SeriesLines:names" in batch.schema.names:
+            names += batch.column("SeriesLines:names").to_pylist()[0]
+            colours += batch.column("SeriesLines:colors").to_pylist()[0]
+    return names, colours
+
+
+def test_a_series_sent_again_hides_its_last_version_and_keeps_its_name_and_colour(tmp_path):
+    rec = edited(tmp_path / "r.rrd")
+    shown = shown_series(rec, "/loss/frame/total")
+    assert shown == "/loss/frame/total/v1"
+    assert scalar_series(rec, shown, "frame") == [(k, 0.8) for k in range(5)]  # the second half has no total now
+    assert "Scalars:scalars" in rec["/loss/frame/total"]["static_columns"]  # the first version: shadowed
+    assert scalar_series(rec, "/loss/frame/total", "frame") == [(k, 0.2) for k in range(N)]  # ... its rows kept
+    assert series_style(rec, "/loss/frame/total") == series_style(rec, shown)
+    names, colours = series_style(rec, shown)
+    r, g, b = series_colour("loss/frame/total")
+    assert names == ["total"] and colours == [(r << 24) | (g << 16) | (b << 8) | 0xFF]
+    assert series_colour("loss/frame/total") != series_colour("loss/frame/base")  # two components, two colours
+    base = shown_series(rec, "/loss/frame/base")
+    assert scalar_series(rec, base, "frame") == [(k, 0.5) for k in range(N)]
+    keyframe = shown_series(rec, "/frames/keyframe")
+    assert [v for _, v in scalar_series(rec, keyframe, "frame")] == [0] * 5 + [1] * 5
+
+
+def test_a_series_with_nothing_left_is_hidden(tmp_path):
+    with ProjectRecording(path=tmp_path / "r.rrd") as review:
+        series = ScalarSeries(review.rec)
+        assert series.send("loss/x", [], np.zeros(0)) is None and series.shown("loss/x") is None
+        frames = np.arange(3)
+        assert series.send("loss/x", [time_column("frame", frames)], np.ones(3)) == "loss/x/v1"
+        assert series.send("loss/x", [], np.zeros(0)) is None and series.shown("loss/x") is None
+    rec = read_recording(tmp_path / "r.rrd")
+    assert shown_series(rec, "/loss/x") is None and "Scalars:scalars" in rec["/loss/x/v1"]["static_columns"]
+
+
+def test_the_losses_follow_the_show_on_show_time(tmp_path):
+    show_times = np.linspace(0.0, 2.25, N) + np.r_[np.zeros(5), np.full(5, 0.5)]  # a stretched transition at 5
+    rec = edited(tmp_path / "r.rrd", show_times)
+    total = shown_series(rec, "/loss/frame/total")
+    assert scalar_series(rec, total, "show_time") == pytest.approx([(t, 0.8) for t in show_times[:5]])
+    keyframe = shown_series(rec, "/frames/keyframe")
+    assert scalar_series(rec, keyframe, "show_time") == pytest.approx(list(zip(show_times, [0] * 5 + [1] * 5)))
+    with pytest.raises(ValueError, match="show times"):
+        ProjectRecording(path=tmp_path / "bad.rrd").log_frames(MASKS, MASKS, AFTER, show_times=np.zeros(3))
+
+
+def test_a_second_playback_replaces_the_first(tmp_path):
+    def played(offset: float) -> SimpleNamespace:  # what hardware.playback_log.PlaybackResult carries
+        t = np.arange(8) / 40
+        return SimpleNamespace(
+            joint_names=["wrist", "thumb_cmc"], t=t, sent=np.stack([t + offset, t - offset], axis=1), ramp_ticks=2,
+            measured_t=t[::2], measured_joint=np.zeros(4, int), measured_rad=t[::2] + offset, reason="completed",
+            message="done",
+        )  # fmt: skip
+
+    with ProjectRecording(path=tmp_path / "r.rrd") as review:
+        review.log_playback(played(0.0), rate_hz=40)
+        review.log_playback(played(1.0), rate_hz=40)
+    rec = read_recording(tmp_path / "r.rrd")
+    commanded = shown_series(rec, "/servo/wrist/commanded")
+    assert commanded == "/servo/wrist/commanded/v1"
+    assert [v for _, v in scalar_series(rec, commanded, "play_time")] == pytest.approx(np.arange(8) / 40 + 1.0)
+    assert [v for _, v in scalar_series(rec, shown_series(rec, "/servo/wrist/measured"), "show_time")] == (
+        pytest.approx(np.arange(0, 8, 2) / 40 + 1.0)
+    )
+    assert shown_series(rec, "/servo/thumb_cmc/measured") is None  # never read back in either playback
+
+
+# ---------------------------------------------------------------- what the viewer draws
+def near(rgb: np.ndarray, colour: tuple[int, int, int], tolerance: int = 40) -> np.ndarray:
+    """Pixels of ``rgb (H, W, 3)`` within ``tolerance`` of ``colour`` in every channel: ``(H, W)`` bool."""
+    return (np.abs(rgb.astype(int) - np.array(colour)) <= tolerance).all(axis=-1)
+
+
+@pytest.mark.slow
+def test_rerun_draws_the_new_losses_not_the_average_of_both_versions(tmp_path):
+    sync_playwright = playwright_api()
+    import cv2
+
+    path = tmp_path / "r.rrd"
+    edited(path)
+    web, grpc = free_port(19090), free_port(19877)
+    cmd = [sys.executable, "-m", "rerun", "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(web),
+           "--port", str(grpc), str(path)]  # fmt: skip
+    server = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    total, base = series_colour("loss/frame/total"), series_colour("loss/frame/base")
+    assert total == PALETTE[0] and base == PALETTE[1]  # blue and orange: apart from everything else drawn
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_FLAGS)
+            page = browser.new_page(viewport={"width": 1400, "height": 900})
+            url = f"http://127.0.0.1:{web}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc}%2Fproxy"
+            deadline, rgb, seen = time.monotonic() + 90, None, False
+            while time.monotonic() < deadline:
+                try:
+                    page.goto(url) if not seen else None
+                    seen = True
+                    page.wait_for_timeout(2000)
+                    png = page.screenshot()
+                except Exception:  # the server is still starting
+                    seen = False
+                    page.wait_for_timeout(500)
+                    continue
+                rgb = cv2.cvtColor(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+                left = rgb[:, : int(rgb.shape[1] * 0.6)]  # the plots are in the layout's left column
+                if near(left, base).sum() > 100 and near(left, total).sum() > 30:
+                    break
+            browser.close()
+    finally:
+        server.terminate()
+        server.wait(10)
+    assert rgb is not None, "the web viewer never answered"
+    cv2.imwrite(str(tmp_path / "loss_plot.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    left = rgb[:, : int(rgb.shape[1] * 0.6)]
+    _, bx = np.nonzero(near(left, total))
+    oy, ox = np.nonzero(near(left, base))
+    assert len(ox) > 100 and len(bx) > 30, f"the loss plot draws no base or total line ({tmp_path / 'loss_plot.png'})"
+    x0, x1 = np.percentile(ox, 2), np.percentile(ox, 98)  # base spans every frame: the plot's width
+    reach = (np.percentile(bx, 98) - x0) / (x1 - x0)
+    # total is drawn over frames 0-4 only (4/9 of the width), at 0.8; averaged with the old version it would reach
+    # the last frame (at 0.5 over frames 0-4, 0.2 after)
+    assert 0.3 < reach < 0.6, f"total reaches {reach:.2f} of the plot's width ({tmp_path / 'loss_plot.png'})"
