@@ -4,6 +4,9 @@ value only, never the average of the two that Rerun draws for rows sharing a tim
 
 from __future__ import annotations
 
+import contextlib
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -112,6 +115,20 @@ def test_a_second_playback_replaces_the_first(tmp_path):
 
 
 # ---------------------------------------------------------------- what the viewer draws
+def stop_group(proc: subprocess.Popen) -> None:
+    """End ``proc`` and every process it started (its own session's group): SIGTERM, then SIGKILL after 10 s."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, sig)
+        try:
+            proc.wait(10)
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)  # a child that outlived its parent
+            return
+        except subprocess.TimeoutExpired:
+            continue
+
+
 def near(rgb: np.ndarray, colour: tuple[int, int, int], tolerance: int = 40) -> np.ndarray:
     """Pixels of ``rgb (H, W, 3)`` within ``tolerance`` of ``colour`` in every channel: ``(H, W)`` bool."""
     return (np.abs(rgb.astype(int) - np.array(colour)) <= tolerance).all(axis=-1)
@@ -127,7 +144,8 @@ def test_rerun_draws_the_new_losses_not_the_average_of_both_versions(tmp_path):
     web, grpc = free_port(19090), free_port(19877)
     cmd = [sys.executable, "-m", "rerun", "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(web),
            "--port", str(grpc), str(path)]  # fmt: skip
-    server = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    # its own process group: `python -m rerun` runs the rerun binary as a child, which a plain terminate leaves behind
+    server = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     total, base = series_colour("loss/frame/total"), series_colour("loss/frame/base")
     assert total == PALETTE[0] and base == PALETTE[1]  # blue and orange: apart from everything else drawn
     try:
@@ -152,8 +170,7 @@ def test_rerun_draws_the_new_losses_not_the_average_of_both_versions(tmp_path):
                     break
             browser.close()
     finally:
-        server.terminate()
-        server.wait(10)
+        stop_group(server)
     assert rgb is not None, "the web viewer never answered"
     cv2.imwrite(str(tmp_path / "loss_plot.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     left = rgb[:, : int(rgb.shape[1] * 0.6)]
