@@ -1,6 +1,7 @@
-"""Plotted series that replace their last version (studio.review.series), read back from real recordings, and drawn
-by Rerun's own web viewer in a real headless Chromium: a frame's loss logged again after an edit shows the new
-value only, never the average of the two that Rerun draws for rows sharing a time."""
+"""What a review logs whole, each version replacing the last (studio.review.series), read back from real recordings,
+and drawn by Rerun's own web viewer in a real headless Chromium: a frame's loss logged again after an edit shows the
+new value only, never the average of the two that Rerun draws for rows sharing a time; the keyframes' and the
+show's log lines are not repeated by every edit."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -18,11 +20,13 @@ import pytest
 from test_browser import CHROMIUM, CHROMIUM_FLAGS, playwright_api
 
 from studio.cli.lab import free_port
+from studio.motion.plan import Keyframes, plan_show
 from studio.review.blueprint import time_column
 from studio.review.frames import KeyframeReview
 from studio.review.readback import read_recording, scalar_series, shown_series
 from studio.review.recording import ProjectRecording
-from studio.review.series import PALETTE, ScalarSeries, series_colour
+from studio.review.series import PALETTE, VersionedLog, series_colour
+from studio.sim.hand import load_hand
 
 N = 10
 MASKS = np.zeros((N, 16, 16), np.uint8)
@@ -72,13 +76,34 @@ def test_a_series_sent_again_hides_its_last_version_and_keeps_its_name_and_colou
 
 def test_a_series_with_nothing_left_is_hidden(tmp_path):
     with ProjectRecording(path=tmp_path / "r.rrd") as review:
-        series = ScalarSeries(review.rec)
-        assert series.send("loss/x", [], np.zeros(0)) is None and series.shown("loss/x") is None
+        versions = VersionedLog(review.rec)
+        assert versions.scalars("loss/x", [], np.zeros(0)) is None and versions.shown("loss/x") is None
         frames = np.arange(3)
-        assert series.send("loss/x", [time_column("frame", frames)], np.ones(3)) == "loss/x/v1"
-        assert series.send("loss/x", [], np.zeros(0)) is None and series.shown("loss/x") is None
+        assert versions.scalars("loss/x", [time_column("frame", frames)], np.ones(3)) == "loss/x/v1"
+        assert versions.scalars("loss/x", [], np.zeros(0)) is None and versions.shown("loss/x") is None
     rec = read_recording(tmp_path / "r.rrd")
     assert shown_series(rec, "/loss/x") is None and "Scalars:scalars" in rec["/loss/x/v1"]["static_columns"]
+
+
+def test_the_keyframe_and_show_lines_are_those_of_the_last_log(tmp_path):
+    show = plan_show(load_hand(), Keyframes.at([0.0, 0.4], np.zeros((2, 21))), title="first").show
+    with ProjectRecording(path=tmp_path / "r.rrd") as review:
+        review.log_frames(MASKS, MASKS, BEFORE)
+        review.log_show(show)
+        review.log_frames(MASKS, MASKS, AFTER)
+        review.log_show(replace(show, title="second"))
+    rec = read_recording(tmp_path / "r.rrd")
+
+    def lines(path: str) -> list[str]:
+        entity = shown_series(rec, path, "TextLog:text")
+        return [text[0] for batch in rec[entity]["batches"] if "TextLog:text" in batch.schema.names
+                for text in batch.column("TextLog:text").to_pylist()]  # fmt: skip
+
+    keyframes = lines("/log/keyframes")
+    assert len(keyframes) == 2 and "keyframe 0 (id 0)" in keyframes[0] and "plays 5 frames" in keyframes[0]
+    assert "keyframe 1 (id 1): frame 5" in keyframes[1] and "no result yet" in keyframes[1]
+    assert lines("/log/show")[0].startswith("show 'second'") and len(lines("/log/show")) == 1 + len(show.keyframes)
+    assert "TextLog:text" in rec["/log/keyframes"]["static_columns"]  # the first log's lines: hidden
 
 
 def test_the_losses_follow_the_show_on_show_time(tmp_path):

@@ -22,8 +22,8 @@ On ``show_time`` the images are those of the frame a current show plays then (:m
     world/backdrop     the backdrop window (z = backdrop_z) textured with the shadow then   frame, show_time
     servo/<joint>/commanded, servo/<joint>/measured   rad   play_time, show_time
 
-``frames/keyframe``, ``loss/frame/*`` and a finished playback's ``servo/*`` are series logged whole, each version
-replacing the last (:mod:`studio.review.series`: version n > 0 at ``PATH/vN``).
+``frames/keyframe``, ``loss/frame/*``, ``log/keyframes``, ``log/show`` and a finished playback's ``servo/*`` are
+logged whole, each version replacing the last (:mod:`studio.review.series`: version n > 0 at ``PATH/vN``).
 """
 
 from __future__ import annotations

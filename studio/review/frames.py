@@ -5,8 +5,9 @@ expressive mask, which keyframe it plays and that keyframe's self-model and rend
 hand and rig) the hand at that keyframe's pose with the backdrop carrying its shadow. A keyframe's images and pose
 are logged only where the frame's keyframe changes (Rerun shows the latest row at or before the time), so a long
 clip of few keyframes stays small; where the new keyframe has none yet, the old ones are cleared (the hand rests).
-The keyframe per frame and the losses are whole series (:func:`log_frame_series`) that replace the ones logged
-before, on ``show_time`` too when the show is current: a plot drawn under the show player follows the show.
+The keyframe per frame, the losses and the keyframes' log lines are logged whole (:func:`log_frame_series`),
+replacing what was logged before, on ``show_time`` too when the show is current: a plot drawn under the show player
+follows the show.
 :class:`JobProgressLog` subscribes to a job queue and draws every job's best loss on ``opt_step`` (its stages one
 after another) with its live best shadow.
 """
@@ -40,7 +41,7 @@ from studio.review.blueprint import (
     time_column,
 )
 from studio.review.rig3d import RigReview, backdrop, log_poses, urdf_tree
-from studio.review.series import ScalarSeries
+from studio.review.series import VersionedLog
 from studio.review.sheets import display, tint
 from studio.sim.hand import Hand
 from studio.sim.shadow import Rig, ShadowRenderer
@@ -87,16 +88,16 @@ def log_frames(
     hand: Hand | None = None,
     rig: Rig | None = None,
     cfg: RigReview | None = None,
-    series: ScalarSeries | None = None,
+    versions: VersionedLog | None = None,
     show_times: np.ndarray | None = None,
 ) -> np.ndarray:
     """Frames ``targets (N, S, S)`` (1 = shadow) with their ``expressive (N, S, S)`` masks, RGB ``sources`` (one
     ``(H, W, 3)`` image or None per frame) when given, and their ``keyframes`` (first-appearance order), on ``frame``
     (module doc). ``times (N,)`` s, when given, go into the keyframes' log lines. With ``hand`` and ``rig`` the 3D
     rig shows each frame's keyframe pose, the backdrop its shadow (rendered at ``cfg.texture`` when a keyframe has a
-    pose but no shadow). The keyframe per frame and the losses are series (:func:`log_frame_series`, on ``series``: the
-    recording's, so that they replace what it logged before; given ``show_times (N,)``, on ``show_time`` too).
-    Returns the assignment ``(N,)`` (:func:`assignment`)."""
+    pose but no shadow). The keyframe per frame, the losses and the keyframes' lines are logged whole
+    (:func:`log_frame_series`, through ``versions``: the recording's, so that they replace what it logged before;
+    given ``show_times (N,)``, on ``show_time`` too). Returns the assignment ``(N,)`` (:func:`assignment`)."""
     n = len(targets)
     if expressive.shape != targets.shape:
         raise ValueError(f"expressive masks {expressive.shape} must match the targets {targets.shape}")
@@ -115,9 +116,7 @@ def log_frames(
             rec.log(RENDERED, rr.Clear(recursive=False) if kf.shadow is None else rr.Image(display(kf.shadow)))
             predicted = kf.self_model
             rec.log(SELF_MODEL, rr.Clear(recursive=False) if predicted is None else rr.Image(display(predicted)))
-        if k == kf.representative:
-            rec.log(KEYFRAMES_LOG, rr.TextLog(_keyframe_line(which[k], kf, times)))
-    log_frame_series(series or ScalarSeries(rec), keyframes, which, show_times)
+    log_frame_series(versions or VersionedLog(rec), keyframes, which, times, show_times)
     if hand is not None and rig is not None:
         _log_frame_rig(rec, hand, rig, keyframes, which, cfg or RigReview())
     rec.reset_time()
@@ -125,35 +124,44 @@ def log_frames(
 
 
 def log_frame_series(
-    series: ScalarSeries, keyframes: Sequence[KeyframeReview], which: np.ndarray, show_times: np.ndarray | None = None
+    versions: VersionedLog,
+    keyframes: Sequence[KeyframeReview],
+    which: np.ndarray,
+    times: np.ndarray | None = None,
+    show_times: np.ndarray | None = None,
 ) -> None:
-    """Which keyframe each frame plays (``which (N,)``, -1: none) on ``frames/keyframe``, and the loss components
-    of each frame's keyframe result on ``loss/frame/<component>`` (frames without one left out), on ``frame`` and,
-    given ``show_times (N,)`` s (where each frame starts to play in a current show), on ``show_time`` too; each
-    series replaces the one logged before (:mod:`studio.review.series`)."""
+    """Which keyframe each frame plays (``which (N,)``, -1: none) on ``frames/keyframe``, the loss components of
+    each frame's keyframe result on ``loss/frame/<component>`` (frames without one left out) and each keyframe's
+    line on ``log/keyframes`` at its representative frame (``times (N,)`` s, when given, in the lines), on ``frame``
+    and, given ``show_times (N,)`` s (where each frame starts to play in a current show), on ``show_time`` too; each
+    replaces what was logged there before (:mod:`studio.review.series`)."""
     n = len(which)
     if show_times is not None and np.shape(show_times) != (n,):
         raise ValueError(f"{n} frames need as many show times, not {np.shape(show_times)}")
 
-    def index(rows: np.ndarray) -> list[rr.TimeColumn]:
+    def index(rows) -> list[rr.TimeColumn]:
+        rows = np.asarray(rows, dtype=np.int64)
         cols = [time_column(FRAME, rows)]
         return cols if show_times is None else [*cols, time_column(SHOW_TIME, np.asarray(show_times, float)[rows])]
 
-    series.send(KEYFRAME_OF_FRAME, index(np.arange(n)), which.astype(np.float64), name="keyframe")
+    versions.scalars(KEYFRAME_OF_FRAME, index(np.arange(n)), which.astype(np.float64), name="keyframe")
     losses: dict[str, list[tuple[int, float]]] = {}
     for k in range(n):
         if which[k] >= 0:
             for name, value in _finite(keyframes[which[k]].loss).items():
                 losses.setdefault(part(name), []).append((k, value))
-    for name in sorted(set(losses) | _loss_names(series)):
-        rows = np.array([k for k, _ in losses.get(name, [])], dtype=np.int64)
-        series.send(f"{FRAME_LOSS}/{name}", index(rows), np.array([v for _, v in losses.get(name, [])]))
+    for name in sorted(set(losses) | _loss_names(versions)):
+        rows = [k for k, _ in losses.get(name, [])]
+        versions.scalars(f"{FRAME_LOSS}/{name}", index(rows), np.array([v for _, v in losses.get(name, [])]))
+    lines = sorted((kf.representative, _keyframe_line(pos, kf, times)) for pos, kf in enumerate(keyframes)
+                   if 0 <= kf.representative < n and which[kf.representative] == pos)  # fmt: skip
+    versions.text(KEYFRAMES_LOG, index([k for k, _ in lines]), [line for _, line in lines])
 
 
-def _loss_names(series: ScalarSeries) -> set[str]:
+def _loss_names(versions: VersionedLog) -> set[str]:
     """The loss components with a series on show (a component no result has now is hidden)."""
     prefix = f"{FRAME_LOSS}/"
-    return {path[len(prefix) :] for path in series.paths() if path.startswith(prefix) and series.shown(path)}
+    return {path[len(prefix) :] for path in versions.paths() if path.startswith(prefix) and versions.shown(path)}
 
 
 def _keyframe_line(pos: int, kf: KeyframeReview, times: np.ndarray | None) -> str:

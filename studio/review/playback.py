@@ -16,7 +16,7 @@ import numpy as np
 import rerun as rr
 
 from studio.review.blueprint import PLAY_TIME, PLAYBACK_LOG, SHOW_TIME, servo_path, set_time, time_column
-from studio.review.series import ScalarSeries
+from studio.review.series import VersionedLog
 
 
 def tick_seconds(t: np.ndarray, default: float = 1 / 40) -> float:
@@ -27,27 +27,27 @@ def tick_seconds(t: np.ndarray, default: float = 1 / 40) -> float:
 
 
 def log_playback(
-    rec: rr.RecordingStream, result: Any, rate_hz: float | None = None, series: ScalarSeries | None = None
+    rec: rr.RecordingStream, result: Any, rate_hz: float | None = None, versions: VersionedLog | None = None
 ) -> float:
     """Log a finished playback: ``result`` is a ``hardware.playback_log.PlaybackResult`` (or anything with its
     ``t (T,)``, ``sent (T, J)``, ``measured_t``/``measured_joint``/``measured_rad (M,)``, ``ramp_ticks``,
     ``joint_names``, ``reason``, ``message``). ``rate_hz`` is the player's tick rate (default: read from ``t``).
-    ``series``: the recording's (:mod:`studio.review.series`), so that this playback's angles replace the last
+    ``versions``: the recording's (:mod:`studio.review.series`), so that this playback's angles replace the last
     one's. Returns the ramp's length in s (``play_time - show_time``)."""
     names = list(result.joint_names)
     t = np.asarray(result.t, dtype=float)
     sent = np.asarray(result.sent, dtype=float).reshape(len(t), len(names))
     dt = 1.0 / rate_hz if rate_hz else tick_seconds(t)
     ramp = int(result.ramp_ticks) * dt
-    series = series or ScalarSeries(rec)
+    versions = versions or VersionedLog(rec)
     for j, name in enumerate(names):
         index = [time_column(PLAY_TIME, t), time_column(SHOW_TIME, t - ramp)]
-        series.send(servo_path(name, "commanded"), index, sent[:, j], name=f"{name} commanded")
+        versions.scalars(servo_path(name, "commanded"), index, sent[:, j], name=f"{name} commanded")
         mine = np.asarray(result.measured_joint) == j
         mt = np.asarray(result.measured_t, dtype=float)[mine]
         q = np.asarray(result.measured_rad, dtype=float)[mine]
         index = [time_column(PLAY_TIME, mt), time_column(SHOW_TIME, mt - ramp)]
-        series.send(servo_path(name, "measured"), index, q, name=f"{name} measured")  # none read: hidden
+        versions.scalars(servo_path(name, "measured"), index, q, name=f"{name} measured")  # none read: hidden
     reason = getattr(result.reason, "value", str(result.reason))
     set_time(rec, play_time=float(t[-1]) if len(t) else 0.0)
     level = "INFO" if reason == "completed" else "WARN"

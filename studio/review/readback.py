@@ -59,11 +59,12 @@ def scalar_series(recording: dict[str, dict], entity: str, timeline: str = "opt_
     return sorted(values)
 
 
-def shown_series(recording: dict[str, dict], path: str) -> str | None:
-    """The entity of the version of the series at ``path`` that a plot shows (:mod:`studio.review.series`: version
-    0 at ``path``, version n at ``PATH/vN``, each hidden by a static ``Scalars`` when the next is logged); None when
-    every version is hidden or none was logged."""
+def shown_series(recording: dict[str, dict], path: str, column: str = "Scalars:scalars") -> str | None:
+    """The entity of the version of what is logged whole at ``path`` that the viewer shows
+    (:mod:`studio.review.series`: version 0 at ``path``, version n at ``PATH/vN``, each hidden by its archetype
+    cleared as static data when the next is logged); ``column``: the component that is hidden
+    (``"TextLog:text"`` for log lines). None when every version is hidden or none was logged."""
     versions = [path] + sorted((e for e in recording if e.startswith(f"{path}/v") and e[len(path) + 2:].isdigit()),
                                key=lambda e: int(e[len(path) + 2:]))  # fmt: skip
-    shown = [e for e in versions if e in recording and "Scalars:scalars" not in recording[e]["static_columns"]]
+    shown = [e for e in versions if e in recording and column not in recording[e]["static_columns"]]
     return shown[-1] if shown else None

@@ -36,7 +36,7 @@ from studio.review.frames import JobProgressLog, KeyframeReview, log_frames
 from studio.review.notebook_viewer import DEFAULT_HEIGHT, NotebookViewerError, notebook_viewer
 from studio.review.playback import PlaybackSampleLog, log_playback
 from studio.review.rig3d import RigReview, log_mount, log_rig, log_show, urdf_tree
-from studio.review.series import ScalarSeries
+from studio.review.series import VersionedLog
 from studio.review.show_frames import log_show_frames
 from studio.sim.hand import Hand, load_hand
 from studio.sim.roll import turn
@@ -137,7 +137,7 @@ class ProjectRecording:
         self.rec.set_sinks(*sinks, default_blueprint=self.blueprint)
         self._tree = urdf_tree(self.hand)
         self._show_times: np.ndarray | None = None  # the show times the frames' images were last logged at
-        self.series = ScalarSeries(self.rec)  # the plotted series, each replacing its last version
+        self.versions = VersionedLog(self.rec)  # what is logged whole, each version replacing the last
         log_rig(self.rec, self.hand, self.rig, self.cfg)
         self.closed = False
 
@@ -155,16 +155,16 @@ class ProjectRecording:
         series on ``show_time`` too given ``show_times (N,)`` s; the series replace those logged before. Returns
         the assignment."""
         return log_frames(self.rec, targets, expressive, keyframes, sources, times, self.hand, self.rig, self.cfg,
-                          self.series, show_times)  # fmt: skip
+                          self.versions, show_times)  # fmt: skip
 
     def log_show(self, show: Show) -> np.ndarray:
         """The planned show on ``show_time`` (:func:`studio.review.rig3d.log_show`); returns the backdrop shadows."""
-        return log_show(self.rec, self.hand, self.rig, show, self.cfg, self._tree)
+        return log_show(self.rec, self.hand, self.rig, show, self.cfg, self._tree, versions=self.versions)
 
     def log_playback(self, result: Any, rate_hz: float | None = None) -> float:
         """A finished playback's commanded vs measured angles (:func:`studio.review.playback.log_playback`),
         replacing the last playback's."""
-        return log_playback(self.rec, result, rate_hz, self.series)
+        return log_playback(self.rec, result, rate_hz, self.versions)
 
     def playback_hook(self, joint_names: Sequence[str] | None = None) -> PlaybackSampleLog:
         """The player's ``on_sample(t, commanded, measured)`` hook streaming here; ``joint_names``: the player's

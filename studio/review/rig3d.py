@@ -32,6 +32,7 @@ from studio.review.blueprint import (
     set_time,
     time_column,
 )
+from studio.review.series import VersionedLog
 from studio.review.sheets import tint
 from studio.sim.hand import Hand
 from studio.sim.shadow import Rig, ShadowRenderer
@@ -137,23 +138,25 @@ def log_show(
     cfg: RigReview | None = None,
     tree: UrdfTree | None = None,
     renderer: ShadowRenderer | None = None,
+    versions: VersionedLog | None = None,
 ) -> np.ndarray:
     """The planned ``show`` on ``show_time``: the hand at every sample (mounted at the show's roll), the keyframe
     markers, and the backdrop textured with the rendered shadow of the show's pose every ``1/cfg.show_hz`` s, as
-    that mount casts it. Returns the shadows ``(K, R, R)`` uint8 put on the backdrop, R = ``cfg.texture``, at
-    :func:`show_instants`."""
+    that mount casts it. The show's log lines replace the last show's through ``versions`` (the recording's;
+    :mod:`studio.review.series`). Returns the shadows ``(K, R, R)`` uint8 put on the backdrop, R = ``cfg.texture``,
+    at :func:`show_instants`."""
     cfg = cfg or RigReview()
     tree = tree or urdf_tree(hand)
     rig = rig.with_roll(show.roll)
     renderer = renderer or ShadowRenderer(hand, rig.with_resolution(cfg.texture))
     log_mount(rec, hand, show.roll)
     log_poses(rec, hand, tree, SHOW_TIME, show.times, show.positions)
-    set_time(rec, show_time=float(show.times[0]))
-    rec.log(SHOW_LOG, rr.TextLog(f"show {show.title!r}: {len(show.times)} samples, {show.duration:.2f} s"))
+    lines = [(float(show.times[0]), f"show {show.title!r}: {len(show.times)} samples, {show.duration:.2f} s")]
     for m in show.keyframes:
-        set_time(rec, show_time=float(m.t))
         where = "" if m.source_frame is None else f" (source frame {m.source_frame})"
-        rec.log(SHOW_LOG, rr.TextLog(f"keyframe at {m.t:.3f} s{where}{', held' if m.hold else ''}"))
+        lines.append((float(m.t), f"keyframe at {m.t:.3f} s{where}{', held' if m.hold else ''}"))
+    at = np.array([t for t, _ in lines])
+    (versions or VersionedLog(rec)).text(SHOW_LOG, [time_column(SHOW_TIME, at)], [line for _, line in lines])
     instants = show_instants(show, cfg.show_hz)
     shadows = renderer.render(show.sample(instants), check=False)
     for t, shadow in zip(instants, shadows):

@@ -1,13 +1,14 @@
-"""Scalar series that a later version replaces in the viewer: each frame's loss after a keyframe is optimised again,
-which keyframe each frame plays after the keyframes change, the servo angles of the latest playback.
+"""What a review logs whole and logs again after every edit, each version replacing the last in the viewer: each
+frame's loss after a keyframe is optimised again, which keyframe each frame plays, the keyframes' and the show's
+log lines, the servo angles of the latest playback.
 
-Rerun keeps every row ever logged, and its plots draw every row of the range in view, averaging rows that share a
-time: a frame's loss logged as 0.2 and, after an edit, as 0.8 is drawn at 0.5 (seen in the viewer), so a series
-logged again at the same times showed neither version. :class:`ScalarSeries` logs version 0 of a series at its
-path and version n at ``PATH/vN``, and hides the version before by logging an empty ``Scalars`` to it as static
-data, which shadows every row that entity has on every timeline (a static ``Clear`` does not: the plot still draws
-them). Each version carries the series' name for the legend (``total``, not ``v3``) and one colour, the same in
-every version. A recording read back names the version on show: :func:`studio.review.readback.shown_series`.
+Rerun keeps every row ever logged. Its plots draw every row of the range in view and average rows that share a
+time: a frame's loss logged as 0.2 and, after an edit, as 0.8 was drawn at 0.5 (seen in the viewer); its text log
+lists every row, so each edit repeated every keyframe's line. :class:`VersionedLog` logs version 0 of an entity at
+its path and version n at ``PATH/vN``, and hides the version before by logging its archetype ``cleared()`` as
+static data, which shadows every row that entity has on every timeline (a static ``Clear`` does not: the plot still
+draws them). A series keeps its legend name (``total``, not ``v3``) and one colour in every version. A recording read
+back names the version on show: :func:`studio.review.readback.shown_series`.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ PALETTE = (
 
 
 def version_path(path: str, version: int) -> str:
-    """The entity of ``version`` of the series at ``path``: the path itself for version 0, ``PATH/vN`` after."""
+    """The entity of ``version`` of what is logged at ``path``: the path itself for version 0, ``PATH/vN`` after."""
     return path if version == 0 else f"{path}/v{version}"
 
 
@@ -40,40 +41,53 @@ def series_colour(path: str) -> tuple[int, int, int]:
     return PALETTE[zlib.crc32(path.encode()) % len(PALETTE)]
 
 
-class ScalarSeries:
-    """The scalar series of one recording, each sent whole and replacing its previous version (module doc).
+class VersionedLog:
+    """The entities of one recording that are logged whole, each version replacing the last (module doc).
 
     Not thread-safe: one logger owns it (a :class:`~studio.review.recording.ProjectRecording` and its callers)."""
 
     def __init__(self, rec: rr.RecordingStream):
         self.rec = rec
-        self._last: dict[str, tuple[int, bool]] = {}  # path → (its last version, whether that one has rows)
+        self._last: dict[str, tuple[int, type | None]] = {}  # path → (its last version, its archetype; None: no rows)
 
     def paths(self) -> list[str]:
-        """The paths of every series sent so far (shown or hidden)."""
+        """The paths of everything logged so far (shown or hidden)."""
         return list(self._last)
 
     def shown(self, path: str) -> str | None:
-        """The entity of the version of ``path`` on show (None: none sent, or the last one had no rows)."""
-        version, drawn = self._last.get(path, (-1, False))
-        return version_path(path, version) if drawn else None
+        """The entity of the version of ``path`` on show (None: none logged, or the last one had no rows)."""
+        version, kind = self._last.get(path, (-1, None))
+        return version_path(path, version) if kind is not None else None
 
-    def send(
+    def _next(self, path: str, kind: type, rows: int) -> str | None:
+        """Hide the version of ``path`` on show and name the next (None when it has no rows: nothing is shown)."""
+        previous, (version, shown_kind) = self.shown(path), self._last.get(path, (-1, None))
+        if previous is not None:
+            self.rec.log(previous, shown_kind.cleared(), static=True)
+        self._last[path] = (version + 1, kind if rows else None)
+        return version_path(path, version + 1) if rows else None
+
+    def scalars(
         self, path: str, indexes: Sequence[rr.TimeColumn], values: np.ndarray, name: str | None = None
     ) -> str | None:
         """The series at ``path``: ``values (T,)`` at the times of ``indexes`` (one ``rr.TimeColumn`` per timeline,
-        each ``(T,)``), hiding its previous version; ``name`` for the legend (default: the path's last part).
+        each ``(T,)``), replacing its last version; ``name`` for the legend (default: the path's last part).
         Returns the entity written (None when ``values`` is empty: the series is then hidden)."""
         values = np.asarray(values, dtype=np.float64).reshape(-1)
-        previous = self.shown(path)
-        if previous is not None:
-            self.rec.log(previous, rr.Scalars(np.zeros(0)), static=True)
-        version = self._last.get(path, (-1, False))[0] + 1
-        self._last[path] = (version, len(values) > 0)
-        if not len(values):
-            return None
-        entity = version_path(path, version)
-        label = name or path.rstrip("/").rpartition("/")[2]
-        self.rec.log(entity, rr.SeriesLines(names=label, colors=[series_colour(path)]), static=True)
-        self.rec.send_columns(entity, indexes=list(indexes), columns=rr.Scalars.columns(scalars=values))
+        entity = self._next(path, rr.Scalars, len(values))
+        if entity is not None:
+            label = name or path.rstrip("/").rpartition("/")[2]
+            self.rec.log(entity, rr.SeriesLines(names=label, colors=[series_colour(path)]), static=True)
+            self.rec.send_columns(entity, indexes=list(indexes), columns=rr.Scalars.columns(scalars=values))
+        return entity
+
+    def text(
+        self, path: str, indexes: Sequence[rr.TimeColumn], lines: Sequence[str], level: str = "INFO"
+    ) -> str | None:
+        """The log lines at ``path``: ``lines (T,)`` at the times of ``indexes``, replacing the last version's.
+        Returns the entity written (None when there are no lines)."""
+        entity = self._next(path, rr.TextLog, len(lines))
+        if entity is not None:
+            columns = rr.TextLog.columns(text=list(lines), level=[level] * len(lines))
+            self.rec.send_columns(entity, indexes=list(indexes), columns=columns)
         return entity
