@@ -25,6 +25,7 @@ from studio.review.blueprint import time_column
 from studio.review.frames import KeyframeReview
 from studio.review.readback import read_recording, scalar_series, shown_series
 from studio.review.recording import ProjectRecording
+from studio.review.rig3d import RigReview, show_instants
 from studio.review.series import PALETTE, VersionedLog, series_colour
 from studio.sim.hand import load_hand
 
@@ -104,6 +105,38 @@ def test_the_keyframe_and_show_lines_are_those_of_the_last_log(tmp_path):
     assert "keyframe 1 (id 1): frame 5" in keyframes[1] and "no result yet" in keyframes[1]
     assert lines("/log/show")[0].startswith("show 'second'") and len(lines("/log/show")) == 1 + len(show.keyframes)
     assert "TextLog:text" in rec["/log/keyframes"]["static_columns"]  # the first log's lines: hidden
+
+
+def test_a_shorter_show_ends_on_its_last_pose_and_the_same_show_is_not_logged_again(tmp_path):
+    hand = load_hand()
+    poses = np.repeat(hand.rest_pose()[None], 3, axis=0)
+    poses[:, 0] = [0.0, 0.3, -0.3]  # the wrist turns: collision-free, within the servos' reach
+    longer = plan_show(hand, Keyframes.at([0.0, 1.0, 3.0], poses), title="longer").show
+    shorter = plan_show(hand, Keyframes.at([0.0, 1.0], poses[:2]), title="shorter").show
+    joint = f"/world/pose/{hand.joint_names[0]}"
+    with ProjectRecording(path=tmp_path / "r.rrd") as review:
+        review.log_show(longer)
+        review.log_show(shorter)
+        review.log_show(shorter)  # unchanged: nothing is logged
+    rec = read_recording(tmp_path / "r.rrd")
+    latest: dict[int, tuple] = {}  # show time (ns) → the transform logged last at that time (latest-at's answer)
+    count = 0
+    for batch in rec[joint]["batches"]:
+        if "show_time" in batch.schema.names:
+            times = batch.column("show_time").cast("int64").to_pylist()
+            quats = batch.column("Transform3D:quaternion").to_pylist()
+            count += len(times)
+            latest.update((t, tuple(np.round(q[0], 9))) for t, q in zip(times, quats))
+    logged = np.unique(np.round(np.r_[longer.times, show_instants(longer, RigReview().show_hz)], 9))
+    assert count == len(longer.times) + len(shorter.times) + int(np.sum(logged > shorter.times[-1] + 1e-9))
+    end = latest[int(round(shorter.times[-1] * 1e9))]
+    beyond = [t for t in latest if t > shorter.times[-1] * 1e9 + 1]
+    assert beyond and all(latest[t] == end for t in beyond)  # the longer show's later poses no longer show
+    before_end = int(round(shorter.times[len(shorter.times) // 2] * 1e9))
+    assert latest[before_end] != end  # (the joint does move: the check above can fail)
+    backdrops = [t for b in rec["/world/backdrop"]["batches"] if "show_time" in b.schema.names
+                 for t in b.column("show_time").cast("int64").to_pylist()]  # fmt: skip
+    assert max(backdrops) == int(round(longer.times[-1] * 1e9))  # the bare end of the longer show is covered too
 
 
 def test_the_losses_follow_the_show_on_show_time(tmp_path):

@@ -31,11 +31,21 @@ import rerun as rr
 
 from studio.errors import StudioError
 from studio.motion.show import Show
-from studio.review.blueprint import FRAME, project_blueprint
+from studio.review.blueprint import BACKDROP, FRAME, SHOW_TIME, project_blueprint, set_time
 from studio.review.frames import JobProgressLog, KeyframeReview, log_frames
 from studio.review.notebook_viewer import DEFAULT_HEIGHT, NotebookViewerError, notebook_viewer
 from studio.review.playback import PlaybackSampleLog, log_playback
-from studio.review.rig3d import RigReview, log_mount, log_rig, log_show, urdf_tree
+from studio.review.rig3d import (
+    RigReview,
+    backdrop,
+    log_mount,
+    log_poses,
+    log_rig,
+    log_show,
+    same_show,
+    show_instants,
+    urdf_tree,
+)
 from studio.review.series import VersionedLog
 from studio.review.show_frames import log_show_frames
 from studio.sim.hand import Hand, load_hand
@@ -137,6 +147,8 @@ class ProjectRecording:
         self.rec.set_sinks(*sinks, default_blueprint=self.blueprint)
         self._tree = urdf_tree(self.hand)
         self._show_times: np.ndarray | None = None  # the show times the frames' images were last logged at
+        self._shown_show: tuple[Show, np.ndarray] | None = None  # the show logged last and its backdrop shadows
+        self._show_rows = np.zeros(0)  # (K,) s: every show time a pose or a backdrop was logged at
         self.versions = VersionedLog(self.rec)  # what is logged whole, each version replacing the last
         log_rig(self.rec, self.hand, self.rig, self.cfg)
         self.closed = False
@@ -158,8 +170,26 @@ class ProjectRecording:
                           self.versions, show_times)  # fmt: skip
 
     def log_show(self, show: Show) -> np.ndarray:
-        """The planned show on ``show_time`` (:func:`studio.review.rig3d.log_show`); returns the backdrop shadows."""
-        return log_show(self.rec, self.hand, self.rig, show, self.cfg, self._tree, versions=self.versions)
+        """The planned show on ``show_time`` (:func:`studio.review.rig3d.log_show`); returns the backdrop shadows.
+        The show logged last is not logged again (the notebook logs the project after every edit); after a shorter
+        show, every time an earlier show was logged at beyond its end shows its last pose and shadow (Rerun shows
+        the latest row at or before the time in view, which there was the earlier show's)."""
+        if self._shown_show is not None and same_show(self._shown_show[0], show):
+            return self._shown_show[1]
+        shadows = log_show(self.rec, self.hand, self.rig, show, self.cfg, self._tree, versions=self.versions)
+        end = float(show.times[-1])
+        tail = self._show_rows[self._show_rows > end + 1e-9]
+        if len(tail):
+            log_poses(self.rec, self.hand, self._tree, SHOW_TIME, tail, np.repeat(show.positions[-1:], len(tail), 0))
+            last = backdrop(self.rig.with_roll(show.roll), shadows[-1])
+            for t in tail:
+                set_time(self.rec, show_time=float(t))
+                self.rec.log(BACKDROP, last)
+            self.rec.reset_time()
+        rows = np.r_[self._show_rows, show.times, show_instants(show, self.cfg.show_hz)]
+        self._show_rows = np.unique(np.round(rows, 9))  # ns: a sample and a backdrop instant are one time
+        self._shown_show = (show, shadows)
+        return shadows
 
     def log_playback(self, result: Any, rate_hz: float | None = None) -> float:
         """A finished playback's commanded vs measured angles (:func:`studio.review.playback.log_playback`),

@@ -130,6 +130,15 @@ def show_instants(show: Show, hz: float) -> np.ndarray:
     return t + float(show.times[0])
 
 
+def same_show(a: Show, b: Show) -> bool:
+    """Whether two shows put the same hand at the same poses and times, with the same markers, roll and title
+    (what :func:`log_show` draws)."""
+    if a is b:
+        return True
+    same_arrays = np.array_equal(a.times, b.times) and np.array_equal(a.positions, b.positions)
+    return same_arrays and (a.roll, a.title, a.keyframes) == (b.roll, b.title, b.keyframes)
+
+
 def log_show(
     rec: rr.RecordingStream,
     hand: Hand,
