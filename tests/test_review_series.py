@@ -1,7 +1,8 @@
 """What a review logs whole, each version replacing the last (studio.review.series), read back from real recordings,
 and drawn by Rerun's own web viewer in a real headless Chromium: a frame's loss logged again after an edit shows the
 new value only, never the average of the two that Rerun draws for rows sharing a time; the keyframes' and the
-show's log lines are not repeated by every edit."""
+show's log lines are not repeated by every edit; after the keyframes or the show change, no time shows what an
+earlier log put there."""
 
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ from studio.cli.lab import free_port
 from studio.motion.plan import Keyframes, plan_show
 from studio.review.blueprint import time_column
 from studio.review.frames import KeyframeReview
-from studio.review.readback import read_recording, scalar_series, shown_series
+from studio.review.readback import ordered_rows, read_recording, scalar_series, shown_series
 from studio.review.recording import ProjectRecording
 from studio.review.rig3d import RigReview, show_instants
 from studio.review.series import PALETTE, VersionedLog, series_colour
@@ -119,14 +120,10 @@ def test_a_shorter_show_ends_on_its_last_pose_and_the_same_show_is_not_logged_ag
         review.log_show(shorter)
         review.log_show(shorter)  # unchanged: nothing is logged
     rec = read_recording(tmp_path / "r.rrd")
-    latest: dict[int, tuple] = {}  # show time (ns) → the transform logged last at that time (latest-at's answer)
-    count = 0
-    for batch in rec[joint]["batches"]:
-        if "show_time" in batch.schema.names:
-            times = batch.column("show_time").cast("int64").to_pylist()
-            quats = batch.column("Transform3D:quaternion").to_pylist()
-            count += len(times)
-            latest.update((t, tuple(np.round(q[0], 9))) for t, q in zip(times, quats))
+    rows = ordered_rows(rec, joint, "show_time")
+    count = len(rows)
+    # show time (ns) → the transform logged last at that time (latest-at's answer)
+    latest = {r["t"]: tuple(np.round(r["Transform3D:quaternion"][0], 9)) for r in rows}
     logged = np.unique(np.round(np.r_[longer.times, show_instants(longer, RigReview().show_hz)], 9))
     assert count == len(longer.times) + len(shorter.times) + int(np.sum(logged > shorter.times[-1] + 1e-9))
     end = latest[int(round(shorter.times[-1] * 1e9))]
@@ -137,6 +134,44 @@ def test_a_shorter_show_ends_on_its_last_pose_and_the_same_show_is_not_logged_ag
     backdrops = [t for b in rec["/world/backdrop"]["batches"] if "show_time" in b.schema.names
                  for t in b.column("show_time").cast("int64").to_pylist()]  # fmt: skip
     assert max(backdrops) == int(round(longer.times[-1] * 1e9))  # the bare end of the longer show is covered too
+
+
+def latest_at(rec: dict, entity: str, frame: int) -> dict | None:
+    """The row of ``entity`` that Rerun shows at ``frame``: the one logged last at the latest frame ≤ it."""
+    before = [r for r in ordered_rows(rec, entity, "frame") if r["t"] <= frame]
+    return before[-1] if before else None
+
+
+def test_after_the_keyframes_change_every_frame_shows_its_own_keyframe(tmp_path):
+    def shadow(k: int) -> np.ndarray:
+        out = np.zeros((16, 16), np.uint8)
+        out[k, :] = 1
+        return out
+
+    first = [
+        KeyframeReview(0, 0, tuple(range(5)), shadow=shadow(0)),
+        KeyframeReview(1, 5, (5, 6, 7, 8, 9), shadow=shadow(1)),
+    ]
+    then = [
+        KeyframeReview(0, 0, (0, 1, 2), shadow=shadow(0)),
+        KeyframeReview(2, 3, tuple(range(3, N)), shadow=shadow(2)),
+    ]
+    with ProjectRecording(path=tmp_path / "r.rrd") as review:
+        review.log_frames(MASKS, MASKS, first)
+        review.log_frames(MASKS, MASKS, then)  # "Apply τ": frame 5 no longer starts a keyframe
+        review.log_frames(MASKS[:6], MASKS[:6], [replace(then[1], members=(3, 4, 5))])  # frames 6-9 are gone
+    rec = read_recording(tmp_path / "r.rrd")
+
+    def shown(frame: int) -> int | None:  # the row of the rendered shadow Rerun shows: which keyframe's
+        row = latest_at(rec, "/images/rendered", frame)
+        if row is None or not row.get("Image:buffer"):
+            return None
+        image = np.asarray(row["Image:buffer"][0], np.uint8)
+        return int(np.argmin(image.reshape(16, 16, -1)[..., 0].min(axis=1)))  # the dark row
+
+    assert [shown(k) for k in range(6)] == [None, None, None, 2, 2, 2]  # frames 0-2 are in no keyframe now
+    assert all(latest_at(rec, "/images/target", k).get("Image:buffer") is None for k in range(6, N))  # cleared
+    assert latest_at(rec, "/images/target", 5).get("Image:buffer")
 
 
 def test_the_losses_follow_the_show_on_show_time(tmp_path):

@@ -6,14 +6,13 @@ then."""
 from __future__ import annotations
 
 import numpy as np
-import pyarrow as pa
 import pytest
 from test_show_preview import give_results, horse, plan
 
 from studio.project.preview import preview_inputs
 from studio.project.preview_clock import preview_clock
 from studio.review.frames import KeyframeReview
-from studio.review.readback import read_recording
+from studio.review.readback import ordered_rows, read_recording
 from studio.review.recording import ProjectRecording
 from studio.review.rig3d import RigReview
 from studio.review.sheets import display
@@ -24,18 +23,11 @@ pytestmark = pytest.mark.slow
 
 
 def images_on(recording: dict, entity: str, timeline: str = "show_time") -> list[tuple[float, np.ndarray | None]]:
-    """``(time s, image bytes or None for a Clear)`` of every row of ``entity`` on ``timeline``, in time order (rows
-    at one time in the order logged: the last one is what a viewer shows)."""
-    out = []
-    for batch in recording[entity]["batches"]:
-        if timeline not in batch.schema.names:
-            continue
-        times = batch.column(timeline).cast(pa.int64()).to_pylist()
-        buffers = (
-            batch.column("Image:buffer").to_pylist() if "Image:buffer" in batch.schema.names else [None] * len(times)
-        )
-        out += [(t / 1e9, None if b is None else np.asarray(b[0], np.uint8)) for t, b in zip(times, buffers)]
-    return sorted(out, key=lambda r: r[0])  # stable: the order logged within a time
+    """``(time s, image bytes or None for a Clear)`` of every row of ``entity`` on ``timeline``, in the order Rerun
+    resolves them (rows at one time in the order logged: the last one is what a viewer shows)."""
+    rows = ordered_rows(recording, entity, timeline)
+    return [(r["t"] / 1e9, None if r.get("Image:buffer") is None else np.asarray(r["Image:buffer"][0], np.uint8))
+            for r in rows]  # fmt: skip
 
 
 def shown_at(rows: list[tuple[float, np.ndarray | None]], t: float) -> np.ndarray | None:

@@ -90,6 +90,7 @@ def log_frames(
     cfg: RigReview | None = None,
     versions: VersionedLog | None = None,
     show_times: np.ndarray | None = None,
+    logged: FramesLogged | None = None,
 ) -> np.ndarray:
     """Frames ``targets (N, S, S)`` (1 = shadow) with their ``expressive (N, S, S)`` masks, RGB ``sources`` (one
     ``(H, W, 3)`` image or None per frame) when given, and their ``keyframes`` (first-appearance order), on ``frame``
@@ -97,30 +98,47 @@ def log_frames(
     rig shows each frame's keyframe pose, the backdrop its shadow (rendered at ``cfg.texture`` when a keyframe has a
     pose but no shadow). The keyframe per frame, the losses and the keyframes' lines are logged whole
     (:func:`log_frame_series`, through ``versions``: the recording's, so that they replace what it logged before;
-    given ``show_times (N,)``, on ``show_time`` too). Returns the assignment ``(N,)`` (:func:`assignment`)."""
+    given ``show_times (N,)``, on ``show_time`` too). ``logged``: what earlier calls logged on this recording (the
+    recording's; updated): a keyframe's images, pose and backdrop are logged where the frame's keyframe changes *and*
+    wherever an earlier call logged them, since Rerun would otherwise show an earlier keyframe's row from there on
+    (after the keyframes change, frames 5-9 kept showing the old keyframe of frame 5); frames an earlier call had
+    beyond the last one now are cleared. Returns the assignment ``(N,)`` (:func:`assignment`)."""
     n = len(targets)
     if expressive.shape != targets.shape:
         raise ValueError(f"expressive masks {expressive.shape} must match the targets {targets.shape}")
     which = assignment(keyframes, n)
-    changed = set(_changes(which).tolist())
+    logged = logged or FramesLogged()
+    at = sorted(set(_changes(which).tolist()) | {k for k in logged.keyframe_rows if k < n})
     for k in range(n):
         set_time(rec, frame=k)
         rec.log(TARGET, rr.Image(display(targets[k])))
         rec.log(EXPRESSIVE, rr.Image(tint(targets[k], expressive[k])))
         if sources is not None and sources[k] is not None:
             rec.log(SOURCE, rr.Image(np.asarray(sources[k])))
+    for k in at:  # a keyframe without them (or a frame in none) clears the previous keyframe's images
+        set_time(rec, frame=k)
         kf = keyframes[which[k]] if which[k] >= 0 else None
-        if kf is None:
-            continue
-        if k in changed:  # a keyframe without them clears the previous keyframe's images
-            rec.log(RENDERED, rr.Clear(recursive=False) if kf.shadow is None else rr.Image(display(kf.shadow)))
-            predicted = kf.self_model
-            rec.log(SELF_MODEL, rr.Clear(recursive=False) if predicted is None else rr.Image(display(predicted)))
+        for entity, image in ((RENDERED, None if kf is None else kf.shadow),
+                              (SELF_MODEL, None if kf is None else kf.self_model)):  # fmt: skip
+            rec.log(entity, rr.Clear(recursive=False) if image is None else rr.Image(display(image)))
+    for k in range(n, logged.count):  # frames an earlier call had and this one has not
+        set_time(rec, frame=k)
+        for entity in (TARGET, EXPRESSIVE, SOURCE, RENDERED, SELF_MODEL, BACKDROP):
+            rec.log(entity, rr.Clear(recursive=False))
     log_frame_series(versions or VersionedLog(rec), keyframes, which, times, show_times)
     if hand is not None and rig is not None:
-        _log_frame_rig(rec, hand, rig, keyframes, which, cfg or RigReview())
+        _log_frame_rig(rec, hand, rig, keyframes, which, cfg or RigReview(), at)
+    logged.count, logged.keyframe_rows = n, set(at)
     rec.reset_time()
     return which
+
+
+@dataclass
+class FramesLogged:
+    """What :func:`log_frames` logged on one recording so far (it updates it)."""
+
+    count: int = 0  # frames logged
+    keyframe_rows: set[int] = field(default_factory=set)  # frames where keyframe images, pose and backdrop were logged
 
 
 def log_frame_series(
@@ -173,10 +191,10 @@ def _keyframe_line(pos: int, kf: KeyframeReview, times: np.ndarray | None) -> st
     return f"keyframe {pos} (id {kf.id}): frame {kf.representative}{at}, {plays}; {result}{stale}"
 
 
-def _log_frame_rig(rec, hand: Hand, rig: Rig, keyframes, which: np.ndarray, cfg: RigReview) -> None:
-    """The hand and the backdrop on ``frame`` where the frame's keyframe changes: its pose and shadow, or the rest
-    pose and a bare backdrop for a keyframe not optimised yet."""
-    at = _changes(which).tolist()
+def _log_frame_rig(rec, hand: Hand, rig: Rig, keyframes, which: np.ndarray, cfg: RigReview, at: list[int]) -> None:
+    """The hand and the backdrop on ``frame`` at the frames ``at`` (where the frame's keyframe changes, and where
+    they were logged before): its pose and shadow, or the rest pose and a bare backdrop for a keyframe not optimised
+    yet or a frame in none."""
     if not at:
         return
     chosen = [keyframes[which[k]] if which[k] >= 0 else None for k in at]

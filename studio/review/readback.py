@@ -68,3 +68,20 @@ def shown_series(recording: dict[str, dict], path: str, column: str = "Scalars:s
                                key=lambda e: int(e[len(path) + 2:]))  # fmt: skip
     shown = [e for e in versions if e in recording and column not in recording[e]["static_columns"]]
     return shown[-1] if shown else None
+
+
+def ordered_rows(recording: dict[str, dict], entity: str, timeline: str) -> list[dict]:
+    """Every row of ``entity`` that has ``timeline``, as ``{column: value, "t": time}`` (steps, or nanoseconds on a
+    duration timeline), in the order Rerun resolves "the latest row at or before a time": by time, then by row id
+    (a time-ordered TUID, big-endian: the row logged last at a time comes last). The chunks of a file read back are
+    in no set order, so the order of its batches says nothing about which row was logged last."""
+    import pyarrow as pa
+
+    out = []
+    for batch in recording.get(entity, {}).get("batches", []):
+        if timeline not in batch.schema.names:
+            continue
+        columns = {n: batch.column(n).to_pylist() for n in batch.schema.names if n != timeline}
+        times = batch.column(timeline).cast(pa.int64()).to_pylist()
+        out += [{"t": t, **{n: v[i] for n, v in columns.items()}} for i, t in enumerate(times) if t is not None]
+    return sorted(out, key=lambda r: (r["t"], r["rerun.controls.RowId"]))

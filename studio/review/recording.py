@@ -32,7 +32,7 @@ import rerun as rr
 from studio.errors import StudioError
 from studio.motion.show import Show
 from studio.review.blueprint import BACKDROP, FRAME, SHOW_TIME, project_blueprint, set_time
-from studio.review.frames import JobProgressLog, KeyframeReview, log_frames
+from studio.review.frames import FramesLogged, JobProgressLog, KeyframeReview, log_frames
 from studio.review.notebook_viewer import DEFAULT_HEIGHT, NotebookViewerError, notebook_viewer
 from studio.review.playback import PlaybackSampleLog, log_playback
 from studio.review.rig3d import (
@@ -149,6 +149,7 @@ class ProjectRecording:
         self._show_times: np.ndarray | None = None  # the show times the frames' images were last logged at
         self._shown_show: tuple[Show, np.ndarray] | None = None  # the show logged last and its backdrop shadows
         self._show_rows = np.zeros(0)  # (K,) s: every show time a pose or a backdrop was logged at
+        self._frames_logged = FramesLogged()  # where the frames' keyframe images were logged (log_frames)
         self.versions = VersionedLog(self.rec)  # what is logged whole, each version replacing the last
         log_rig(self.rec, self.hand, self.rig, self.cfg)
         self.closed = False
@@ -167,7 +168,7 @@ class ProjectRecording:
         series on ``show_time`` too given ``show_times (N,)`` s; the series replace those logged before. Returns
         the assignment."""
         return log_frames(self.rec, targets, expressive, keyframes, sources, times, self.hand, self.rig, self.cfg,
-                          self.versions, show_times)  # fmt: skip
+                          self.versions, show_times, self._frames_logged)  # fmt: skip
 
     def log_show(self, show: Show) -> np.ndarray:
         """The planned show on ``show_time`` (:func:`studio.review.rig3d.log_show`); returns the backdrop shadows.
