@@ -113,8 +113,8 @@ def log_frames(
         set_time(rec, frame=k)
         rec.log(TARGET, rr.Image(display(targets[k])))
         rec.log(EXPRESSIVE, rr.Image(tint(targets[k], expressive[k])))
-        if sources is not None and sources[k] is not None:
-            rec.log(SOURCE, rr.Image(np.asarray(sources[k])))
+        if sources is not None:  # a frame without one clears an earlier log's
+            rec.log(SOURCE, rr.Clear(recursive=False) if sources[k] is None else rr.Image(np.asarray(sources[k])))
     for k in at:  # a keyframe without them (or a frame in none) clears the previous keyframe's images
         set_time(rec, frame=k)
         kf = keyframes[which[k]] if which[k] >= 0 else None
