@@ -150,11 +150,11 @@ def test_after_the_keyframes_change_every_frame_shows_its_own_keyframe(tmp_path)
 
     first = [
         KeyframeReview(0, 0, tuple(range(5)), shadow=shadow(0)),
-        KeyframeReview(1, 5, (5, 6, 7, 8, 9), shadow=shadow(1)),
+        KeyframeReview(1, 5, (5, 6, 7, 8, 9), theta=np.r_[0.3, np.zeros(20)], shadow=shadow(1)),  # the wrist turned
     ]
     then = [
         KeyframeReview(0, 0, (0, 1, 2), shadow=shadow(0)),
-        KeyframeReview(2, 3, tuple(range(3, N)), shadow=shadow(2)),
+        KeyframeReview(2, 3, tuple(range(3, N)), theta=np.r_[-0.3, np.zeros(20)], shadow=shadow(2)),
     ]
     with ProjectRecording(path=tmp_path / "r.rrd") as review:
         review.log_frames(MASKS, MASKS, first)
@@ -172,6 +172,9 @@ def test_after_the_keyframes_change_every_frame_shows_its_own_keyframe(tmp_path)
     assert [shown(k) for k in range(6)] == [None, None, None, 2, 2, 2]  # frames 0-2 are in no keyframe now
     assert all(latest_at(rec, "/images/target", k).get("Image:buffer") is None for k in range(6, N))  # cleared
     assert latest_at(rec, "/images/target", 5).get("Image:buffer")
+    wrist = {k: latest_at(rec, "/world/pose/wrist", k)["Transform3D:quaternion"] for k in (0, 3, 5, 8)}
+    assert wrist[3] == wrist[5] != wrist[0]  # keyframe 2's turned wrist, not keyframe 1's other turn at frame 5
+    assert wrist[8] == wrist[0]  # frames 6-9 are gone: the hand rests there, as in frames 0-2 (in no keyframe)
 
 
 def test_the_losses_follow_the_show_on_show_time(tmp_path):

@@ -127,7 +127,10 @@ def log_frames(
             rec.log(entity, rr.Clear(recursive=False))
     log_frame_series(versions or VersionedLog(rec), keyframes, which, times, show_times)
     if hand is not None and rig is not None:
+        gone = np.arange(n, logged.count)  # ... where the hand rests
         _log_frame_rig(rec, hand, rig, keyframes, which, cfg or RigReview(), at)
+        if len(gone):
+            log_poses(rec, hand, urdf_tree(hand), FRAME, gone, np.repeat(hand.rest_pose()[None], len(gone), 0))
     logged.count, logged.keyframe_rows = n, set(at)
     rec.reset_time()
     return which
