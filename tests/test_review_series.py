@@ -244,37 +244,48 @@ def test_rerun_draws_the_new_losses_not_the_average_of_both_versions(tmp_path):
     server = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     total, base = series_colour("loss/frame/total"), series_colour("loss/frame/base")
     assert total == PALETTE[0] and base == PALETTE[1]  # blue and orange: apart from everything else drawn
+
+    def total_reach(rgb: np.ndarray) -> tuple[float | None, dict]:
+        """How far the total's line reaches along the base's (which spans every frame: the plot's width), in the
+        layout's left column (the plots); None while either line is not drawn."""
+        left = rgb[:, : int(rgb.shape[1] * 0.6)]
+        _, bx = np.nonzero(near(left, total))
+        _, ox = np.nonzero(near(left, base))
+        facts = {"total_px": int(len(bx)), "base_px": int(len(ox))}
+        if len(ox) <= 100 or len(bx) <= 30:
+            return None, facts
+        x0, x1 = np.percentile(ox, 2), np.percentile(ox, 98)
+        return float((np.percentile(bx, 98) - x0) / (x1 - x0)), facts
+
+    # total is drawn over frames 0-4 only (4/9 of the width), at 0.8; averaged with the old version it would reach
+    # the last frame (at 0.5 over frames 0-4, 0.2 after). Polled until so (a viewer still loading draws less).
+    reach, facts, rgb = None, {}, None
     try:
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_FLAGS)
             page = browser.new_page(viewport={"width": 1400, "height": 900})
             url = f"http://127.0.0.1:{web}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc}%2Fproxy"
-            deadline, rgb, seen = time.monotonic() + 90, None, False
+            deadline, opened = time.monotonic() + 90, False
             while time.monotonic() < deadline:
                 try:
-                    page.goto(url) if not seen else None
-                    seen = True
-                    page.wait_for_timeout(2000)
+                    if not opened:
+                        page.goto(url)
+                        opened = True
+                    page.wait_for_timeout(700)
                     png = page.screenshot()
                 except Exception:  # the server is still starting
-                    seen = False
+                    opened = False
                     page.wait_for_timeout(500)
                     continue
                 rgb = cv2.cvtColor(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
-                left = rgb[:, : int(rgb.shape[1] * 0.6)]  # the plots are in the layout's left column
-                if near(left, base).sum() > 100 and near(left, total).sum() > 30:
+                reach, facts = total_reach(rgb)
+                if reach is not None and 0.3 < reach < 0.6:
                     break
             browser.close()
     finally:
         stop_group(server)
     assert rgb is not None, "the web viewer never answered"
     cv2.imwrite(str(tmp_path / "loss_plot.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-    left = rgb[:, : int(rgb.shape[1] * 0.6)]
-    _, bx = np.nonzero(near(left, total))
-    oy, ox = np.nonzero(near(left, base))
-    assert len(ox) > 100 and len(bx) > 30, f"the loss plot draws no base or total line ({tmp_path / 'loss_plot.png'})"
-    x0, x1 = np.percentile(ox, 2), np.percentile(ox, 98)  # base spans every frame: the plot's width
-    reach = (np.percentile(bx, 98) - x0) / (x1 - x0)
-    # total is drawn over frames 0-4 only (4/9 of the width), at 0.8; averaged with the old version it would reach
-    # the last frame (at 0.5 over frames 0-4, 0.2 after)
-    assert 0.3 < reach < 0.6, f"total reaches {reach:.2f} of the plot's width ({tmp_path / 'loss_plot.png'})"
+    where = tmp_path / "loss_plot.png"
+    assert reach is not None, f"the loss plot draws no base or total line: {facts} ({where})"
+    assert 0.3 < reach < 0.6, f"total reaches {reach:.2f} of the plot's width ({where})"
