@@ -177,6 +177,45 @@ def test_after_the_keyframes_change_every_frame_shows_its_own_keyframe(tmp_path)
     assert wrist[8] == wrist[0]  # frames 6-9 are gone: the hand rests there, as in frames 0-2 (in no keyframe)
 
 
+def test_a_frame_image_is_logged_again_only_when_it_changed(tmp_path):
+    edited_masks = MASKS.copy()
+    edited_masks[7, 0, 0] = 1  # one frame's target edited (the expressive mask is the same array here)
+    with ProjectRecording(path=tmp_path / "r.rrd") as review:
+        review.log_frames(MASKS, MASKS, BEFORE)
+        review.log_frames(MASKS, MASKS, BEFORE)  # nothing changed
+        review.log_frames(edited_masks, edited_masks, BEFORE)
+    rec = read_recording(tmp_path / "r.rrd")
+    for entity in ("/images/target", "/images/expressive"):
+        rows = ordered_rows(rec, entity, "frame")
+        assert sorted(r["t"] for r in rows) == sorted([*range(N), 7]), entity  # frame 7 twice, every other frame once
+        assert latest_at(rec, entity, 7)["Image:buffer"] != rows[0]["Image:buffer"]  # the edited one shows
+
+
+def test_a_project_logged_again_unchanged_adds_no_images_and_no_show(tmp_path):
+    from test_show_preview import give_results, horse, plan
+
+    hand = load_hand()
+    project = horse(tmp_path)
+    give_results(project, hand)
+    plan(project, hand)
+    counted = ("/images/target", "/images/expressive", "/images/rendered", "/world/backdrop", "/world/pose/wrist")
+
+    def rows(path: Path) -> dict[str, int]:
+        rec = read_recording(path)
+        return {e: len(ordered_rows(rec, e, "frame")) + len(ordered_rows(rec, e, "show_time")) for e in counted}
+
+    with ProjectRecording(path=tmp_path / "once.rrd") as review:
+        review.log_project(project)
+    with ProjectRecording(path=tmp_path / "twice.rrd") as review:
+        review.log_project(project)
+        review.log_project(project)  # what the notebook does after an edit that changed nothing shown
+    once, twice = rows(tmp_path / "once.rrd"), rows(tmp_path / "twice.rrd")
+    assert all(once.values()) and twice == {
+        e: n + len(project.keyframes) * (e in ("/images/rendered", "/world/backdrop", "/world/pose/wrist"))
+        for e, n in once.items()
+    }  # only the keyframe rows on frame are logged again (an earlier keyframe's there would show otherwise)
+
+
 def test_the_losses_follow_the_show_on_show_time(tmp_path):
     show_times = np.linspace(0.0, 2.25, N) + np.r_[np.zeros(5), np.full(5, 0.5)]  # a stretched transition at 5
     rec = edited(tmp_path / "r.rrd", show_times)

@@ -14,6 +14,7 @@ after another) with its live best shadow.
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -109,11 +110,13 @@ def log_frames(
     which = assignment(keyframes, n)
     logged = logged or FramesLogged()
     at = sorted(set(_changes(which).tolist()) | {k for k in logged.keyframe_rows if k < n})
-    for k in range(n):
+    for k in range(n):  # each image only when it differs from what an earlier call logged at that frame
         set_time(rec, frame=k)
-        rec.log(TARGET, rr.Image(display(targets[k])))
-        rec.log(EXPRESSIVE, rr.Image(tint(targets[k], expressive[k])))
-        if sources is not None:  # a frame without one clears an earlier log's
+        if logged.fresh(TARGET, k, targets[k]):
+            rec.log(TARGET, rr.Image(display(targets[k])))
+        if logged.fresh(EXPRESSIVE, k, targets[k], expressive[k]):
+            rec.log(EXPRESSIVE, rr.Image(tint(targets[k], expressive[k])))
+        if sources is not None and logged.fresh(SOURCE, k, sources[k]):  # a frame without one clears an earlier's
             rec.log(SOURCE, rr.Clear(recursive=False) if sources[k] is None else rr.Image(np.asarray(sources[k])))
     for k in at:  # a keyframe without them (or a frame in none) clears the previous keyframe's images
         set_time(rec, frame=k)
@@ -125,6 +128,7 @@ def log_frames(
         set_time(rec, frame=k)
         for entity in (TARGET, EXPRESSIVE, SOURCE, RENDERED, SELF_MODEL, BACKDROP):
             rec.log(entity, rr.Clear(recursive=False))
+            logged.images.pop((entity, k), None)
     log_frame_series(versions or VersionedLog(rec), keyframes, which, times, show_times)
     if hand is not None and rig is not None:
         gone = np.arange(n, logged.count)  # ... where the hand rests
@@ -142,6 +146,25 @@ class FramesLogged:
 
     count: int = 0  # frames logged
     keyframe_rows: set[int] = field(default_factory=set)  # frames where keyframe images, pose and backdrop were logged
+    images: dict[tuple[str, int], bytes] = field(default_factory=dict)  # (entity, frame) → digest of what it shows
+
+    def fresh(self, entity: str, frame: int, *arrays: np.ndarray | None) -> bool:
+        """Whether the image made from ``arrays`` differs from the one logged at ``frame`` on ``entity`` (then it
+        is remembered as logged): the notebook logs the whole project after every edit, most frames unchanged."""
+        key = digest(*arrays)
+        if self.images.get((entity, frame)) == key:
+            return False
+        self.images[(entity, frame)] = key
+        return True
+
+
+def digest(*arrays: np.ndarray | None) -> bytes:
+    """A 16-byte digest of ``arrays`` (their dtypes, shapes and bytes; None counts as one value)."""
+    h = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        a = None if a is None else np.ascontiguousarray(a)
+        h.update(b"none" if a is None else f"{a.dtype}{a.shape}".encode() + a.tobytes())
+    return h.digest()
 
 
 def log_frame_series(

@@ -31,21 +31,11 @@ import rerun as rr
 
 from studio.errors import StudioError
 from studio.motion.show import Show
-from studio.review.blueprint import BACKDROP, FRAME, SHOW_TIME, project_blueprint, set_time
-from studio.review.frames import FramesLogged, JobProgressLog, KeyframeReview, log_frames
+from studio.review.blueprint import FRAME, project_blueprint
+from studio.review.frames import FramesLogged, JobProgressLog, KeyframeReview, digest, log_frames
 from studio.review.notebook_viewer import DEFAULT_HEIGHT, NotebookViewerError, notebook_viewer
 from studio.review.playback import PlaybackSampleLog, log_playback
-from studio.review.rig3d import (
-    RigReview,
-    backdrop,
-    log_mount,
-    log_poses,
-    log_rig,
-    log_show,
-    same_show,
-    show_instants,
-    urdf_tree,
-)
+from studio.review.rig3d import RigReview, ShowsLogged, log_mount, log_rig, log_show, urdf_tree
 from studio.review.series import VersionedLog
 from studio.review.show_frames import log_show_frames
 from studio.sim.hand import Hand, load_hand
@@ -147,8 +137,8 @@ class ProjectRecording:
         self.rec.set_sinks(*sinks, default_blueprint=self.blueprint)
         self._tree = urdf_tree(self.hand)
         self._show_times: np.ndarray | None = None  # the show times the frames' images were last logged at
-        self._shown_show: tuple[Show, np.ndarray] | None = None  # the show logged last and its backdrop shadows
-        self._show_rows = np.zeros(0)  # (K,) s: every show time a pose or a backdrop was logged at
+        self._show_frames_key: bytes | None = None  # the digest of what the frames' images on show_time came from
+        self._shows_logged = ShowsLogged()  # the show logged last (log_show)
         self._frames_logged = FramesLogged()  # where the frames' keyframe images were logged (log_frames)
         self.versions = VersionedLog(self.rec)  # what is logged whole, each version replacing the last
         log_rig(self.rec, self.hand, self.rig, self.cfg)
@@ -171,26 +161,10 @@ class ProjectRecording:
                           self.versions, show_times, self._frames_logged)  # fmt: skip
 
     def log_show(self, show: Show) -> np.ndarray:
-        """The planned show on ``show_time`` (:func:`studio.review.rig3d.log_show`); returns the backdrop shadows.
-        The show logged last is not logged again (the notebook logs the project after every edit); after a shorter
-        show, every time an earlier show was logged at beyond its end shows its last pose and shadow (Rerun shows
-        the latest row at or before the time in view, which there was the earlier show's)."""
-        if self._shown_show is not None and same_show(self._shown_show[0], show):
-            return self._shown_show[1]
-        shadows = log_show(self.rec, self.hand, self.rig, show, self.cfg, self._tree, versions=self.versions)
-        end = float(show.times[-1])
-        tail = self._show_rows[self._show_rows > end + 1e-9]
-        if len(tail):
-            log_poses(self.rec, self.hand, self._tree, SHOW_TIME, tail, np.repeat(show.positions[-1:], len(tail), 0))
-            last = backdrop(self.rig.with_roll(show.roll), shadows[-1])
-            for t in tail:
-                set_time(self.rec, show_time=float(t))
-                self.rec.log(BACKDROP, last)
-            self.rec.reset_time()
-        rows = np.r_[self._show_rows, show.times, show_instants(show, self.cfg.show_hz)]
-        self._show_rows = np.unique(np.round(rows, 9))  # ns: a sample and a backdrop instant are one time
-        self._shown_show = (show, shadows)
-        return shadows
+        """The planned show on ``show_time`` (:func:`studio.review.rig3d.log_show`: logged once, replacing the last
+        show logged); returns the backdrop shadows."""
+        return log_show(self.rec, self.hand, self.rig, show, self.cfg, self._tree, versions=self.versions,
+                        logged=self._shows_logged)  # fmt: skip
 
     def log_playback(self, result: Any, rate_hz: float | None = None) -> float:
         """A finished playback's commanded vs measured angles (:func:`studio.review.playback.log_playback`),
@@ -247,9 +221,12 @@ class ProjectRecording:
         which = self.log_frames(targets, masks, keyframes, sources, times, show_times)
         if project.show is not None:
             self.log_show(project.show)
-            if show_times is not None:
+            key = digest(targets, masks, which, show_times, *[kf.shadow for kf in keyframes],
+                         *[kf.self_model for kf in keyframes], *(sources or []))  # fmt: skip
+            if show_times is not None and key != self._show_frames_key:  # (not again when nothing changed)
                 self._show_times = log_show_frames(self.rec, targets, masks, keyframes, which, show_times, sources,
                                                    self._show_times)  # fmt: skip
+                self._show_frames_key = key
         return which
 
     # ---------------------------------------------------------------- viewers and the end

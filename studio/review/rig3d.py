@@ -11,7 +11,7 @@ as columns. The backdrop is the rig's square image window as a textured quad who
 from __future__ import annotations
 
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -130,6 +130,15 @@ def show_instants(show: Show, hz: float) -> np.ndarray:
     return t + float(show.times[0])
 
 
+@dataclass
+class ShowsLogged:
+    """What :func:`log_show` logged on one recording so far (it updates it)."""
+
+    show: Show | None = None  # the show logged last
+    shadows: np.ndarray | None = None  # (K, R, R) uint8 its backdrop shadows
+    rows: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (M,) s every show time a pose or backdrop has
+
+
 def same_show(a: Show, b: Show) -> bool:
     """Whether two shows put the same hand at the same poses and times, with the same markers, roll and title
     (what :func:`log_show` draws)."""
@@ -148,12 +157,19 @@ def log_show(
     tree: UrdfTree | None = None,
     renderer: ShadowRenderer | None = None,
     versions: VersionedLog | None = None,
+    logged: ShowsLogged | None = None,
 ) -> np.ndarray:
     """The planned ``show`` on ``show_time``: the hand at every sample (mounted at the show's roll), the keyframe
     markers, and the backdrop textured with the rendered shadow of the show's pose every ``1/cfg.show_hz`` s, as
     that mount casts it. The show's log lines replace the last show's through ``versions`` (the recording's;
-    :mod:`studio.review.series`). Returns the shadows ``(K, R, R)`` uint8 put on the backdrop, R = ``cfg.texture``,
-    at :func:`show_instants`."""
+    :mod:`studio.review.series`). ``logged``: what earlier calls logged on this recording (the recording's; updated):
+    the show logged last is not logged again (the notebook logs the project after every edit), and after a shorter
+    show every time an earlier show reached shows this one's last pose and shadow (Rerun shows the latest row at or
+    before the time in view, which there was the earlier show's). Returns the shadows ``(K, R, R)`` uint8 put on
+    the backdrop, R = ``cfg.texture``, at :func:`show_instants`."""
+    logged = logged or ShowsLogged()
+    if logged.show is not None and same_show(logged.show, show):
+        return logged.shadows
     cfg = cfg or RigReview()
     tree = tree or urdf_tree(hand)
     rig = rig.with_roll(show.roll)
@@ -171,5 +187,13 @@ def log_show(
     for t, shadow in zip(instants, shadows):
         set_time(rec, show_time=float(t))
         rec.log(BACKDROP, backdrop(rig, shadow))
+    tail = logged.rows[logged.rows > float(show.times[-1]) + 1e-9]  # an earlier, longer show's times
+    if len(tail):
+        log_poses(rec, hand, tree, SHOW_TIME, tail, np.repeat(show.positions[-1:], len(tail), 0))
+        for t in tail:
+            set_time(rec, show_time=float(t))
+            rec.log(BACKDROP, backdrop(rig, shadows[-1]))
     rec.reset_time()
+    rows = np.unique(np.round(np.r_[logged.rows, show.times, instants], 9))  # ns: a sample and an instant are one
+    logged.show, logged.shadows, logged.rows = show, shadows, rows
     return shadows
