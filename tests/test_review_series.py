@@ -302,7 +302,7 @@ def test_rerun_draws_the_new_losses_not_the_average_of_both_versions(tmp_path):
     try:
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_FLAGS)
-            page = browser.new_page(viewport={"width": 1400, "height": 900})
+            page = browser.new_page(viewport={"width": 800, "height": 520})
             url = f"http://127.0.0.1:{web}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc}%2Fproxy"
             deadline, opened = time.monotonic() + 90, False
             while time.monotonic() < deadline:
