@@ -61,7 +61,9 @@ class PlaybackSampleLog:
 
     ``joint_names`` name the columns in the player's order (its calibration's ``joint_names``). ``measured`` is the
     player's latest read-back of each joint (joints are read in turn, so a value may be a few ticks old). Called on
-    the player's thread; about 0.6 ms a tick for 21 joints."""
+    the player's thread; about 0.6 ms a tick for 21 joints. It streams to the plain ``servo/<joint>/…`` paths, the
+    first version of :func:`log_playback`'s (:mod:`studio.review.series`): a second finished playback logged to the
+    same recording hides what it streamed."""
 
     def __init__(self, rec: rr.RecordingStream, joint_names: Sequence[str]):
         self.rec = rec
