@@ -33,7 +33,7 @@ class BusConfig:
 
     port: str  # serial device, e.g. /dev/ttyUSB0 or the emulator's /dev/pts/N
     baud: int = C.BAUD  # bus rate, 8N1
-    timeout_s: float | None = None  # s to wait for one answer (None: 0.02 on a port, 0.2 on the emulator) (0, 10]
+    timeout_s: float | None = None  # s to wait for one answer (unset: 0.02 on a port, 0.2 on the emulator) (0, 10]
     retries: int = 2  # extra attempts after a failed read [0, 20]
     echo: bool = False  # the adapter echoes what the host sends (single-wire adapters); discarded here
     batch_size: int = 7  # servos per batch of moves (paper)

@@ -211,7 +211,7 @@ def add_config_flags(
         if aliases and name in aliases:
             names.append("--" + (prefix + aliases[name]).replace("_", "-"))
         where = f", from {base_name}" if base is not None and base_name else ""
-        shown = "on" if default is True else "off" if default is False else default
+        shown = "on" if default is True else "off" if default is False else "unset" if default is None else default
         text = f"{doc.help or name.replace('_', ' ')} (default: {shown}{where}".replace("%", "%%")
         text += f"; {rng.describe()})" if rng else ")"
         common = {"dest": dest_of(prefix, name), "default": default, "help": text}
