@@ -249,6 +249,37 @@ def test_a_second_playback_replaces_the_first(tmp_path):
     assert shown_series(rec, "/servo/thumb_cmc/measured") is None  # never read back in either playback
 
 
+def test_a_later_job_follows_every_earlier_job_on_opt_step(tmp_path):
+    from studio.jobs import Job, JobQueue
+
+    def engine(steps: int, shade: int):
+        def run(report, cancel):  # a search, then a refinement, reporting as the engine does
+            for step in range(steps + 1):
+                report("search", step, steps, 1.0 / (1 + step), np.full((4, 4), shade, np.uint8))
+            report("refine", 1, 1, 0.01)
+            return "done"
+
+        return run
+
+    told: list[tuple[int, int]] = []
+    with ProjectRecording(path=tmp_path / "r.rrd") as review, JobQueue() as queue:
+        queue.subscribe(review.job_progress(on_step=lambda event, step: told.append((event.job_id, step))))
+        assert queue.run(Job("imitate-keyframe", engine(30, 1))).result == "done"
+        assert queue.run(Job("imitate-keyframe", engine(5, 0))).result == "done"  # shorter, after it
+    rec = read_recording(tmp_path / "r.rrd")
+
+    def steps(job: int) -> list[int]:  # every opt_step a job's losses were drawn at (search, refine, apply)
+        return sorted(t for e in rec if e.startswith(f"/loss/job{job}_") for t, _ in scalar_series(rec, e))
+
+    first, second = steps(1), steps(2)
+    assert first[:31] == list(range(31)) and len(first) == 33  # its stages follow one another
+    assert second == list(range(first[-1] + 1, first[-1] + 9))  # one past the first job's end, not from 0 again
+    assert [s for j, s in told if j == 2][-1] == second[-1]  # the viewer is sent where the second job ended
+    shadows = ordered_rows(rec, "/images/rendered", "opt_step")
+    # scrubbing past the second job's end shows its own last shadow (lit: it cast none), not the first job's
+    assert shadows[-1]["t"] == second[5] and np.asarray(shadows[-1]["Image:buffer"]).min() == 255  # its own
+
+
 # ---------------------------------------------------------------- what the viewer draws
 def stop_group(proc: subprocess.Popen) -> None:
     """End ``proc`` and every process it started (its own session's group): SIGTERM, then SIGKILL after 10 s."""
