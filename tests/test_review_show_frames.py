@@ -68,10 +68,10 @@ def test_rows_of_an_earlier_plan_show_the_frame_played_now(tmp_path):
     keyframes = [KeyframeReview(0, 0, (0, 1, 2), shadow=targets[0])]
     path = tmp_path / "r.rrd"
     with ProjectRecording(path, rig=Rig(resolution=16), cfg=RigReview(texture=8)) as review:
-        first = log_show_frames(review.rec, targets, targets, keyframes, np.zeros(3, int), np.array([0.0, 1.0, 2.0]))
-        later = log_show_frames(review.rec, targets, targets, keyframes, np.zeros(3, int), np.array([0.0, 1.5, 3.0]),
-                                before=first)  # fmt: skip
-    assert later.tolist() == [0.0, 1.0, 1.5, 2.0, 3.0]
+        logged = log_show_frames(review.rec, targets, targets, keyframes, np.zeros(3, int), np.array([0.0, 1.0, 2.0]))
+        log_show_frames(review.rec, targets, targets, keyframes, np.zeros(3, int), np.array([0.0, 1.5, 3.0]),
+                        logged=logged)  # fmt: skip
+    assert logged.times.tolist() == [0.0, 1.0, 1.5, 2.0, 3.0]
     rows = images_on(read_recording(path), "/images/target")
     for t, k in ((0.5, 0), (1.2, 0), (1.7, 1), (2.5, 1), (3.2, 2)):  # the second plan: frame 1 from 1.5 s, 2 from 3
         assert np.array_equal(shown_at(rows, t), display(targets[k]).ravel()), (t, k)

@@ -32,12 +32,12 @@ import rerun as rr
 from studio.errors import StudioError
 from studio.motion.show import Show
 from studio.review.blueprint import FRAME, project_blueprint
-from studio.review.frames import FramesLogged, JobProgressLog, KeyframeReview, digest, log_frames
+from studio.review.frames import FramesLogged, JobProgressLog, KeyframeReview, log_frames
 from studio.review.notebook_viewer import DEFAULT_HEIGHT, NotebookViewerError, notebook_viewer
 from studio.review.playback import PlaybackSampleLog, log_playback
 from studio.review.rig3d import RigReview, ShowsLogged, log_mount, log_rig, log_show, urdf_tree
 from studio.review.series import VersionedLog
-from studio.review.show_frames import log_show_frames
+from studio.review.show_frames import ShowFramesLogged, log_show_frames
 from studio.sim.hand import Hand, load_hand
 from studio.sim.roll import turn
 from studio.sim.shadow import Rig
@@ -136,8 +136,7 @@ class ProjectRecording:
         self.rec = rr.RecordingStream(APPLICATION, recording_id=recording_id)
         self.rec.set_sinks(*sinks, default_blueprint=self.blueprint)
         self._tree = urdf_tree(self.hand)
-        self._show_times: np.ndarray | None = None  # the show times the frames' images were last logged at
-        self._show_frames_key: bytes | None = None  # the digest of what the frames' images on show_time came from
+        self._show_frames_logged = ShowFramesLogged()  # the frames' images on show_time (log_show_frames)
         self._shows_logged = ShowsLogged()  # the show logged last (log_show)
         self._frames_logged = FramesLogged()  # where the frames' keyframe images were logged (log_frames)
         self.versions = VersionedLog(self.rec)  # what is logged whole, each version replacing the last
@@ -221,12 +220,9 @@ class ProjectRecording:
         which = self.log_frames(targets, masks, keyframes, sources, times, show_times)
         if project.show is not None:
             self.log_show(project.show)
-            key = digest(targets, masks, which, show_times, *[kf.shadow for kf in keyframes],
-                         *[kf.self_model for kf in keyframes], *(sources or []))  # fmt: skip
-            if show_times is not None and key != self._show_frames_key:  # (not again when nothing changed)
-                self._show_times = log_show_frames(self.rec, targets, masks, keyframes, which, show_times, sources,
-                                                   self._show_times)  # fmt: skip
-                self._show_frames_key = key
+            if show_times is not None:
+                log_show_frames(self.rec, targets, masks, keyframes, which, show_times, sources,
+                                self._show_frames_logged)  # fmt: skip
         return which
 
     # ---------------------------------------------------------------- viewers and the end
