@@ -23,7 +23,8 @@ On ``show_time`` the images are those of the frame a current show plays then (:m
     servo/<joint>/commanded, servo/<joint>/measured   rad   play_time, show_time
 
 ``frames/keyframe``, ``loss/frame/*``, ``log/keyframes``, ``log/show`` and a finished playback's ``servo/*`` are
-logged whole, each version replacing the last (:mod:`studio.review.series`: version n > 0 at ``PATH/vN``).
+logged whole, each version replacing the last (:mod:`studio.review.series`: version n > 0 at ``PATH/vN``; a version
+equal to the one on show is not logged).
 """
 
 from __future__ import annotations

@@ -109,7 +109,9 @@ def log_frames(
         raise ValueError(f"expressive masks {expressive.shape} must match the targets {targets.shape}")
     which = assignment(keyframes, n)
     logged = logged or FramesLogged()
-    at = sorted(set(_changes(which).tolist()) | {k for k in logged.keyframe_rows if k < n})
+    rows = sorted(set(_changes(which).tolist()) | {k for k in logged.keyframe_rows if k < n})
+    drawn = {k: _keyframe_row(keyframes[which[k]] if which[k] >= 0 else None, rig) for k in rows}
+    at = [k for k in rows if logged.keyframe_rows.get(k) != drawn[k]]  # only where it would draw something else
     for k in range(n):  # each image only when it differs from what an earlier call logged at that frame
         set_time(rec, frame=k)
         if logged.fresh(TARGET, k, targets[k]):
@@ -135,7 +137,9 @@ def log_frames(
         _log_frame_rig(rec, hand, rig, keyframes, which, cfg or RigReview(), at)
         if len(gone):
             log_poses(rec, hand, urdf_tree(hand), FRAME, gone, np.repeat(hand.rest_pose()[None], len(gone), 0))
-    logged.count, logged.keyframe_rows = n, set(at)
+    cleared = {k: b"cleared" for k in range(n, logged.count)}  # logged again when such a frame comes back
+    logged.keyframe_rows = {**{k: v for k, v in logged.keyframe_rows.items() if k >= n}, **cleared, **drawn}
+    logged.count = n
     rec.reset_time()
     return which
 
@@ -145,7 +149,8 @@ class FramesLogged:
     """What :func:`log_frames` logged on one recording so far (it updates it)."""
 
     count: int = 0  # frames logged
-    keyframe_rows: set[int] = field(default_factory=set)  # frames where keyframe images, pose and backdrop were logged
+    # frame → a digest of the keyframe images, pose and backdrop logged there (where a frame's keyframe changes)
+    keyframe_rows: dict[int, bytes] = field(default_factory=dict)
     images: dict[tuple[str, int], bytes] = field(default_factory=dict)  # (entity, frame) → digest of what it shows
 
     def fresh(self, entity: str, frame: int, *arrays: np.ndarray | None) -> bool:
@@ -156,6 +161,15 @@ class FramesLogged:
             return False
         self.images[(entity, frame)] = key
         return True
+
+
+def _keyframe_row(kf: KeyframeReview | None, rig: Rig | None) -> bytes:
+    """A digest of what :func:`log_frames` draws at a row where ``kf`` starts to play (None: a frame in none)."""
+    if kf is None:
+        return b"none"
+    pose = None if kf.theta is None else np.asarray(kf.theta, np.float64)
+    roll = np.array([np.nan if rig is None else rig.roll])
+    return digest(kf.shadow, kf.self_model, pose, roll)
 
 
 def digest(*arrays: np.ndarray | None) -> bytes:

@@ -7,12 +7,15 @@ time: a frame's loss logged as 0.2 and, after an edit, as 0.8 was drawn at 0.5 (
 lists every row, so each edit repeated every keyframe's line. :class:`VersionedLog` logs version 0 of an entity at
 its path and version n at ``PATH/vN``, and hides the version before by logging its archetype ``cleared()`` as
 static data, which shadows every row that entity has on every timeline (a static ``Clear`` does not: the plot still
-draws them). A series keeps its legend name (``total``, not ``v3``) and one colour in every version. A recording read
-back names the version on show: :func:`studio.review.readback.shown_series`.
+draws them). A series keeps its legend name (``total``, not ``v3``) and one colour in every version. What equals the
+version on show is not logged again (the notebook logs the whole project after every edit, most of it unchanged, and
+each version is one more entity in the viewer's streams). A recording read back names the version on show:
+:func:`studio.review.readback.shown_series`.
 """
 
 from __future__ import annotations
 
+import hashlib
 import zlib
 from collections.abc import Sequence
 
@@ -49,6 +52,7 @@ class VersionedLog:
     def __init__(self, rec: rr.RecordingStream):
         self.rec = rec
         self._last: dict[str, tuple[int, type | None]] = {}  # path → (its last version, its archetype; None: no rows)
+        self._content: dict[str, bytes] = {}  # path → a digest of what its last version holds
 
     def paths(self) -> list[str]:
         """The paths of everything logged so far (shown or hidden)."""
@@ -58,6 +62,19 @@ class VersionedLog:
         """The entity of the version of ``path`` on show (None: none logged, or the last one had no rows)."""
         version, kind = self._last.get(path, (-1, None))
         return version_path(path, version) if kind is not None else None
+
+    def _same(self, path: str, indexes: Sequence[rr.TimeColumn], *content: object) -> bool:
+        """Whether the version of ``path`` logged last holds exactly this (then nothing is logged); else remember it."""
+        h = hashlib.blake2b(digest_size=16)
+        for column in indexes:
+            h.update(f"{column.timeline_name()}:".encode() + np.asarray(column.as_arrow_array()).tobytes())
+        for item in content:
+            h.update(np.ascontiguousarray(item).tobytes() if isinstance(item, np.ndarray) else repr(item).encode())
+        key = h.digest()
+        if self._content.get(path) == key:
+            return True
+        self._content[path] = key
+        return False
 
     def _next(self, path: str, kind: type, rows: int) -> str | None:
         """Hide the version of ``path`` on show and name the next (None when it has no rows: nothing is shown)."""
@@ -72,8 +89,10 @@ class VersionedLog:
     ) -> str | None:
         """The series at ``path``: ``values (T,)`` at the times of ``indexes`` (one ``rr.TimeColumn`` per timeline,
         each ``(T,)``), replacing its last version; ``name`` for the legend (default: the path's last part).
-        Returns the entity written (None when ``values`` is empty: the series is then hidden)."""
+        Returns the entity on show (None when ``values`` is empty: the series is then hidden)."""
         values = np.asarray(values, dtype=np.float64).reshape(-1)
+        if self._same(path, indexes, "scalars", values, name):
+            return self.shown(path)
         entity = self._next(path, rr.Scalars, len(values))
         if entity is not None:
             label = name or path.rstrip("/").rpartition("/")[2]
@@ -85,7 +104,9 @@ class VersionedLog:
         self, path: str, indexes: Sequence[rr.TimeColumn], lines: Sequence[str], level: str = "INFO"
     ) -> str | None:
         """The log lines at ``path``: ``lines (T,)`` at the times of ``indexes``, replacing the last version's.
-        Returns the entity written (None when there are no lines)."""
+        Returns the entity on show (None when there are no lines)."""
+        if self._same(path, indexes, "text", list(lines), level):
+            return self.shown(path)
         entity = self._next(path, rr.TextLog, len(lines))
         if entity is not None:
             columns = rr.TextLog.columns(text=list(lines), level=[level] * len(lines))
