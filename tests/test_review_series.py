@@ -76,6 +76,17 @@ def test_a_series_sent_again_hides_its_last_version_and_keeps_its_name_and_colou
     assert [v for _, v in scalar_series(rec, keyframe, "frame")] == [0] * 5 + [1] * 5
 
 
+def test_the_keyframe_of_each_frame_is_a_dot_per_frame_and_the_losses_lines(tmp_path):
+    rec = edited(tmp_path / "r.rrd")
+    keyframe = shown_series(rec, "/frames/keyframe")
+
+    def styles(entity: str) -> set[str]:  # the archetypes of its static style rows
+        return {n.partition(":")[0] for b in rec[entity]["batches"] for n in b.schema.names if n.startswith("Series")}
+
+    assert styles(keyframe) == {"SeriesPoints"}  # a step drawn as a line would slope between keyframes 0 and 1
+    assert styles(shown_series(rec, "/loss/frame/total")) == {"SeriesLines"}
+
+
 def test_a_series_with_nothing_left_is_hidden(tmp_path):
     with ProjectRecording(path=tmp_path / "r.rrd") as review:
         versions = VersionedLog(review.rec)

@@ -12,7 +12,7 @@ Entities (images in display convention: dark shadow on a light backdrop)::
     images/rendered    its rendered shadow (a job's live best shadow on opt_step)   frame, opt_step, show_time
 
 On ``show_time`` the images are those of the frame a current show plays then (:mod:`studio.review.show_frames`).
-    frames/keyframe    which keyframe each frame plays (its position in first-appearance order)   frame, show_time
+    frames/keyframe    which keyframe each frame plays (its position in first-appearance order; dots)   frame, show_time
     loss/frame/*       the loss of each frame's keyframe result   frame, show_time
     loss/<job>/<stage> a job's best loss so far                   opt_step
     log/*              keyframes, jobs, the show, playbacks (text)

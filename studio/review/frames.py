@@ -202,7 +202,7 @@ def log_frame_series(
         cols = [time_column(FRAME, rows)]
         return cols if show_times is None else [*cols, time_column(SHOW_TIME, np.asarray(show_times, float)[rows])]
 
-    versions.scalars(KEYFRAME_OF_FRAME, index(np.arange(n)), which.astype(np.float64), name="keyframe")
+    versions.scalars(KEYFRAME_OF_FRAME, index(np.arange(n)), which.astype(np.float64), name="keyframe", points=True)
     losses: dict[str, list[tuple[int, float]]] = {}
     for k in range(n):
         if which[k] >= 0:

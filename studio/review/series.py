@@ -85,18 +85,28 @@ class VersionedLog:
         return version_path(path, version + 1) if rows else None
 
     def scalars(
-        self, path: str, indexes: Sequence[rr.TimeColumn], values: np.ndarray, name: str | None = None
+        self,
+        path: str,
+        indexes: Sequence[rr.TimeColumn],
+        values: np.ndarray,
+        name: str | None = None,
+        points: bool = False,
     ) -> str | None:
         """The series at ``path``: ``values (T,)`` at the times of ``indexes`` (one ``rr.TimeColumn`` per timeline,
-        each ``(T,)``), replacing its last version; ``name`` for the legend (default: the path's last part).
+        each ``(T,)``), replacing its last version; ``name`` for the legend (default: the path's last part);
+        ``points``: drawn as a dot per row, no line between them (a value that steps, such as a keyframe number,
+        would otherwise be drawn sloping between two frames).
         Returns the entity on show (None when ``values`` is empty: the series is then hidden)."""
         values = np.asarray(values, dtype=np.float64).reshape(-1)
-        if self._same(path, indexes, "scalars", values, name):
+        if self._same(path, indexes, "scalars", values, name, points):
             return self.shown(path)
         entity = self._next(path, rr.Scalars, len(values))
         if entity is not None:
             label = name or path.rstrip("/").rpartition("/")[2]
-            self.rec.log(entity, rr.SeriesLines(names=label, colors=[series_colour(path)]), static=True)
+            colour = [series_colour(path)]
+            style = rr.SeriesPoints(names=label, colors=colour, marker_sizes=[2.5]) if points else (
+                rr.SeriesLines(names=label, colors=colour))  # fmt: skip
+            self.rec.log(entity, style, static=True)
             self.rec.send_columns(entity, indexes=list(indexes), columns=rr.Scalars.columns(scalars=values))
         return entity
 
