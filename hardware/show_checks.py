@@ -20,16 +20,17 @@ __all__ = ["MOUNT_TOL_DEG", "check_mount", "check_show_hand"]
 MOUNT_TOL_DEG = 0.5  # a show's roll and the calibration's may differ by this much, degrees
 
 
-def check_mount(show_roll: float, cal: Calibration, path: str | Path | None = None) -> None:
+def check_mount(show_roll: float, cal: Calibration, path: str | Path | None = None, what: str = "show") -> None:
     """Raise :class:`MountMismatch` when ``cal`` records a mount roll other than ``show_roll`` rad (beyond
-    ``MOUNT_TOL_DEG``); a calibration that records none accepts every show."""
+    ``MOUNT_TOL_DEG``); a calibration that records none accepts every show. ``what`` wants the roll, in the
+    message ("show", "live session")."""
     if cal.roll is None:
         return
     want, have = wrap_deg(math.degrees(show_roll)), wrap_deg(math.degrees(cal.roll))
     if abs(wrap_deg(want - have)) > MOUNT_TOL_DEG:
         where = f" ({path})" if path else ""
         raise MountMismatch(
-            f"this show wants the hand mounted at roll {want:+.1f}° but the calibration{where} records the rig at "
+            f"this {what} wants the hand mounted at roll {want:+.1f}° but the calibration{where} records the rig at "
             f"{have:+.1f}°: {mount_text(show_roll)}, then record that roll in the calibration"
         )
 

@@ -4,6 +4,7 @@ the real self-model's renderer, a small real retrieval index, Ruckig online and 
 from __future__ import annotations
 
 import json
+import math
 import threading
 import time
 from pathlib import Path
@@ -12,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from hardware.calibration import load_calibration
+from hardware.calibration import default_calibration, load_calibration, save_calibration
 from hardware.camera import Camera
 from hardware.playback_log import StopReason
 from hardware.session import ServoSession
@@ -212,13 +213,22 @@ def small_index(monkeypatch):
 
 
 def test_the_live_verb_runs_a_file_camera_on_the_emulator(in_process, small_index, frames, tmp_path, hand):
+    rolled = tmp_path / "cal.yaml"  # a rig calibrated with the hand mounted at roll 30°
+    cal = default_calibration(hand)
+    save_calibration(cal.__class__(cal.joints, cal.hand_hash, math.radians(30.0)), rolled)
     out = in_process("live", "--camera", frames, "--emulator", "--record", tmp_path / "rec", "--log",
-                     tmp_path / "live.npz", "--seconds", 2, "--roll", 0, "--quiet")  # fmt: skip
+                     tmp_path / "live.npz", "--seconds", 2, "--calibration", rolled, "--quiet")  # fmt: skip
     assert out.returncode == 0, out.stderr
     summary = json.loads(out.stdout.strip().splitlines()[-1])
     assert summary["stopped"] == "completed" and summary["updates"] >= 3 and summary["latency_p50_ms"] > 0
+    assert summary["roll_deg"] == 30.0 and "rolled 30.0° counter-clockwise" in out.stdout  # the calibration's roll
+    assert "(the calibration's)" in out.stdout
     assert (tmp_path / "live.npz").is_file() and (tmp_path / "rec" / "live.rrd").is_file()
-    assert len(load_keyframes(tmp_path / "rec" / "keyframes.json", hand).times) >= 2
+    kept = load_keyframes(tmp_path / "rec" / "keyframes.json", hand)
+    assert len(kept.times) >= 2 and kept.extra["roll_deg"] == 30.0  # a show planned from it is for that mount
+    refused = in_process("live", "--camera", frames, "--emulator", "--roll", 0, "--calibration", rolled)
+    assert refused.returncode != 0 and "Traceback" not in refused.stderr
+    assert "this live session wants the hand mounted at roll +0.0°" in refused.stderr  # --roll says otherwise
 
 
 @pytest.mark.parametrize(

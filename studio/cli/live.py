@@ -52,6 +52,7 @@ def cmd_live(args: argparse.Namespace) -> int:
     from studio.project.live_config import LiveConfig
     from studio.review.live_record import LiveRecorder
     from studio.sim.hand import load_hand
+    from studio.sim.roll import mount_text
     from studio.targets.live_target import LiveTargetConfig
 
     if not args.emulator and not args.port:
@@ -62,7 +63,7 @@ def cmd_live(args: argparse.Namespace) -> int:
     hand = load_hand()
     cal = load_calibration(args.calibration, hand)
     cfg = config_from_args(args, LiveConfig, hold_torque_on_stop=not args.release_on_stop)
-    check_mount(math.radians(cfg.roll_deg), cal, args.calibration)
+    check_mount(cfg.mount_roll(cal.roll), cal, args.calibration, what="live session")
     pose_cfg = config_from_args(args, LivePoseConfig, prefix="pose-")
     target_cfg = config_from_args(args, LiveTargetConfig, prefix="target-")
     check_not_latched(args.port or "the emulator")  # before the port is opened: nothing to undo
@@ -80,6 +81,8 @@ def cmd_live(args: argparse.Namespace) -> int:
                 print(f"live on the emulator ({session.emulator.port}); Ctrl-C stops safely")
             else:
                 print(f"live on {args.port}; Ctrl-C stops safely")
+            whose = " (the calibration's)" if cfg.roll_deg is None and cal.roll is not None else ""
+            print(f"mount: {mount_text(cfg.mount_roll(cal.roll))}{whose}")
             updates = [status.update] + ([recorder.update] if recorder is not None else [])
             try:
                 result = run_live(

@@ -42,6 +42,7 @@ from studio.imitate.live_pose import LivePose, LivePoser
 from studio.motion.limits import JointLimits
 from studio.project.live_config import LiveConfig
 from studio.project.live_ticks import LiveTicks
+from studio.sim.roll import roll_deg
 from studio.targets.backdrop import BackdropNotFound, find_backdrop
 from studio.targets.live_target import LiveTargetConfig, LiveTargets
 
@@ -87,6 +88,7 @@ class LiveResult:
     seconds: float  # the session's length
     backdrop: bool  # the camera frames were rectified through the backdrop's homography
     error: str = ""  # what the planner or camera met that ended the session early ("" when none)
+    roll: float = 0.0  # rad, the mount roll the poses were chosen for (DESIGN §1)
     extra: dict = field(default_factory=dict)
 
     @property
@@ -110,6 +112,7 @@ class LiveResult:
             "mean_loss": round(float(self.losses.mean()), 4) if len(self.losses) else None,
             "holds": dict(self.holds),
             "backdrop": self.backdrop,
+            "roll_deg": roll_deg(self.roll),
             "error": self.error,
         }
 
@@ -131,7 +134,7 @@ class LiveSession:
             lim.velocity[order], lim.acceleration[order], lim.jerk[order],
         )  # fmt: skip
         self.ticks = LiveTicks(lim, order, PlayerConfig().rate_hz, cfg.speed_scale, cfg.ramp_speed_rad_s)
-        self.roll = float(np.radians(cfg.roll_deg))
+        self.roll = cfg.mount_roll(calibration.roll)
         box = (np.empty(len(order)), np.empty(len(order)))  # the servos' soft limits, in the hand's order
         box[0][order], box[1][order] = lim.lower, lim.upper
         self.poser = LivePoser(imitator.retrieval_index(), imitator.refiner, pose_cfg, roll=self.roll, box=box)
@@ -248,6 +251,7 @@ class LiveSession:
             seconds=time.monotonic() - self.t0,
             backdrop=self.backdrop,
             error=self.error,
+            roll=self.roll,
         )
 
 

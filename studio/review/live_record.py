@@ -14,7 +14,7 @@ servo angles too)::
 
 and, when the session ends, ``DIR/keyframes.json``: the commanded poses thinned to at most ``keyframe_hz`` a
 second (the newest pose of each interval), timed from the first, in the POSES.json form that
-``shadow-studio plan`` reads (each keyframe's loss kept).
+``shadow-studio plan`` reads (each keyframe's loss kept, and the mount roll the poses were chosen for).
 """
 
 from __future__ import annotations
@@ -33,15 +33,19 @@ from studio.review.playback import log_playback
 from studio.review.recording import APPLICATION
 from studio.review.sheets import display
 from studio.sim.hand import Hand
+from studio.sim.roll import file_deg
 
 LIVE_LOSS = f"{LOSS}/live"
 LIVE_LOG = f"{LOG}/live"
 PREVIEW_SIDE = 320  # the camera frame's longer side in the recording, px
 
 
-def keyframes_doc(times: np.ndarray, poses: np.ndarray, losses: np.ndarray, hand: Hand, keyframe_hz: float) -> dict:
+def keyframes_doc(
+    times: np.ndarray, poses: np.ndarray, losses: np.ndarray, hand: Hand, keyframe_hz: float, roll: float = 0.0
+) -> dict:
     """Commanded poses ``(U, 21)`` rad at ``times (U,)`` s → a POSES.json document: the newest pose of each
-    ``1 / keyframe_hz`` interval, times from the first kept one, holding at both ends."""
+    ``1 / keyframe_hz`` interval, times from the first kept one, holding at both ends; ``roll`` rad, the mount roll
+    the poses were chosen for (a show planned from the file is then for that mount)."""
     if not len(times):
         raise ValueError("the session commanded no pose: nothing to keep as keyframes")
     slot = np.floor((np.asarray(times) - times[0]) * keyframe_hz).astype(int)
@@ -52,7 +56,7 @@ def keyframes_doc(times: np.ndarray, poses: np.ndarray, losses: np.ndarray, hand
         for ti, i in zip(t, last, strict=True)
     ]
     frames[0]["hold"] = frames[-1]["hold"] = True
-    return {"title": "live session", "keyframes": frames}
+    return {"title": "live session", "roll_deg": file_deg(roll), "keyframes": frames}
 
 
 class LiveRecorder:
@@ -98,7 +102,7 @@ class LiveRecorder:
         finally:
             self.rec.disconnect()
         if result is not None and result.updates:
-            doc = keyframes_doc(result.times, result.poses, result.losses, self.hand, self.keyframe_hz)
+            doc = keyframes_doc(result.times, result.poses, result.losses, self.hand, self.keyframe_hz, result.roll)
             path = self.folder / "keyframes.json"
             write_text(path, json.dumps(doc, indent=1) + "\n")
             out.append(path)
