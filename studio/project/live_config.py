@@ -13,9 +13,7 @@ __all__ = ["LiveConfig"]
 class LiveConfig:
     """How a live session runs."""
 
-    # the mount's roll about the light axis as the rig is set up, degrees [-180, 180]; unset: the roll the
-    # calibration records (0, upright, when it records none)
-    roll_deg: float | None = None
+    roll_deg: float | None = None  # the mount's roll, degrees (unset: the calibration's; 0 if it has none) [-180, 180]
     speed_scale: float = 1.0  # share of the joints' velocity, acceleration and jerk limits the motion uses (0, 1]
     ramp_speed_rad_s: float = 0.5  # joint speed of the ramp-in from the measured pose to the first target (0, 5]
     max_seconds: float = 0.0  # end the session after this long, s; 0: until stopped or a video file ends [0, 86400]

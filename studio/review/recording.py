@@ -32,7 +32,8 @@ import rerun as rr
 from studio.errors import StudioError
 from studio.motion.show import Show
 from studio.review.blueprint import FRAME, project_blueprint
-from studio.review.frames import FramesLogged, JobProgressLog, KeyframeReview, log_frames
+from studio.review.frames import FramesLogged, KeyframeReview, log_frames
+from studio.review.job_progress import JobProgressLog
 from studio.review.notebook_viewer import DEFAULT_HEIGHT, NotebookViewerError, notebook_viewer
 from studio.review.playback import PlaybackSampleLog, log_playback
 from studio.review.rig3d import RigReview, ShowsLogged, log_mount, log_rig, log_show, urdf_tree
