@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 
 from hardware.calibration import load_calibration
+from hardware.player import PlayerConfig
+from hardware.safety import SafetyConfig
 from studio.cli.main import main
 from studio.motion.show import load_show
 from studio.project.project import Project
@@ -99,14 +101,19 @@ def test_demo_review_holds_every_stage_and_the_played_show(first_run):
     # soft limits (the player clips to the calibration's, a margin inside the URDF's that the planner keeps)
     cal = load_calibration(None, load_hand())
     assert cal.joint_names == show.joint_names
+    step = SafetyConfig().max_speed_rad_s / PlayerConfig().rate_hz  # the player's largest move in one tick, rad
     for j, name in enumerate(show.joint_names):
         commanded = series(rec, f"servo/{name}/commanded", "show_time")
         measured = series(rec, f"servo/{name}/measured", "show_time")
         assert len(commanded) == summary["playback"]["ticks"] and len(measured) > 10
         t = commanded[:, 0]
-        during = (t >= 0) & (t <= show.duration)
+        during = np.flatnonzero((t >= 0) & (t <= show.duration))
         planned = np.clip(show.sample(t[during])[:, j], cal.lower[j], cal.upper[j])
-        assert np.abs(commanded[during, 1] - planned).max() < 1e-6
+        off = np.abs(commanded[during, 1] - planned) > 1e-6
+        # ... except after a tick the OS stalled past (a loaded machine): the player skips to the current tick and
+        # catches up at the step limit, each such command exactly one step from the one before, toward the plan
+        caught_up = np.abs(commanded[during[off], 1] - commanded[during[off] - 1, 1])
+        assert off.mean() < 0.1 and np.allclose(caught_up, step, atol=1e-9), (name, caught_up, step)
         # the emulated servos follow: each read-back lies within the commands of the quarter second before it
         for tm, q in measured:
             recent = commanded[(t >= tm - 0.25) & (t <= tm + 1e-6), 1]
