@@ -13,7 +13,6 @@ A job's progress on ``opt_step``: :mod:`studio.review.job_progress`.
 
 from __future__ import annotations
 
-import hashlib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -38,7 +37,7 @@ from studio.review.blueprint import (
     time_column,
 )
 from studio.review.rig3d import RigReview, backdrop, log_poses, urdf_tree
-from studio.review.series import VersionedLog
+from studio.review.series import VersionedLog, digest
 from studio.review.sheets import display, tint
 from studio.sim.hand import Hand
 from studio.sim.shadow import Rig, ShadowRenderer
@@ -166,15 +165,6 @@ def _keyframe_row(kf: KeyframeReview | None, rig: Rig | None) -> bytes:
     pose = None if kf.theta is None else np.asarray(kf.theta, np.float64)
     roll = np.array([np.nan if rig is None else rig.roll])
     return digest(kf.shadow, kf.self_model, pose, roll)
-
-
-def digest(*arrays: np.ndarray | None) -> bytes:
-    """A 16-byte digest of ``arrays`` (their dtypes, shapes and bytes; None counts as one value)."""
-    h = hashlib.blake2b(digest_size=16)
-    for a in arrays:
-        a = None if a is None else np.ascontiguousarray(a)
-        h.update(b"none" if a is None else f"{a.dtype}{a.shape}".encode() + a.tobytes())
-    return h.digest()
 
 
 def log_frame_series(

@@ -44,6 +44,15 @@ def series_colour(path: str) -> tuple[int, int, int]:
     return PALETTE[zlib.crc32(path.encode()) % len(PALETTE)]
 
 
+def digest(*arrays: np.ndarray | None) -> bytes:
+    """A 16-byte digest of ``arrays`` (their dtypes, shapes and bytes; None counts as one value)."""
+    h = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        a = None if a is None else np.ascontiguousarray(a)
+        h.update(b"none" if a is None else f"{a.dtype}{a.shape}".encode() + a.tobytes())
+    return h.digest()
+
+
 class VersionedLog:
     """The entities of one recording that are logged whole, each version replacing the last (module doc).
 
@@ -63,14 +72,10 @@ class VersionedLog:
         version, kind = self._last.get(path, (-1, None))
         return version_path(path, version) if kind is not None else None
 
-    def _same(self, path: str, indexes: Sequence[rr.TimeColumn], *content: object) -> bool:
+    def _same(self, path: str, indexes: Sequence[rr.TimeColumn], *content: np.ndarray) -> bool:
         """Whether the version of ``path`` logged last holds exactly this (then nothing is logged); else remember it."""
-        h = hashlib.blake2b(digest_size=16)
-        for column in indexes:
-            h.update(f"{column.timeline_name()}:".encode() + np.asarray(column.as_arrow_array()).tobytes())
-        for item in content:
-            h.update(np.ascontiguousarray(item).tobytes() if isinstance(item, np.ndarray) else repr(item).encode())
-        key = h.digest()
+        times = [np.asarray(c.as_arrow_array()) for c in indexes]
+        key = digest(np.array([c.timeline_name() for c in indexes]), *times, *content)
         if self._content.get(path) == key:
             return True
         self._content[path] = key
@@ -98,7 +103,7 @@ class VersionedLog:
         would otherwise be drawn sloping between two frames).
         Returns the entity on show (None when ``values`` is empty: the series is then hidden)."""
         values = np.asarray(values, dtype=np.float64).reshape(-1)
-        if self._same(path, indexes, "scalars", values, name, points):
+        if self._same(path, indexes, np.array(["scalars", name or "", str(points)]), values):
             return self.shown(path)
         entity = self._next(path, rr.Scalars, len(values))
         if entity is not None:
@@ -115,7 +120,7 @@ class VersionedLog:
     ) -> str | None:
         """The log lines at ``path``: ``lines (T,)`` at the times of ``indexes``, replacing the last version's.
         Returns the entity on show (None when there are no lines)."""
-        if self._same(path, indexes, "text", list(lines), level):
+        if self._same(path, indexes, np.array(["text", level, *lines])):
             return self.shown(path)
         entity = self._next(path, rr.TextLog, len(lines))
         if entity is not None:

@@ -18,7 +18,8 @@ import numpy as np
 import rerun as rr
 
 from studio.review.blueprint import EXPRESSIVE, RENDERED, SELF_MODEL, SOURCE, TARGET, set_time
-from studio.review.frames import KeyframeReview, digest
+from studio.review.frames import KeyframeReview
+from studio.review.series import digest
 from studio.review.sheets import display, tint
 from studio.review.video_review import frame_at
 
