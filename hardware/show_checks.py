@@ -15,19 +15,27 @@ from studio.sim.roll import mount_text, wrap_deg
 
 log = logging.getLogger(__name__)
 
-__all__ = ["MOUNT_TOL_DEG", "check_mount", "check_show_hand"]
+__all__ = ["MOUNT_TOL_DEG", "calibrated_roll_conflict", "check_mount", "check_show_hand"]
 
 MOUNT_TOL_DEG = 0.5  # a show's roll and the calibration's may differ by this much, degrees
+
+
+def calibrated_roll_conflict(roll: float, cal: Calibration) -> float | None:
+    """The mount rule every face asks: the roll ``cal`` records, degrees in (-180, 180], when it differs from
+    ``roll`` rad by more than ``MOUNT_TOL_DEG``; None when they agree or the calibration records no roll."""
+    if cal.roll is None:
+        return None
+    have = wrap_deg(math.degrees(cal.roll))
+    return have if abs(wrap_deg(math.degrees(roll) - have)) > MOUNT_TOL_DEG else None
 
 
 def check_mount(show_roll: float, cal: Calibration, path: str | Path | None = None, what: str = "show") -> None:
     """Raise :class:`MountMismatch` when ``cal`` records a mount roll other than ``show_roll`` rad (beyond
     ``MOUNT_TOL_DEG``); a calibration that records none accepts every show. ``what`` wants the roll, in the
     message ("show", "live session")."""
-    if cal.roll is None:
-        return
-    want, have = wrap_deg(math.degrees(show_roll)), wrap_deg(math.degrees(cal.roll))
-    if abs(wrap_deg(want - have)) > MOUNT_TOL_DEG:
+    have = calibrated_roll_conflict(show_roll, cal)
+    if have is not None:
+        want = wrap_deg(math.degrees(show_roll))
         where = f" ({path})" if path else ""
         raise MountMismatch(
             f"this {what} wants the hand mounted at roll {want:+.1f}° but the calibration{where} records the rig at "

@@ -74,6 +74,22 @@ def test_show_and_calibration_record_the_roll_and_a_rig_at_another_is_refused(tm
         load_calibration(tmp_path / "bad.yaml", hand)
 
 
+def test_every_face_asks_one_mount_rule_across_the_half_turn(hand):
+    """The Live panel's check and the player's check_mount are one rule: a calibration at -179.9° accepts a roll of
+    179.8° (0.3° apart across the half turn) in both, and both refuse 10° against 11°, each in its own words."""
+    from widgets.live_view import check_roll
+
+    cal = default_calibration(hand)
+    at = lambda deg: cal.__class__(cal.joints, cal.hand_hash, math.radians(deg))  # noqa: E731
+    check_mount(math.radians(179.8), at(-179.9))
+    check_roll(179.8, at(-179.9))
+    with pytest.raises(MountMismatch, match=r"records the rig at \+11.0°"):
+        check_mount(math.radians(10.0), at(11.0))
+    with pytest.raises(ValueError, match=r"set the roll to 11.0°"):
+        check_roll(10.0, at(11.0))
+    check_roll(10.0, cal)  # a calibration that records no roll accepts every roll
+
+
 def test_play_refuses_a_show_for_another_mount_in_one_line(tmp_path, hand, in_process):
     from hardware.calibration import save_calibration as save
 

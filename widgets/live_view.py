@@ -25,8 +25,7 @@ import ipywidgets as w
 import numpy as np
 
 from hardware.calibration import Calibration
-from hardware.show_checks import MOUNT_TOL_DEG
-from studio.sim.roll import wrap_deg
+from hardware.show_checks import calibrated_roll_conflict
 from widgets.images import mask_picture, png
 
 if TYPE_CHECKING:
@@ -166,10 +165,8 @@ class LiveView:
 
 def check_roll(roll_deg: float, cal: Calibration) -> None:
     """A ValueError in the panel's words when the calibration records another mount roll than ``roll_deg``."""
-    if cal.roll is None:
-        return
-    have = wrap_deg(math.degrees(cal.roll))
-    if abs(wrap_deg(roll_deg - have)) > MOUNT_TOL_DEG:
+    have = calibrated_roll_conflict(math.radians(roll_deg), cal)  # the rule check_mount asks, in the panel's words
+    if have is not None:
         raise ValueError(f"the calibration records the hand mounted at roll {have:+.1f}°, not {roll_deg:+.1f}°: "
                          f"set the roll to {have:.1f}°, or measure the rig again in the Rig panel")  # fmt: skip
 
