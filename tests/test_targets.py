@@ -254,8 +254,9 @@ def _bad_files(tmp_path: Path) -> dict[str, tuple[Path, str, TargetConfig]]:
         "truncated jpeg": (jpeg, "unreadable", auto),
         "black": (_save(tmp_path, "black.png", np.zeros((40, 40))), "empty", auto),
         "white": (_save(tmp_path, "white.png", np.full((40, 40), 255)), "empty", auto),
-        "white forced bright": (tmp_path / "white.png", "every pixel is shadow", TargetConfig(polarity="bright")),
-        "mid grey": (_save(tmp_path, "grey.png", np.full((40, 40), 128)), "every pixel is shadow", auto),
+        "white forced bright": (tmp_path / "white.png", "one flat grey level", TargetConfig(polarity="bright")),
+        "mid grey": (_save(tmp_path, "grey.png", np.full((40, 40), 128)), "one flat grey level", auto),
+        "white, fixed level": (tmp_path / "white.png", "one flat grey level", TargetConfig(auto_otsu=False)),
         "flat otsu": (tmp_path / "black.png", "empty", TargetConfig(threshold=None)),
     }
 

@@ -136,9 +136,9 @@ def keep_largest_components(mask: np.ndarray, max_components: int = 1, min_share
 def threshold_level(shade: np.ndarray, cfg: TargetConfig, source: str = "<array>") -> float:
     """The shadowness level of step 3 for ``shade`` ``(H, W)`` uint8: ``cfg.threshold``, or Otsu's when it is None
     or (``auto_otsu``) when the fixed level would make the backdrop shadow; pixels above it are shadow."""
+    if shade.min() == shade.max():  # black, white or one grey: no shape, whatever the level or the polarity
+        raise TargetError(f"empty target: the image is one flat grey level, no shape to imitate: {source}")
     if cfg.threshold is None or (cfg.auto_otsu and backdrop_is_shadow(shade, cfg.threshold)):
-        if shade.min() == shade.max():
-            raise TargetError(f"empty target: the image is one flat grey level {shade.min()}, no shadow: {source}")
         level, _ = cv2.threshold(shade, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
         return float(level)
     return float(cfg.threshold)
