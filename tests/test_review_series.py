@@ -247,9 +247,11 @@ def test_the_losses_follow_the_show_on_show_time(tmp_path):
     show_times = np.linspace(0.0, 2.25, N) + np.r_[np.zeros(5), np.full(5, 0.5)]  # a stretched transition at 5
     rec = edited(tmp_path / "r.rrd", show_times)
     total = shown_series(rec, "/loss/frame/total")
-    assert scalar_series(rec, total, "show_time") == pytest.approx([(t, 0.8) for t in show_times[:5]])
+    rows = np.array(scalar_series(rec, total, "show_time"))  # (frames, 2): show time, value (pytest ≥ 9.2's approx
+    assert rows == pytest.approx(np.array([(t, 0.8) for t in show_times[:5]]))  # compares no nested lists)
     keyframe = shown_series(rec, "/frames/keyframe")
-    assert scalar_series(rec, keyframe, "show_time") == pytest.approx(list(zip(show_times, [0] * 5 + [1] * 5)))
+    rows = np.array(scalar_series(rec, keyframe, "show_time"))
+    assert rows == pytest.approx(np.array(list(zip(show_times, [0] * 5 + [1] * 5))))
     with pytest.raises(ValueError, match="show times"):
         ProjectRecording(path=tmp_path / "bad.rrd").log_frames(MASKS, MASKS, AFTER, show_times=np.zeros(3))
 
