@@ -219,8 +219,8 @@ def test_imitate_cli_errors(tmp_path, in_process):
     cv2.imwrite(str(bad), np.zeros((32, 32), np.uint8))
     for i, (args, message) in enumerate((
         ((str(tmp_path / "absent.png"), "--no-clip"), "not found"),
-        ((str(bad), "--no-clip"), "no shadow"),
-        ((str(bad),), "no shadow"),  # a bad target is named before CLIP weights are looked for
+        ((str(bad), "--no-clip"), "one flat grey level"),
+        ((str(bad),), "one flat grey level"),  # a bad target is named before CLIP weights are looked for
         ((str(bad), "--model", str(tmp_path / "none.pt"), "--no-clip"), "checkpoint not found"),
     )):  # fmt: skip
         argv = ["imitate", *args, "--out", str(tmp_path / "o")]
