@@ -4,6 +4,7 @@ applied and its shadow shown, a "stale" run (run_project) reported."""
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import replace
 
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 from studio.assets import asset
 
-from studio.imitate.config import JointConfig, RefineConfig, SearchConfig, SequenceConfig
+from studio.imitate.config import PRESETS, STUDIO, JointConfig, RefineConfig, SearchConfig, SequenceConfig
 from studio.jobs import Job, JobState
 from studio.jobs.events import JobEvent
 from studio.project.jobs import queue_for
@@ -264,6 +265,39 @@ def test_all_stale_uses_the_allow_late_box_and_too_fast_says_what_to_tick(state,
         assert "frame 2 → frame 3 (k1 → k4) at 0.80 s: needs 0.62 s, given 0.25 s" in text
         assert "0.7999" not in text
     finally:
+        panel.close()
+
+
+def test_the_budgets_list_offers_the_presets_and_the_choice_reaches_the_run(state, monkeypatch):
+    """The budgets list names the presets of ``--preset`` (the studio's chosen when the panel runs on it); a panel
+    opened on budgets of its own lists those first; the budgets chosen are the run's, and the list is locked while
+    it runs."""
+    studio = optimise_panel(state, OptimiseConfig(warm_index=False))
+    assert studio.budget.value == STUDIO and [v for _, v in studio.budget.options] == list(PRESETS)
+    studio.close()
+    panel = optimise_panel(state, OptimiseConfig(sequence=TINY, warm_index=False))
+    seen, release = [], threading.Event()
+
+    def run(cfg, **kwargs):
+        seen.append(cfg.sequence)
+        release.wait(10)
+        return RunReport(str(state.project.path), message="done")
+
+    monkeypatch.setattr(state.project, "run", run)
+    try:
+        assert [v for _, v in panel.budget.options] == [None, *PRESETS] and panel.budget.value is None
+        assert "paper: the paper's method" in panel.budget.options[2][0]
+        for choice, want in ((None, TINY), ("paper", PRESETS["paper"]), (STUDIO, PRESETS[STUDIO])):
+            panel.budget.value = choice
+            panel.start("stale")
+            assert until(lambda: len(seen) == 1, 10, panel.refresh) and seen.pop() == want, choice
+            assert panel.budget.disabled  # a run goes on with the budgets it started with
+            release.set()
+            assert until(lambda: not panel.busy, 10, panel.refresh)
+            release.clear()
+            assert not panel.budget.disabled
+    finally:
+        release.set()
         panel.close()
 
 

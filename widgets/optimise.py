@@ -1,11 +1,10 @@
-"""The Optimise panel: start an optimisation (this keyframe, every missing or stale keyframe, or the whole video),
-cancel it, the overall progress ("keyframe 3 (3 of 5)") and a bar per stage, the live best shadow beside the target,
-the loss so far, and the job list. "All stale" plans the show too, stretching transitions too fast for the servos
-when "allow late transitions" is ticked (as in Export).
+"""The Optimise panel: start an optimisation (this keyframe, every missing or stale keyframe, or the whole video) on
+the budgets chosen (a preset, as ``--preset``), cancel it, the overall progress ("keyframe 3 (3 of 5)") and a bar per
+stage, the live best shadow beside the target, the loss so far, the job list. "All stale" plans the show too,
+stretching transitions too fast for the servos when "allow late transitions" is ticked (as in Export).
 
-When the panel opens on a machine that has not built the retrieval index yet (the searches' first answers, once
-per machine, then cached), it builds it in the background as a job on the project's queue, with its own progress
-line (:mod:`widgets.index_warmup`), so the first optimisation does not wait.
+On a machine without the retrieval index yet (the searches' first answers, once per machine, then cached), the panel
+builds it in the background as a job on the project's queue, with its own progress line (:mod:`widgets.index_warmup`).
 
     panel = OptimisePanel(state, OptimiseConfig(sequence=...))   # panel.widget goes in the notebook
     panel.start("keyframe")          # or "stale" (what `project run` does) / "video"; panel.cancel()
@@ -34,14 +33,14 @@ from typing import Any
 import ipywidgets as w
 import numpy as np
 
-from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
+from studio.imitate.config import CPU_SEQUENCE, PRESETS, SequenceConfig
 from studio.jobs import Job, JobEvent
 from studio.project.run import RunConfig, RunReport
 from studio.project.run_spread import source_keyframes
 from widgets.images import Messages, mask_picture, title
 from widgets.index_warmup import IndexWarmup
 from widgets.mount import MountControl, mount_line
-from widgets.optimise_view import OptimiseDrawing
+from widgets.optimise_view import OptimiseDrawing, budget_list
 from widgets.state import StudioState
 from widgets.weights import clip_encoder
 from widgets.words import ALLOW_LATE
@@ -55,7 +54,7 @@ KINDS = ("keyframe", "stale", "video")  # what start() optimises: the keyframe i
 class OptimiseConfig:
     """What the panel's jobs run and how it draws."""
 
-    sequence: SequenceConfig = CPU_SEQUENCE  # search/refine budgets of every job (the studio preset)
+    sequence: SequenceConfig = CPU_SEQUENCE  # budgets of every job until another preset is chosen (studio's)
     allow_late: bool = False  # the "allow late transitions" box's start value: "All stale" then stretches moves
     warm_index: bool = True  # build the retrieval index in the background when it is not cached yet (module doc)
     index: Any = None  # the RetrievalConfig of that index (None: the searches' own; tests give a small one)
@@ -100,6 +99,7 @@ class OptimisePanel(OptimiseDrawing):
             b.on_click(lambda _, kind=kind: self.start(kind))
         self.cancel_button = w.Button(description="Cancel", icon="stop", button_style="danger", disabled=True)
         self.cancel_button.on_click(lambda _: self.cancel())
+        self.budget = budget_list(self.cfg.sequence)
         self.allow_late = w.Checkbox(value=self.cfg.allow_late, description=ALLOW_LATE, indent=False,
                                      tooltip="stretch moves too fast for the servos: the show runs longer")  # fmt: skip
         self.status = w.HTML("idle")
@@ -114,7 +114,7 @@ class OptimisePanel(OptimiseDrawing):
                            w.VBox([w.HTML("best shadow"), self.shadow_image])])  # fmt: skip
         self.mount = MountControl(state, self.messages.say)
         self.widget = w.VBox([
-            title("Optimise"), self.mount.widget, w.HBox([*self.buttons.values(), self.cancel_button]),
+            title("Optimise"), self.mount.widget, self.budget, w.HBox([*self.buttons.values(), self.cancel_button]),
             self.allow_late, self.warmup.line, self.status, self.overall, self.bar_box,
             self.loss, pictures, w.HTML("<b>jobs</b>"), self.job_list, self.messages.widget,
         ])  # fmt: skip
@@ -200,7 +200,8 @@ class OptimisePanel(OptimiseDrawing):
 
     def _run_jobs(self, use_clip: bool, keyframes: list[int] | None) -> None:
         """The project's run in its own thread (it waits for each job); the panel draws its jobs' events as any."""
-        cfg = RunConfig(sequence=self.cfg.sequence, allow_late=bool(self.allow_late.value))
+        chosen = self.budget.value  # a preset's name (--preset), or None: the panel's own budgets
+        cfg = RunConfig(sequence=PRESETS.get(chosen, self.cfg.sequence), allow_late=bool(self.allow_late.value))
         try:
             clip = clip_encoder(self.state) if use_clip else None
             self.report = self.state.project.run(cfg, clip=clip, queue=self.state.queue, cancel=self._run_cancel,

@@ -1,6 +1,7 @@
 """How the Optimise panel draws a job's events (mixed into :class:`widgets.optimise.OptimisePanel`): a bar per
 stage, the overall bar ("2 of 5 keyframes done"), the live best shadow beside its target, the loss so far, the run's
-message in the notebook's words and the job list. Only widget trait sets, from the panel's writer thread."""
+message in the notebook's words and the job list. Only widget trait sets, from the panel's writer thread. And the
+budgets list the panel starts its jobs with (:func:`budget_list`)."""
 
 from __future__ import annotations
 
@@ -10,10 +11,23 @@ import math
 import ipywidgets as w
 import numpy as np
 
+from studio.imitate.config import PRESET_WORDS, PRESETS, SequenceConfig
 from studio.jobs import JobEvent, JobState
 from studio.project.run import RunReport
 from widgets.images import mask_picture
 from widgets.words import ALLOW_LATE, bar_label, count, late_lines, stage
+
+
+def budget_list(sequence: SequenceConfig) -> w.Dropdown:
+    """The budgets list: the presets every verb's ``--preset`` names (``sequence``'s selected when it is one), and
+    first, when ``sequence`` is none of them, "this studio's own" (value None: ``sequence`` itself)."""
+    options = [(f"{name}: {words}", name) for name, words in PRESET_WORDS.items()]
+    chosen = next((name for name, cfg in PRESETS.items() if cfg == sequence), None)
+    if chosen is None:
+        options.insert(0, ("this studio's own (set where the studio was opened)", None))
+    return w.Dropdown(options=options, value=chosen, description="budgets", style={"description_width": "60px"},
+                      layout=w.Layout(width="760px"), tooltip="the search and refinement budgets of every keyframe "
+                      "(the same presets as the command line's)")  # fmt: skip
 
 
 class OptimiseDrawing:
@@ -123,7 +137,7 @@ class OptimiseDrawing:
 
     def _set_running(self, running: bool) -> None:
         self.cancel_button.disabled = not running
-        for b in (*self.buttons.values(), self.mount.set_button):
+        for b in (*self.buttons.values(), self.mount.set_button, self.budget):
             b.disabled = running
 
     def _table(self) -> str:

@@ -27,6 +27,7 @@ from studio.cli.progress import add_quiet_flag
 from studio.imitate.config import (
     METHODS,
     MODES,
+    PRESET_WORDS,
     PRESETS,
     STUDIO,
     JointConfig,
@@ -54,10 +55,9 @@ def add_budget_flags(parser: argparse.ArgumentParser, video: bool = True, modes:
     one another (``--next-*``, and with ``modes`` ``--mode``, ``--expressive``, ``--temporal``)."""
     base = PRESETS[STUDIO]
     parser.add_argument("--preset", choices=tuple(PRESETS), default=STUDIO,
-                        help="budgets of every keyframe: studio = the studio's method on 2 CPU cores (retrieval, "
-                             "block sweep, seeded search, CMA-ES refinement), paper = the paper's method and sizes "
-                             "(sampled search 500 × 3000, 128 × 1200 later, hill climbing 8 × 1000; for a GPU); the "
-                             f"flags below override single fields (default: {STUDIO})")  # fmt: skip
+                        help="budgets of every keyframe: "
+                             + ", ".join(f"{name} = {words}" for name, words in PRESET_WORDS.items())
+                             + f"; the flags below override single fields (default: {STUDIO})")  # fmt: skip
     for prefix, name, cls, names, video_only in BUDGETS:
         if video or not video_only:
             add_config_flags(parser, cls, names, prefix=prefix, base=getattr(base, name), base_name=f"{STUDIO}")

@@ -197,6 +197,11 @@ CPU_SEQUENCE = SequenceConfig(
 
 STUDIO = "studio"  # the default preset's name
 PRESETS = {STUDIO: CPU_SEQUENCE, "paper": PAPER_SEQUENCE}  # --preset on every face: the budgets of every keyframe
+PRESET_WORDS = {  # what each preset is, in the words of --preset's help and the Optimise panel's budget list
+    STUDIO: "the studio's method on 2 CPU cores (retrieval, block sweep, seeded search, CMA-ES refinement)",
+    "paper": "the paper's method and sizes (sampled search 500 × 3000, 128 × 1200 later, hill climbing 8 × 1000; "
+    "for a GPU)",
+}
 
 
 def still_configs(cfg: SequenceConfig) -> tuple[SearchConfig, RefineConfig, ImitateConfig, SweepConfig]:
