@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "targets"
 
 
-def _sets(name: str) -> tuple[list[tuple[str, Path]], list[tuple[str, Path]]]:
+def held_out_sets(name: str) -> tuple[list[tuple[str, Path]], list[tuple[str, Path]]]:
     """``(gallery, queries)`` as ``(class, path)`` lists."""
     if name == "mpeg7":
         from studio.targets.images import image_class, image_number
@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     from studio.targets.images import load_target
 
     set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.learn.threads)
-    gallery, queries = _sets(args.set)
+    gallery, queries = held_out_sets(args.set)
     queries = queries[: args.limit] if args.limit else queries
     side = 128
     g_masks = [load_target(p, size=side) for _, p in gallery]
