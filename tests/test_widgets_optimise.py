@@ -20,6 +20,7 @@ from studio.project.project import Project
 from studio.project.run_report import RunReport
 from widgets.images import mask_picture
 from widgets.optimise import OptimiseConfig, optimise_panel
+from widgets.optimise_view import budget_list
 from widgets.state import StudioState
 
 TINY = SequenceConfig(first=SearchConfig(batch=8, iterations=20), next=SearchConfig(batch=8, iterations=10, lr=0.08),
@@ -287,6 +288,9 @@ def test_the_budgets_list_offers_the_presets_and_the_choice_reaches_the_run(stat
     try:
         assert [v for _, v in panel.budget.options] == [None, *PRESETS] and panel.budget.value is None
         assert "paper: the paper's method" in panel.budget.options[2][0]
+        no_gpu, gpu = budget_list(TINY, gpu=False).options, budget_list(TINY, gpu=True).options
+        assert "no GPU here: its search is 938× the studio's" in no_gpu[2][0] and "no GPU" not in gpu[2][0]
+        assert "no GPU" not in no_gpu[1][0]  # the studio's own preset is the CPU's
         for choice, want in ((None, TINY), ("paper", PRESETS["paper"]), (STUDIO, PRESETS[STUDIO])):
             panel.budget.value = choice
             panel.start("stale")

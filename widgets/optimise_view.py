@@ -11,22 +11,34 @@ import math
 import ipywidgets as w
 import numpy as np
 
-from studio.imitate.config import PRESET_WORDS, PRESETS, SequenceConfig
+from studio.imitate.config import PRESET_WORDS, PRESETS, STUDIO, SequenceConfig
 from studio.jobs import JobEvent, JobState
 from studio.project.run import RunReport
 from widgets.images import mask_picture
 from widgets.words import ALLOW_LATE, bar_label, count, late_lines, stage
 
 
-def budget_list(sequence: SequenceConfig) -> w.Dropdown:
+def budget_list(sequence: SequenceConfig, gpu: bool | None = None) -> w.Dropdown:
     """The budgets list: the presets every verb's ``--preset`` names (``sequence``'s selected when it is one), and
-    first, when ``sequence`` is none of them, "this studio's own" (value None: ``sequence`` itself)."""
-    options = [(f"{name}: {words}", name) for name, words in PRESET_WORDS.items()]
+    first, when ``sequence`` is none of them, "this studio's own" (value None: ``sequence`` itself). Without a GPU
+    (``gpu``; None: whether torch sees CUDA) a preset whose search is far larger than the studio's says so."""
+    if gpu is None:
+        import torch
+
+        gpu = torch.cuda.is_available()
+    ours = PRESETS[STUDIO].first.batch * PRESETS[STUDIO].first.iterations
+
+    def label(name: str, words: str) -> str:
+        times = PRESETS[name].first.batch * PRESETS[name].first.iterations / ours
+        slow = "" if gpu or times < 2 else f" — no GPU here: its search is {times:,.0f}× the studio's"
+        return f"{name}: {words}{slow}"
+
+    options = [(label(name, words), name) for name, words in PRESET_WORDS.items()]
     chosen = next((name for name, cfg in PRESETS.items() if cfg == sequence), None)
     if chosen is None:
         options.insert(0, ("this studio's own (set where the studio was opened)", None))
     return w.Dropdown(options=options, value=chosen, description="budgets", style={"description_width": "60px"},
-                      layout=w.Layout(width="760px"), tooltip="the search and refinement budgets of every keyframe "
+                      layout=w.Layout(width="860px"), tooltip="the search and refinement budgets of every keyframe "
                       "(the same presets as the command line's)")  # fmt: skip
 
 
