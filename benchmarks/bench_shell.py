@@ -100,11 +100,11 @@ def _video_rows(shells: list[float]) -> dict:
     from studio.targets.video import VideoConfig
 
     cfg, rows = PRESETS[STUDIO], {}
+    side = load_selfmodel(Path(DEFAULT_MODEL))[0].cfg.resolution
+    seqs = [prepare_sequence(p, VideoConfig(size=side), None, p.name) for p in gather_sequences([SHARED / "davis"])]
+    loss_cfg = LossConfig(use_clip=False, crop_size=side)  # the sequences and the loss are the same for every shell
     for foam in shells:
         model, _ = load_selfmodel(Path(DEFAULT_MODEL))
-        sources = gather_sequences([SHARED / "davis"])
-        seqs = [prepare_sequence(p, VideoConfig(size=model.cfg.resolution), None, p.name) for p in sources]
-        loss_cfg = LossConfig(use_clip=False, crop_size=model.cfg.resolution)
         with SequenceImitator(_shell(model, foam), cfg, loss_cfg=loss_cfg) as seq:
             (r,) = VideoEvaluator(seq, cfg, TransitionConfig(), rows=[STUDIO_ROW]).run(seqs).rows
         rows[f"{foam:g}"] = {"total": round(r["total"], 4), "iou_loss": round(r["iou_loss"], 4),
