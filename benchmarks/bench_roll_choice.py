@@ -23,11 +23,8 @@ import json
 import math
 import sys
 import time
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared" / "targets"
-ANIMALS = ("camel", "cattle", "deer", "dog", "elephant", "horse", "rat", "turtle")
+from bench_observer import ANIMALS, SHARED
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -30,9 +30,7 @@ import sys
 import time
 from pathlib import Path
 
-from bench_observer import SHARED, held_out_sets
-
-ANIMALS = ("camel", "cattle", "deer", "dog", "elephant", "horse", "rat", "turtle")  # issue 22's MPEG-7 animals
+from bench_observer import ANIMALS, SHARED, held_out_sets
 
 
 def _shell(model, foam_mm: float):
