@@ -30,7 +30,7 @@ SHARED_ASL = ROOT.parent / "shared" / "targets" / "asl"
 
 
 def _ways(workers: int) -> dict:
-    from studio.fanout import FanoutConfig
+    from studio.learn.fanout import FanoutConfig
 
     return {"local": FanoutConfig(), "processes": FanoutConfig(workers=workers),
             "ray": FanoutConfig(workers=workers, ray="local")}  # fmt: skip

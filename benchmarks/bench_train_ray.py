@@ -87,8 +87,8 @@ def main(argv: list[str] | None = None) -> int:
 
     import torch
 
-    from studio.fanout import FanoutConfig
     from studio.learn.config import TrainConfig
+    from studio.learn.fanout import FanoutConfig
     from studio.learn.ray_train import fit_on_ray
     from studio.learn.train import train
 

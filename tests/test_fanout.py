@@ -1,4 +1,4 @@
-"""Spreading work (studio.fanout): in this process, on spawned processes and on one real local Ray (two CPUs,
+"""Spreading work (studio.learn.fanout): in this process, on spawned processes and on one real local Ray (two CPUs,
 shared by the module) the same shards and the same Table 1; a failing item is named; a cancel keeps what finished."""
 
 from __future__ import annotations
@@ -16,13 +16,13 @@ from studio.evaluate.config import EvalConfig
 from studio.evaluate.table1 import Evaluator
 from studio.evaluate.table1_task import Table1Task, evaluate_spread
 from studio.evaluate.worker_models import ModelRecipe
-from studio.fanout import FanoutConfig, FanoutError, fan_out
 from studio.imitate.config import ImitateConfig, RefineConfig, SearchConfig, SweepConfig
 from studio.imitate.retrieval import RetrievalConfig, cached_index
 from studio.imitate.still import Imitator
 from studio.learn.checkpoint import save_model
 from studio.learn.config import CollectConfig
 from studio.learn.dataset import ShardTask, collect
+from studio.learn.fanout import FanoutConfig, FanoutError, fan_out
 from studio.learn.inverse import InverseCNN, InverseConfig
 from studio.learn.selfmodel import SelfModel, SelfModelConfig, load_selfmodel
 from studio.learn.shards import list_shards
@@ -94,7 +94,7 @@ def test_a_failing_item_is_named_and_stops_the_run(tmp_path, where, request):
 
 
 def test_a_cluster_address_where_nothing_answers_is_refused_at_once():
-    from studio.ray_cluster import RayUnavailable, _answers
+    from studio.learn.ray_cluster import RayUnavailable, _answers
 
     with pytest.raises(RayUnavailable, match=r"127\.0\.0\.1:1: nothing answers there .*ray start --head"):
         _answers("127.0.0.1:1")  # (Ray itself would retry for minutes)

@@ -31,10 +31,8 @@ FOUNDATION = {
     "studio.progress",
     "studio.jsonfile",
     "studio.path_checks",
-    "studio.fanout",
-    "studio.ray_cluster",
-}  # path_checks: outputs never over inputs; jsonfile: the one bounded JSON reader; fanout (+ ray_cluster): many
-# items through one task, in this process, on local processes or on Ray
+}  # path_checks: outputs never over inputs; jsonfile: the one bounded JSON reader (learn.fanout + learn.ray_cluster,
+# many items through one task in this process, on local processes or on Ray, are learn's: no stage below it uses them)
 
 
 def modules() -> dict[str, Path]:
@@ -116,7 +114,7 @@ def test_io_libraries_stay_at_their_edges():
         ),  # DESIGN §3: project's play and capture steps
         "widgets": ("widgets",),
         "ray": (
-            "studio.ray_cluster",
+            "studio.learn.ray_cluster",
             "studio.learn.ray_train",
         ),  # DESIGN §3: only the module that distributes work, only when asked
     }

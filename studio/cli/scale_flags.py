@@ -1,12 +1,12 @@
 """``--workers N``, ``--ray [ADDRESS]`` and the Ray actors' resources: how a verb spreads its work
-(:class:`studio.fanout.FanoutConfig`), defined once for every verb that fans out."""
+(:class:`studio.learn.fanout.FanoutConfig`), defined once for every verb that fans out."""
 
 from __future__ import annotations
 
 import argparse
 
 from studio.cli.flags import add_config_flags, config_from_args
-from studio.fanout import FanoutConfig
+from studio.learn.fanout import FanoutConfig
 
 
 def add_fanout_flags(parser: argparse.ArgumentParser) -> None:

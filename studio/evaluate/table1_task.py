@@ -1,5 +1,5 @@
-"""Table 1 spread over workers: every target one item of a :func:`studio.fanout.fan_out`, each worker holding its own
-imitator and baselines (loaded once), the rows gathered in the targets' order.
+"""Table 1 spread over workers: every target one item of a :func:`studio.learn.fanout.fan_out`, each worker
+holding its own imitator and baselines (loaded once), the rows gathered in the targets' order.
 
 :func:`evaluate_spread` gives the same rows and records as :meth:`studio.evaluate.table1.Evaluator.run` in one
 process (tests hold them equal, seconds aside): every method is seeded per target (the search and refinement by
@@ -21,9 +21,9 @@ from studio.evaluate.config import EvalConfig
 from studio.evaluate.table1 import EvalResult, summarise
 from studio.evaluate.table1_notes import table_notes
 from studio.evaluate.worker_models import ModelRecipe
-from studio.fanout import FanoutConfig, fan_out
 from studio.imitate.config import ImitateConfig, RefineConfig, SearchConfig, SweepConfig
 from studio.imitate.retrieval import RetrievalConfig
+from studio.learn.fanout import FanoutConfig, fan_out
 from studio.progress import ProgressFn
 
 __all__ = ["Table1Task", "evaluate_spread"]
@@ -31,7 +31,7 @@ __all__ = ["Table1Task", "evaluate_spread"]
 
 @dataclass
 class Table1Task:
-    """What a worker needs to evaluate targets (a :mod:`studio.fanout` task): paths and configs, all picklable.
+    """What a worker needs to evaluate targets (a :mod:`studio.learn.fanout` task): paths and configs, all picklable.
     ``task((index, name, target (R, R)[, score_target (S, S)])) → (records, settings)``."""
 
     models: ModelRecipe  # the self-model and CLIP each worker loads

@@ -1,4 +1,4 @@
-"""Table 2 spread over workers: every (sequence, row) run one item of a :func:`studio.fanout.fan_out`, each worker
+"""Table 2 spread over workers: every (sequence, row) run one item of a :func:`studio.learn.fanout.fan_out`, each worker
 holding its own sequence imitator (the self-model loaded once), the runs gathered in the table's order.
 
 :func:`evaluate_video_spread` gives the same records as :meth:`studio.evaluate.table2.VideoEvaluator.run` in one
@@ -16,9 +16,9 @@ from typing import Any
 from studio.evaluate.sequences import PreparedSequence
 from studio.evaluate.table2 import ROWS, Row, Table2Result, VideoEvaluator, summarise
 from studio.evaluate.worker_models import ModelRecipe
-from studio.fanout import FanoutConfig, fan_out
 from studio.imitate.config import SequenceConfig
 from studio.imitate.transitions import TransitionConfig
+from studio.learn.fanout import FanoutConfig, fan_out
 from studio.progress import ProgressFn
 
 __all__ = ["Table2Task", "evaluate_video_spread"]
@@ -26,7 +26,7 @@ __all__ = ["Table2Task", "evaluate_video_spread"]
 
 @dataclass
 class Table2Task:
-    """What a worker needs to run Table 2's rows (a :mod:`studio.fanout` task): a path and configs, all picklable.
+    """What a worker needs to run Table 2's rows (a :mod:`studio.learn.fanout` task): a path and configs, all picklable.
     ``task((sequence, row)) → (record, keyframe dicts)``."""
 
     models: ModelRecipe  # the self-model and CLIP each worker loads

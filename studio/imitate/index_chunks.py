@@ -1,6 +1,6 @@
 """Building the retrieval index in pieces: a chunk of sampled poses → its collision-free poses and their
-bit-packed aligned crops (:class:`IndexChunkTask`, a :mod:`studio.fanout` task), so that the chunks of one build can
-run in this process, on local processes or on Ray actors and give the same index
+bit-packed aligned crops (:class:`IndexChunkTask`, a :mod:`studio.learn.fanout` task), so that the chunks of one
+build can run in this process, on local processes or on Ray actors and give the same index
 (:meth:`studio.imitate.retrieval.RetrievalIndex.build`)."""
 
 from __future__ import annotations

@@ -29,10 +29,10 @@ import numpy as np
 from numba import njit, prange
 
 from studio.atomic import write_with
-from studio.fanout import FanoutConfig, fan_out
 from studio.home import cache_dir
 from studio.imitate.config import LossConfig
 from studio.imitate.index_chunks import IndexChunkTask, pack_crops
+from studio.learn.fanout import FanoutConfig, fan_out
 from studio.progress import ProgressFn, report, stopped
 from studio.sim.hand import Hand
 from studio.sim.physics import CollisionWorld
@@ -98,8 +98,8 @@ class RetrievalIndex:
         """Sample, keep the collision-free, render and pack until ``cfg.size`` poses; stage "index" after every
         chunk (step: poses packed, of ``cfg.size``). ``cancel`` is checked before every chunk: once set, the build
         stops and returns None. ``fanout`` spreads the chunks over local processes or Ray actors
-        (:mod:`studio.fanout`): they are drawn here in the same order, so the index is the same (stage "index" after
-        every round of chunks)."""
+        (:mod:`studio.learn.fanout`): they are drawn here in the same order, so the index is the same (stage "index"
+        after every round of chunks)."""
         cfg = cfg or RetrievalConfig()
         hand, fanout = renderer.hand, fanout or FanoutConfig()
         task = IndexChunkTask(hand, renderer.rig, cfg.crop, cfg.pad)

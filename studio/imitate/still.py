@@ -16,7 +16,6 @@ import torch
 
 from studio.assets import asset
 from studio.errors import ClosedError
-from studio.fanout import FanoutConfig
 from studio.imitate.candidates import refine_best, rendered_pool
 from studio.imitate.config import (
     CPU_REFINE,
@@ -38,6 +37,7 @@ from studio.imitate.search import SearchResult, gradient_search
 from studio.imitate.seeding import Seeds, seed_poses
 from studio.imitate.still_result import ImitationResult
 from studio.learn.checkpoint import model_rig
+from studio.learn.fanout import FanoutConfig
 from studio.learn.selfmodel import SelfModel, load_selfmodel
 from studio.progress import ProgressFn, report, stopped
 from studio.sim.shadow import ShadowRenderer

@@ -23,8 +23,8 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from studio.atomic import write_json
 from studio.errors import ShardError
-from studio.fanout import FanoutConfig, fan_out
 from studio.learn.config import CollectConfig
+from studio.learn.fanout import FanoutConfig, fan_out
 from studio.learn.shards import SHARD_FORMAT, Shard, list_shards, pack_masks, read_shard, shard_path, write_shard
 from studio.progress import ProgressFn, report
 from studio.sim.hand import Hand, load_hand
@@ -69,7 +69,7 @@ def make_shard(hand: Hand, renderer: ShadowRenderer, world, n: int, seed: int, i
 
 
 class ShardTask:
-    """Write shard ``k`` of a dataset folder (a :func:`studio.fanout.fan_out` task): set up once per worker (the
+    """Write shard ``k`` of a dataset folder (a :func:`studio.learn.fanout.fan_out` task): set up once per worker (the
     renderer and a collision world), then ``task(k) → (samples, written)``; an existing complete shard is kept."""
 
     def __init__(self, out: Path, cfg: CollectConfig, sampler: SamplerConfig, hand: Hand | None = None):
@@ -119,11 +119,11 @@ def collect(
 ) -> dict:
     """Fill ``out`` with ``cfg.n`` samples in shards; resumes an interrupted run of the same config.
 
-    ``fanout`` spreads the shards over local processes or Ray actors (:mod:`studio.fanout`; default: this process);
-    shard ``k`` is drawn from ``(seed, k)`` wherever it is made, so every way gives the same files (on a cluster,
-    ``out`` must be a path every machine sees). Reports stage "collect" after each shard (step: samples done, of
-    ``cfg.n``; shards already on disk count when reached); setting ``cancel`` stops after the shards being made
-    (finished shards stay). Returns ``{"written", "skipped", "samples", "folder", "workers"}``.
+    ``fanout`` spreads the shards over local processes or Ray actors (:mod:`studio.learn.fanout`; default: this
+    process); shard ``k`` is drawn from ``(seed, k)`` wherever it is made, so every way gives the same files (on a
+    cluster, ``out`` must be a path every machine sees). Reports stage "collect" after each shard (step: samples
+    done, of ``cfg.n``; shards already on disk count when reached); setting ``cancel`` stops after the shards being
+    made (finished shards stay). Returns ``{"written", "skipped", "samples", "folder", "workers"}``.
     """
     cfg = cfg or CollectConfig()
     hand = hand or load_hand()

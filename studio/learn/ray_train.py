@@ -11,7 +11,7 @@ checkpoint is the one format, written by worker 0 to ``cfg.out`` (on a cluster: 
 Progress comes back from worker 0 through a small relay actor and is reported here (the one progress protocol);
 ``cancel`` (Ctrl-C) is passed to worker 0, every worker stops at the same step and worker 0 leaves a resumable
 checkpoint. The metrics returned are the checkpoint's (``cancelled: True`` when it stopped early). Ray (and Ray
-Train) are imported only here and in :mod:`studio.ray_cluster`, and only for ``--ray`` (DESIGN §3).
+Train) are imported only here and in :mod:`studio.learn.ray_cluster`, and only for ``--ray`` (DESIGN §3).
 """
 
 from __future__ import annotations
@@ -28,11 +28,11 @@ from ray.train import RunConfig, ScalingConfig
 from ray.train.torch import TorchTrainer
 
 from studio.errors import StudioError
-from studio.fanout import FanoutConfig
 from studio.learn.checkpoint import read_checkpoint
+from studio.learn.fanout import FanoutConfig
+from studio.learn.ray_cluster import ray_for
 from studio.learn.trainer import Replica
 from studio.progress import Progress, ProgressFn, stopped
-from studio.ray_cluster import ray_for
 
 __all__ = ["fit_on_ray"]
 

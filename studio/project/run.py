@@ -29,13 +29,13 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 from studio.evaluate.worker_models import ModelRecipe
-from studio.fanout import FanoutConfig
 from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
 from studio.imitate.transitions import TransitionConfig
 from studio.jobs.engine import _plan
 from studio.jobs.events import JobState, Reporter
 from studio.jobs.job import Job
 from studio.jobs.queue import JobQueue
+from studio.learn.fanout import FanoutConfig
 from studio.motion.plan import PlanConfig
 from studio.progress import ProgressFn
 from studio.project.jobs import queue_for, roll_job, video_job

@@ -1,5 +1,5 @@
 """A project run spread over workers (``project run --workers N`` / ``--ray``): one keyframe per item of a
-:func:`studio.fanout.fan_out`, the sources side by side.
+:func:`studio.learn.fanout.fan_out`, the sources side by side.
 
 A source's pending keyframes form a chain: in ``sequential`` mode each continues from the keyframe before it in
 its source, so a chain goes out one keyframe at a time (the next as a follow-up of the one before it, whichever
@@ -28,8 +28,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from studio.evaluate.worker_models import ModelRecipe
-from studio.fanout import FanoutConfig, fan_out
 from studio.imitate.config import LossConfig, SequenceConfig
+from studio.learn.fanout import FanoutConfig, fan_out
 from studio.motion.limits import LimitsConfig
 from studio.progress import ProgressFn, stopped
 
@@ -106,7 +106,7 @@ class KeyframeStep:
 
 @dataclass
 class KeyframeTask:
-    """What a worker needs to run keyframes (a :mod:`studio.fanout` task): paths and configs, all picklable.
+    """What a worker needs to run keyframes (a :mod:`studio.learn.fanout` task): paths and configs, all picklable.
     ``task(step) → (the keyframe's id, its KeyframeResult)``."""
 
     models: ModelRecipe  # the self-model and CLIP each worker loads

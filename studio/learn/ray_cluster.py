@@ -1,4 +1,4 @@
-"""The Ray side of :func:`studio.fanout.fan_out`: a Ray to run on, and one actor per worker fed item by item.
+"""The Ray side of :func:`studio.learn.fanout.fan_out`: a Ray to run on, and one actor per worker fed item by item.
 
 The only module that imports Ray (DESIGN §3), and only when a fan-out asks for it. ``cfg.ray == "local"`` starts a
 Ray on this machine for the run (``num_cpus`` = what the actors reserve; no dashboard; Ray 2.60's own servers listen

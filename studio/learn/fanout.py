@@ -7,7 +7,7 @@ and ``__call__(item)`` (one item's result, picklable); ``close()`` is optional. 
 * ``workers == 1`` and no Ray: in this process, one item after another (the reference path);
 * ``workers > 1`` and no Ray: that many spawned processes (``spawn``: numba's OpenMP pool kills a child plainly
   forked from a process that has rendered, DESIGN §4), each set up once;
-* ``ray``: that many Ray actors (:mod:`studio.ray_cluster`: a local Ray started for the run, or a cluster
+* ``ray``: that many Ray actors (:mod:`studio.learn.ray_cluster`: a local Ray started for the run, or a cluster
   joined), each set up once and fed the next item as soon as it is free.
 
 Results are keyed by the item's index, so callers gather them in order however the work was spread. An item may
@@ -108,7 +108,7 @@ def fan_out(
         return done
     width = min(cfg.workers, len(work.items))  # no more workers than items (a follow-up takes its item's place)
     if cfg.ray:
-        from studio.ray_cluster import run_on_ray
+        from studio.learn.ray_cluster import run_on_ray
 
         run_on_ray(task, work.items, work.take, replace(cfg, workers=width), finished, cancel, _failed)
     elif cfg.workers == 1:
