@@ -187,7 +187,7 @@ def test_the_loss_shown_is_the_newest_stages_best_not_a_minimum_across_stages(st
     panel = optimise_panel(state, OptimiseConfig(sequence=TINY))
 
     def event(seq: int, stage: str, best: float) -> JobEvent:
-        return JobEvent(job_id=7, kind="imitate-video", state=JobState.RUNNING, stage=stage, step=1, total=2,
+        return JobEvent(job_id=7, kind="imitate-keyframes", state=JobState.RUNNING, stage=stage, step=1, total=2,
                         best=best, shadow=None, elapsed=0.1 * seq, seq=seq)  # fmt: skip
 
     try:
@@ -203,7 +203,7 @@ def test_the_loss_shown_is_the_newest_stages_best_not_a_minimum_across_stages(st
 
 def keyframe_job(job_id: int, k: int, n: int, of: int):
     """A keyframe job of a run as ``project.run`` makes it: its keyframe and its place in the run on ``meta``."""
-    job = Job("imitate-video", lambda report, cancel: None, title=f"keyframe {k}", meta={"keyframes": [k],
+    job = Job("imitate-keyframes", lambda report, cancel: None, title=f"keyframe {k}", meta={"keyframes": [k],
               "of": (n, of)})  # fmt: skip
     job.id = job_id
     return job
@@ -214,7 +214,7 @@ def test_overall_progress_names_the_keyframe_of_the_run_and_bars_complete_when_a
 
     def event(job_id, stage, step, total, done=False):
         now = JobState.DONE if done else JobState.RUNNING
-        return JobEvent(job_id=job_id, kind="imitate-video", state=now, stage=stage, step=step, total=total,
+        return JobEvent(job_id=job_id, kind="imitate-keyframes", state=now, stage=stage, step=step, total=total,
                         best=float("nan"), shadow=None, elapsed=1.0, seq=step)  # fmt: skip
 
     try:

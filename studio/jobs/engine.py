@@ -126,7 +126,7 @@ def imitate_video_job(
         previous=None if previous is None else np.asarray(previous, dtype=np.float64), device=device, roll=roll,
         box=box,
     )  # fmt: skip
-    return Job("imitate-video", run, apply, title)
+    return Job("imitate-keyframes", run, apply, title)
 
 
 def _imitate_video(report: Reporter, cancel, *, masks, expressive, cfg, loss_cfg, clip, model_path, preview,

@@ -70,7 +70,7 @@ class JobEvent:
     """One thing that happened to a job (plain data, safe to keep or send to another thread)."""
 
     job_id: int  # the queue's number for the job (1, 2, ... in submission order)
-    kind: str  # what runs: "imitate-keyframe", "imitate-video", "plan", "play", or a caller's name
+    kind: str  # what runs: "imitate-keyframe", "imitate-keyframes", "plan", "play", or a caller's name
     state: JobState  # the job's state after this event
     stage: str  # the engine's stage ("search", "refine", "keyframe 2/3: search", "path", "play", ...)
     step: int  # progress within the stage [0, total]

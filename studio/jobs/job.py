@@ -32,7 +32,7 @@ class Job:
         title: str = "",
         meta: Mapping[str, Any] | None = None,
     ):
-        self.kind = kind  # what runs ("imitate-keyframe", "imitate-video", "plan", "play", ...)
+        self.kind = kind  # what runs ("imitate-keyframe", "imitate-keyframes", "plan", "play", ...)
         self.run = run  # run(report, cancel) -> result, called in the worker
         self.apply_fn = apply  # apply(result), called once on completion (None: nothing to apply)
         self.title = title  # one line for listings ("keyframe 3", "muybridge_horse.gif")
