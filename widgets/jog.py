@@ -23,7 +23,7 @@ import ipywidgets as W
 import numpy as np
 
 from hardware.calibration import Calibration, load_calibration
-from hardware.errors import BusError, EStopLatched
+from hardware.errors import BusError
 from hardware.jog import Jog, JogConfig
 from hardware.serial_bus import BusConfig, SerialServoBus
 from hardware.session import CloseReport, ServoSession
@@ -263,30 +263,6 @@ class JogPanel(JogActions):
         self.sculpt.close()
         if self.state.extras.get("jog") is self:
             del self.state.extras["jog"]
-
-    # ------------------------------------------------------------------ actions
-    def _do(self, what: str, action):
-        """Run ``action()`` on the connected jog; every error becomes a message (DESIGN §5.13)."""
-        if self.jog is None:
-            self._say(f"cannot {what}: not connected (press connect)", error=True)
-            return None
-        try:
-            return action()
-        except EStopLatched:
-            self._set_enabled(True, latched=True)
-            self._say(f"cannot {what}: the E-STOP is latched; nothing moves until you press reset", error=True)
-        except BusError as e:
-            self._lost(e)
-        except (StudioError, ValueError) as e:
-            self._say(f"cannot {what}: {e}", error=True)
-        except Exception as e:  # a bug: stop the servos, say so, never a traceback in the notebook
-            log.debug("jog panel: %s failed", what, exc_info=True)
-            try:
-                self.bus.stop()
-            except Exception:
-                pass
-            self._say(f"{what} failed unexpectedly ({type(e).__name__}: {e}); the servos were sent a stop", True)
-        return None
 
     def _slid(self, k: int, deg: float) -> None:
         if self._quiet:

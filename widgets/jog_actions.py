@@ -1,23 +1,50 @@
 """What the Jog panel's buttons do (mixed into :class:`widgets.jog.JogPanel`): move a joint, read back, torque,
 home, the selected keyframe's pose, the e-stop and its reset, and the periodic read-back (a thread that only sets
-label values, ≤ 10 Hz). Each goes through the panel's ``_do`` (every error a message, anything unexpected a stop:
+label values, ≤ 10 Hz). Each goes through ``_do`` (every error a message, anything unexpected a stop:
 DESIGN §5.13) on the connected :class:`hardware.jog.Jog`."""
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 
 import numpy as np
 
-from hardware.errors import BusError
+from hardware.errors import BusError, EStopLatched
 from hardware.jog import JogMove
+from studio.errors import StudioError
+
+log = logging.getLogger(__name__)
 
 
 class JogActions:
-    """Actions of ``JogPanel`` (it provides ``state``, ``cal``, ``jog``, ``_do``, ``_say``, ``_set_enabled``,
+    """Actions of ``JogPanel`` (it provides ``state``, ``cal``, ``jog``, ``bus``, ``_say``, ``_set_enabled``,
     ``_show_target``, ``_show_measured``, ``_lost``, ``_refresh_stop``, ``_refresh_thread``, ``keyframe_button``
     and ``torque_on``)."""
+
+    def _do(self, what: str, action):
+        """Run ``action()`` on the connected jog; every error becomes a message (DESIGN §5.13)."""
+        if self.jog is None:
+            self._say(f"cannot {what}: not connected (press connect)", error=True)
+            return None
+        try:
+            return action()
+        except EStopLatched:
+            self._set_enabled(True, latched=True)
+            self._say(f"cannot {what}: the E-STOP is latched; nothing moves until you press reset", error=True)
+        except BusError as e:
+            self._lost(e)
+        except (StudioError, ValueError) as e:
+            self._say(f"cannot {what}: {e}", error=True)
+        except Exception as e:  # a bug: stop the servos, say so, never a traceback in the notebook
+            log.debug("jog panel: %s failed", what, exc_info=True)
+            try:
+                self.bus.stop()
+            except Exception:
+                pass
+            self._say(f"{what} failed unexpectedly ({type(e).__name__}: {e}); the servos were sent a stop", True)
+        return None
 
     def _moved(self, m: JogMove) -> None:
         self._show_target()
