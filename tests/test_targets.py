@@ -270,6 +270,21 @@ def test_bad_targets_raise_target_error_naming_the_file(tmp_path: Path) -> None:
         assert isinstance(err.value, StudioError)
 
 
+def test_a_speck_is_refused_not_blown_up_into_a_block(tmp_path: Path) -> None:
+    """A shape a few pixels across has no outline: framing would fill the whole frame with it. It is refused, named;
+    one just wide enough still frames, with backdrop around it."""
+    speck = np.full((100, 100), 255)
+    speck[50:52, 40:45] = 0  # 5 × 2 pixels
+    path = _save(tmp_path, "speck.png", speck)
+    with pytest.raises(TargetError, match=r"only 5×2 pixels .*\(at least 8 pixels across\)") as err:
+        load_target(path, size=64)
+    assert str(path) in str(err.value)
+    assert load_target(path).sum() == 10  # unframed, the mask is as it is
+    speck[50:52, 40:48] = 0  # 8 pixels across
+    framed = load_target(_save(tmp_path, "wider.png", speck), size=64)
+    assert 0 < framed.mean() < 0.5
+
+
 def test_config_rejects_nonsense() -> None:
     with pytest.raises(ValueError):
         TargetConfig(polarity="sideways")

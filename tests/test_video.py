@@ -156,6 +156,16 @@ def test_one_square_frame_for_a_moving_blob(tmp_path):
     assert dark[video.masks > 0].mean() < 60 < dark[video.masks == 0].mean()
 
 
+def test_a_speck_of_a_subject_is_refused(tmp_path):
+    """A subject a few pixels across in every frame has no outline to imitate: one clear error, not a block."""
+    frames = [np.full((48, 64), 230, np.uint8) for _ in range(4)]
+    for i, f in enumerate(frames):
+        f[20:23, 30 + i : 33 + i] = 20  # a 3 × 3 speck drifting right: the union is 6 × 3
+    _write_folder(tmp_path / "speck", frames)
+    with pytest.raises(TargetError, match=r"only 6×3 pixels"):
+        load_video(tmp_path / "speck", VideoConfig(hz=24, size=40))
+
+
 def test_binary_masks_either_polarity(tmp_path):
     white = _write_folder(tmp_path / "white", [np.where(f < 128, 255, 0).astype(np.uint8) for f in _blob_frames(6)])
     black = _write_folder(tmp_path / "black", [np.where(f < 128, 0, 255).astype(np.uint8) for f in _blob_frames(6)])

@@ -47,6 +47,7 @@ log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".gif", ".bmp", ".tif", ".tiff", ".webp")
 SAMPLE_DIR = asset("targets")  # bundled sample targets (ASL letters, MPEG-7 silhouettes), SOURCE.txt beside them
 DEFAULT_TARGET = SAMPLE_DIR / "asl_o.jpeg"  # the default example: ASL "o", whose opening is an expressive hole
+MIN_SHAPE_SIDE = 8  # a shape whose longer side spans fewer source pixels has no outline to imitate (a speck)
 
 
 @dataclass(frozen=True)
@@ -171,6 +172,18 @@ def shadow_box(mask: np.ndarray) -> tuple[int, int, int, int]:
     return int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
 
 
+def check_shape_size(boxes: list[tuple[int, int, int, int]], source: str) -> None:
+    """A :class:`TargetError` when the union of shadow boxes ``(row0, row1, col0, col1)`` spans fewer than
+    :data:`MIN_SHAPE_SIDE` source pixels on its longer side: framing would blow a speck up into a block."""
+    rows = max(b[1] for b in boxes) - min(b[0] for b in boxes)
+    cols = max(b[3] for b in boxes) - min(b[2] for b in boxes)
+    if max(rows, cols) < MIN_SHAPE_SIDE:
+        raise TargetError(
+            f"the shape is only {cols}×{rows} pixels in the image, too small to have an outline (at least "
+            f"{MIN_SHAPE_SIDE} pixels across): {source}"
+        )
+
+
 def square_box(boxes: list[tuple[int, int, int, int]], margin: float) -> tuple[int, int, int, int]:
     """The square frame ``(x, y, w, h)`` around the union of shadow boxes ``(row0, row1, col0, col1)``: grown by
     ``margin`` × its longer side on each side and squared about its centre (as :func:`square_frame` frames a still)."""
@@ -226,6 +239,7 @@ def load_target(path: str | Path, size: int | None = None, cfg: TargetConfig | N
     if size is None:
         return mask
     box = shadow_box(mask) if cfg.frame == "shadow" else None
+    check_shape_size([box or shadow_box(mask)], str(path))
     framed = square_frame(mask, size, box, cfg.margin if cfg.frame == "shadow" else 0.0)
     if not framed.any():
         raise TargetError(f"the shadow vanishes at {size}×{size} pixels (too small to frame): {path}")

@@ -38,6 +38,7 @@ from studio.targets.cleanup import clean_shadow
 from studio.targets.footage import Footage, read_footage
 from studio.targets.images import (  # the framing helpers live with the stills' square_frame
     TargetConfig,
+    check_shape_size,
     crop_square,
     detect_polarity,
     mask_from_grey,
@@ -191,7 +192,9 @@ def video_from_masks(
             skipped.append((int(footage.frame_index[k]), "no shadow pixels"))
     if not keep:
         raise TargetError(f"no sampled frame has any shadow (check the threshold, polarity or kind): {footage.source}")
-    box = square_box([shadow_box(masks[k]) for k in keep], cfg.margin)
+    boxes = [shadow_box(masks[k]) for k in keep]
+    check_shape_size(boxes, str(footage.source))
+    box = square_box(boxes, cfg.margin)
     out_masks, out_frames, kept = [], [], []
     for step, k in enumerate(keep):
         m = square_mask(masks[k], box, cfg.size)
