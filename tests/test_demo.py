@@ -86,7 +86,7 @@ def test_demo_review_holds_every_stage_and_the_played_show(first_run):
     # optimisation: every keyframe job's best loss on opt_step, then the keyframes refined together's
     losses = [p for p in rec if p.lstrip("/").startswith("loss/job") and "opt_step" in rec[p]["timelines"]]
     jobs = {p.split("/")[2] for p in losses}
-    assert len({j for j in jobs if "imitate_video" in j}) == len(project.keyframes) and "job1_choose_roll" in jobs
+    assert len({j for j in jobs if "imitate_keyframes" in j}) == len(project.keyframes) and "job1_choose_roll" in jobs
     assert f"job{len(project.keyframes) + 2}_imitate_together" in jobs
     # frames: every frame's target and expressive mask, and the keyframe it plays, on frame
     for path in ("images/target", "images/expressive", "frames/keyframe"):
