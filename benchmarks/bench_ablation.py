@@ -41,7 +41,8 @@ from studio.learn.train import train
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import Rig, ShadowRenderer
 from studio.targets.expressive import still_expressive
-from studio.targets.images import gather_targets, load_target
+from studio.targets.image_sets import gather_targets
+from studio.targets.images import load_target
 
 ROOT = Path(__file__).resolve().parent.parent
 ASL = ROOT.parent / "shared" / "targets" / "asl"

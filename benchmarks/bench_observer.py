@@ -48,7 +48,7 @@ CRUDE_STEP_DEG = 15  # the issue's grid for its crude roll
 def held_out_sets(name: str) -> tuple[list[tuple[str, Path]], list[tuple[str, Path]]]:
     """``(gallery, queries)`` as ``(class, path)`` lists."""
     if name == "mpeg7":
-        from studio.targets.images import image_class, image_number
+        from studio.targets.image_sets import image_class, image_number
 
         files = sorted((SHARED / "mpeg7").glob("*.gif"))
         gallery = [(image_class(p), p) for p in files if (image_number(p) or 0) >= 3]

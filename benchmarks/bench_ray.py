@@ -61,7 +61,8 @@ def bench_evaluate(root: Path, n_targets: int, workers: int) -> dict:
     from studio.imitate.config import PRESETS, still_configs
     from studio.imitate.retrieval import cached_index
     from studio.imitate.still import DEFAULT_MODEL, Imitator
-    from studio.targets.images import gather_targets, load_target
+    from studio.targets.image_sets import gather_targets
+    from studio.targets.images import load_target
 
     folder = SHARED_ASL if SHARED_ASL.is_dir() else asset("targets")
     files = [f for f in gather_targets([folder]) if f.suffix.lower() in (".jpeg", ".jpg", ".png")][:n_targets]

@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     from studio.imitate.still import Imitator
     from studio.learn.threads import DEFAULT_THREADS, set_torch_threads
     from studio.targets.expressive import still_expressive
-    from studio.targets.images import image_class, image_number
+    from studio.targets.image_sets import image_class, image_number
 
     set_torch_threads(DEFAULT_THREADS)  # the studio's own thread count (studio.learn.threads)
     if args.set == "asl":

@@ -40,7 +40,7 @@ def wide_set(name: str) -> list[tuple[str, object]]:
     if name == "asl":
         files = sorted((SHARED / "asl").glob("*/hand2_*"))
         return [(p.name.split("_")[2], p) for p in files if p.name.split("_")[2] in ASL_LIGHTING]
-    from studio.targets.images import image_class, image_number
+    from studio.targets.image_sets import image_class, image_number
 
     files = sorted((SHARED / "mpeg7").glob("*.gif"))
     return [(image_class(p), p) for p in files if image_class(p) in ANIMALS and image_number(p) in MPEG7_IMAGES]

@@ -25,7 +25,7 @@ from studio.learn.dataset import collect
 from studio.learn.inverse import InverseCNN, InverseConfig
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
 from studio.targets.holes import find_holes
-from studio.targets.images import gather_targets
+from studio.targets.image_sets import gather_targets
 
 RES = 32
 TINY_MODEL = SelfModelConfig(resolution=RES, hidden=64, channels=16, min_channels=8, res_blocks=1)

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from studio.evaluate.observer import Observer, ObserverConfig, describe
-from studio.targets.images import image_class, image_number, load_target
+from studio.targets.image_sets import image_class, image_number
+from studio.targets.images import load_target
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "targets"
 HOG, FOURIER = ObserverConfig(descriptor="hog"), ObserverConfig(descriptor="fourier")

@@ -96,7 +96,7 @@ def test_a_name_that_is_not_utf8_is_refused_at_once(in_process, tmp_path):
 
 def test_gathered_targets_with_names_that_are_not_utf8_are_refused(tmp_path):
     from studio.path_checks import NameNotText
-    from studio.targets.images import gather_targets
+    from studio.targets.image_sets import gather_targets
 
     (tmp_path / os.fsdecode(b"caf\xe9.png")).write_bytes(b"")
     with pytest.raises(NameNotText, match=r"caf\\xe9.png"):
@@ -107,7 +107,7 @@ def test_sources_that_are_not_there_are_named_in_one_message_form(tmp_path):
     from studio.errors import TargetError
     from studio.evaluate.sequences import gather_sequences
     from studio.path_checks import existing_paths
-    from studio.targets.images import gather_targets
+    from studio.targets.image_sets import gather_targets
 
     (tmp_path / "here.png").write_bytes(b"")
     assert existing_paths([str(tmp_path / "here.png"), tmp_path], "x") == [tmp_path / "here.png", tmp_path]

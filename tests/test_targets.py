@@ -13,11 +13,11 @@ from PIL import Image
 
 from studio.errors import StudioError, TargetError
 from studio.targets.holes import fill_holes, find_holes
+from studio.targets.image_sets import find_target_files
 from studio.targets.images import (
     DEFAULT_TARGET,
     SAMPLE_DIR,
     TargetConfig,
-    find_target_files,
     keep_largest_components,
     load_target,
     mask_from_grey,
@@ -330,7 +330,7 @@ def test_muybridge_horse_first_frame_loads_with_defaults(shared_targets: Path, t
 
 def test_numbered_images_name_their_class_and_number() -> None:
     """MPEG-7's names, padded or not: the class before the last ``-``, the number after it."""
-    from studio.targets.images import first_per_class, image_class, image_number
+    from studio.targets.image_sets import first_per_class, image_class, image_number
 
     files = ("camel-1.gif", "camel-12.gif", "rat-03.gif", "rat-01.gif", "two-part-name-7.png", "o.jpeg")
     names = [Path(n) for n in files]

@@ -25,7 +25,7 @@ from studio.cli.scale_flags import add_fanout_flags, fanout_from_args, models_fr
 from studio.cli.source_flags import add_source_flags, still_config_from_args
 from studio.imitate.config import still_configs
 from studio.learn.threads import torch_threads
-from studio.targets.images import gather_targets
+from studio.targets.image_sets import gather_targets
 
 DEFAULT_INVERSE = asset("models/inverse_cpu128.pt", must_exist=False)
 
