@@ -119,3 +119,71 @@ def test_the_targets_panel_previews_a_stored_mask_with_its_gaps():
     shown = frame_preview(grey, (0, 0, 640, 640), 32, "bright", 127.0, "mask", VideoConfig(), TargetConfig())
     assert find_holes(shown.mask).any() and shown.stored is not None and not find_holes(shown.stored).any()
     assert int((shown.stored != shown.mask).sum()) <= 6
+
+
+def _lit_hand(side: int = 300) -> np.ndarray:
+    """A bright palm (grey 200) with two fingers on a black cut-out backdrop (0): the fingers' gap is true black."""
+    g = np.zeros((side, side), np.uint8)
+    g[120:260, 60:240] = 200  # palm
+    g[30:120, 70:120] = 200  # finger 1
+    g[30:120, 170:220] = 200  # finger 2: a 50-pixel black gap between them, open at the top
+    return g
+
+
+def test_a_crease_pocket_under_a_side_light_is_skin_and_a_real_gap_stays():
+    """A crease's shade (mid-dark, shadowness 5–25, with odd black pixels) that opens to the outside through a neck
+    is skin: filled. The true-black gap between two fingers stays open, and so does a soft edge along the outline."""
+    from studio.targets.images import TargetConfig, mask_from_grey
+
+    g = _lit_hand()
+    g[150:200, 100:200] = 15  # the crease's shade, a pocket in the palm …
+    g[150:152, 150:200] = 2  # … with a few near-black pixels in it
+    g[170:178, 200:240] = 15  # … and its 8-pixel neck to the outside on the right
+    plain = mask_from_grey(g, TargetConfig(pocket_reach=0.0))
+    filled = mask_from_grey(g)
+    assert plain[150:200, 100:200].sum() == 0 and plain[170:178, 200:240].sum() == 0  # the notch, plainly
+    assert filled[150:200, 100:200].all() and filled[170:178, 200:236].all()  # skin, up to the reach of the outside
+    assert filled[30:120, 120:170].sum() == 0  # the fingers' black gap stays open
+    soft = _lit_hand()
+    soft[118:120, 120:170] = 15  # a soft edge: mid-dark along the outline between the fingers, two pixels deep
+    assert mask_from_grey(soft)[118:120, 120:170].sum() == 0
+    assert np.array_equal(mask_from_grey(_lit_hand()), mask_from_grey(_lit_hand(), TargetConfig(pocket_reach=0.0)))
+
+
+def test_footage_of_a_shadow_keeps_its_penumbra_gaps_open():
+    """A shadow has no skin: the mid-dark in a frame of shadow footage is penumbra, a real gap's, and stays open
+    where a still's loader, with the same levels, would fill it as a crease pocket."""
+    from studio.targets.images import TargetConfig, mask_from_grey
+    from studio.targets.video import VideoConfig, shadow_mask
+
+    g = _lit_hand()
+    g[150:200, 100:200] = 110  # mid-dark for footage's levels: under its threshold (128), over its core (0.75 ×)
+    g[170:178, 200:240] = 110
+    shadow = 255 - g  # a dark shadow on a bright backdrop
+    cfg = VideoConfig()
+    still = TargetConfig(polarity="dark", threshold=cfg.threshold, backdrop_level=cfg.backdrop_level)
+    assert mask_from_grey(shadow, still)[150:200, 100:200].all()
+    assert shadow_mask(shadow, "dark", cfg)[150:200, 100:200].sum() == 0
+
+
+@pytest.mark.skipif(not SHARED.is_dir(), reason="../shared/targets is not here (the shared data set)")
+def test_side_lit_letters_lose_their_crease_notches_and_binary_shapes_are_unchanged():
+    """Signer 2's `q` under a light from the right: its crease's shade was cut out of the letter as a notch; now it
+    is skin (the mask only grows, by ≥ 5 %). Binary silhouettes have no mid-dark pixels: not one pixel changes."""
+    from studio.targets.images import TargetConfig
+
+    off = TargetConfig(pocket_reach=0.0)
+    q = SHARED / "asl/q/hand2_q_right_seg_1_cropped.jpeg"
+    plain, filled = load_target(q, cfg=off), load_target(q)
+    assert np.all(filled >= plain) and filled.sum() >= 1.05 * plain.sum()
+    for name in ("camel-2.gif", "horse-2.gif", "deer-2.gif", "Heart-2.gif"):
+        path = SHARED / "mpeg7" / name
+        assert np.array_equal(load_target(path, size=128), load_target(path, size=128, cfg=off)), name
+
+
+def test_pocket_settings_out_of_range_are_refused():
+    from studio.targets.images import TargetConfig
+
+    for bad in ({"pocket_reach": -0.1}, {"pocket_reach": 2.0}, {"pocket_neck": 1.5}):
+        with pytest.raises(ValueError, match="pocket_reach and pocket_neck"):
+            TargetConfig(**bad)

@@ -287,6 +287,7 @@ def test_imitate_threshold_flags_reach_the_target(tmp_path):
     assert cfg() == TargetConfig()  # 25, or Otsu by itself where the border is not dark
     assert cfg("--otsu").threshold is None
     assert cfg("--still-threshold", "25") == TargetConfig(threshold=25.0, auto_otsu=False)  # asked for: always used
+    assert cfg("--otsu", "--still-pocket-reach", "0") == TargetConfig(threshold=None, pocket_reach=0.0)  # both kept
     grey = np.full((96, 96), 170, np.uint8)  # a light-grey wall (shadowness 85) with a dark disc
     cv2.circle(grey, (48, 48), 30, 30, -1)
     path = tmp_path / "grey_wall.png"

@@ -382,3 +382,25 @@ def test_colour_footage_needs_and_uses_a_first_frame_box(tmp_path):
     q = Project.open(p.path)
     assert q.sources[0].box is None and np.array_equal(q.sources[0].first_mask, first)
     assert state_doc(q.state) == state_doc(p.state)
+
+
+def test_a_project_from_before_crease_pockets_keeps_its_masks_and_results(tmp_path, sources, hand):
+    """A project saved before the loader filled crease pockets (its still settings without the pocket fields) made
+    its masks without them: it opens with them off and its results stay current. A new project fills them."""
+    from studio.project.project_format import DOC
+    from studio.targets.images import TargetConfig
+
+    assert make(tmp_path, sources, "new.shadow").state.still.pocket_reach > 0
+    p = Project.create(tmp_path / "p.shadow", sources=[str(s) for s in sources], video=VIDEO,
+                       still=TargetConfig(pocket_reach=0.0))  # fmt: skip
+    for kf in p.keyframes:
+        p.set_result(kf.id, hand.rest_pose(), {"total": 0.1}, p.keyframe_masks(kf.id)[0])
+    doc = json.loads((p.path / DOC).read_text())
+    del doc["settings"]["still"]["pocket_reach"], doc["settings"]["still"]["pocket_neck"]  # as an older release wrote
+    (p.path / DOC).write_text(json.dumps(doc))
+    old = Project.open(p.path)
+    assert old.state.still.pocket_reach == 0.0 and old.pending_keyframes() == [] and old.stale_keyframes() == []
+    doc["settings"]["still"]["pocket_reach"] = 0.01  # the same masks, read as made with pockets filled: the still's
+    (p.path / DOC).write_text(json.dumps(doc))  # keyframe is stale, the clip's (footage settings) are not
+    still = [kf.id for kf in p.keyframes if p.sources[p.frames[kf.representative].source].kind == "still"]
+    assert len(still) == 1 and Project.open(p.path).stale_keyframes() == still

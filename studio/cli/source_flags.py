@@ -2,7 +2,8 @@
 and ``evaluate``, defined once, and the :class:`~studio.project.pipeline.SourceSettings` they make.
 
 - videos: ``--hz``, ``--fps`` (a frame folder's rate), ``--threshold`` (grey level of shadow footage), ``--size``;
-- stills: ``--still-threshold`` (a fixed level, always used: Otsu does not take over on a bright backdrop);
+- stills: ``--still-threshold`` (a fixed level, always used: Otsu does not take over on a bright backdrop) and
+  ``--still-pocket-reach`` (0: crease pockets left as they are);
 - both: ``--otsu`` (Otsu's level wherever no fixed level is given: ``--still-threshold 60 --otsu`` fixes the
   stills and thresholds the videos by Otsu) and ``--tau`` (keyframes by shape);
 - raw colour footage: ``--box X,Y,W,H`` or ``--first-mask PNG``, the object in the first frame;
@@ -35,11 +36,12 @@ def add_source_flags(
     parser: argparse.ArgumentParser, video: bool = True, still: bool = True, size: bool = False
 ) -> None:
     """The flags of the module doc that apply: ``video`` (sampling, threshold, keyframes, segmentation), ``still``
-    (``--still-threshold``), ``size`` (``--size``: a project's frame side; other verbs work at the model's)."""
+    (``--still-threshold``, ``--still-pocket-reach``), ``size`` (``--size``: a project's frame side; other verbs
+    work at the model's)."""
     if video:
         add_config_flags(parser, VideoConfig, ("hz", "fps", "threshold", *(("size",) if size else ())))
     if still:
-        add_config_flags(parser, TargetConfig, ("threshold",), prefix="still-")
+        add_config_flags(parser, TargetConfig, ("threshold", "pocket_reach"), prefix="still-")
     parser.add_argument("--otsu", action="store_true", help="Otsu's threshold instead of a fixed level")
     add_roll_flag(parser)
     if video:
@@ -79,7 +81,7 @@ def still_config_from_args(args: argparse.Namespace) -> TargetConfig:
     backdrop that is not dark)."""
     fixed = "still_threshold" in args and given(args, "still_threshold")
     if args.otsu and not fixed:
-        return TargetConfig(threshold=None)
+        return config_from_args(args, TargetConfig, prefix="still-", threshold=None)
     return config_from_args(args, TargetConfig, prefix="still-", auto_otsu=not fixed)
 
 

@@ -27,7 +27,10 @@ def keyframe_inputs(state: ProjectState, k: int, combined: np.ndarray | None = N
     rep = state.frames[kf.representative]
     src = state.sources[rep.source]
     if src.kind == "still":
-        loading = {"still": dataclasses.asdict(state.still), "size": state.video.size}
+        still = dataclasses.asdict(state.still)
+        if not state.still.pocket_reach:  # no crease pockets: as before the loader filled them
+            del still["pocket_reach"], still["pocket_neck"]
+        loading = {"still": still, "size": state.video.size}
     else:
         loading = {"video": dataclasses.asdict(state.video)}
     expressive = (combined if combined is not None else combined_masks(state))[kf.representative]

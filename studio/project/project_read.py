@@ -238,7 +238,7 @@ def _from_doc(folder: Path, doc: dict[str, Any]) -> ProjectState:
         created=str(doc.get("created", "")),
         sources=tuple(sources),
         video=video,
-        still=typed_config(TargetConfig, settings["still"], f"{DOC}: settings.still"),
+        still=_still(settings["still"]),
         clustering=typed_config(KeyframeConfig, settings["keyframes"], f"{DOC}: settings.keyframes"),
         weights=typed_config(LossConfig, doc["weights"], f"{DOC}: weights"),
         frames=frames,
@@ -253,6 +253,13 @@ def _from_doc(folder: Path, doc: dict[str, Any]) -> ProjectState:
         show_inputs=show_inputs,
         mount=_mount(doc.get("mount")),
     )
+
+
+def _still(d: Any) -> TargetConfig:
+    """The still settings; a project saved before the loader filled crease pockets made its masks without them, so
+    its settings without ``pocket_reach`` read as 0 (off) and its results stay current."""
+    old = {"pocket_reach": 0.0} if isinstance(d, Mapping) and "pocket_reach" not in d else {}
+    return typed_config(TargetConfig, old | d, f"{DOC}: settings.still")
 
 
 def _mount(d: Any) -> Mount:

@@ -18,12 +18,15 @@ The steps, each a config field with a default that loads every target in ``share
    real opening when its *core* (its surely-backdrop pixels, shadowness ≤ ``backdrop_level`` × threshold) covers at
    least ``min_hole_area`` and at least ``min_core_share`` of the hole. Dark creases between the fingers of a fist
    are mid-dark skin (shadowness 5-25) with little true black, so they fill; the opening of an ASL "o" shows the
-   black backdrop and stays. In binary images every hole pixel is core, so only the area counts.
+   black backdrop and stays. In binary images every hole pixel is core, so only the area counts. Before that, the
+   crease *pockets* are filled: mid-dark backdrop that surely-backdrop pixels do not reach (``pocket_reach`` of the
+   shape's longer side) and that opens to the rest through a neck (``pocket_neck``), as a crease's shade does
+   under a side light (:func:`~studio.targets.holes.fill_pockets`). Binary images have no mid-dark pixels.
 
 :func:`square_frame` turns a mask into the square ``size × size`` frame the optimiser works in, with the mask's
 holes and no others (a gap narrower than a frame pixel stays open, :mod:`studio.targets.holes`, which also finds
 the holes: the hole part of the expressive region, DESIGN §4). Target sets on disk (a folder's images, a numbered
-image's class) are :mod:`studio.targets.image_sets`.
+image's class) are :mod:`studio.targets.image_sets`. Footage of shadows fills no pockets (:mod:`studio.targets.video`).
 """
 
 from __future__ import annotations
@@ -38,7 +41,16 @@ from PIL import Image, ImageOps, UnidentifiedImageError
 
 from studio.assets import asset
 from studio.errors import TargetError
-from studio.targets.holes import MIN_CORE_SHARE, MIN_HOLE_AREA, fill_holes, find_holes, threshold_keeping_gaps
+from studio.targets.holes import (
+    MIN_CORE_SHARE,
+    MIN_HOLE_AREA,
+    POCKET_NECK,
+    POCKET_REACH,
+    fill_holes,
+    fill_pockets,
+    find_holes,
+    threshold_keeping_gaps,
+)
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +72,8 @@ class TargetConfig:
     min_hole_area: float = MIN_HOLE_AREA  # smallest real opening's core: < 1 → share of the shadow area, ≥ 1 → pixels
     min_core_share: float = MIN_CORE_SHARE  # a hole whose core is less than this share of its area is a crease [0, 1]
     backdrop_level: float = 0.25  # core pixels: shadowness ≤ backdrop_level × threshold (surely backdrop) [0, 1]
+    pocket_reach: float = POCKET_REACH  # crease pockets: black backdrop's reach, × shape's longer side; 0: off [0, 1]
+    pocket_neck: float = POCKET_NECK  # a pocket fills when under this share of its rim meets reached backdrop [0, 1]
     frame: str = "shadow"  # load_target(size=…) frames "shadow" (its bounding box + margin) or the whole "image"
     margin: float = 0.1  # frame margin around the shadow box on each side, fraction of its longer side [0, 10]
 
@@ -72,6 +86,8 @@ class TargetConfig:
             raise ValueError("threshold must be a grey level in [0, 255) or None (Otsu)")
         if self.max_components < 1 or self.min_hole_area < 0 or self.margin < 0:
             raise ValueError("max_components must be ≥ 1, min_hole_area and margin ≥ 0")
+        if not (0 <= self.pocket_reach <= 1 and 0 <= self.pocket_neck <= 1):
+            raise ValueError("pocket_reach and pocket_neck must be shares in [0, 1]")
 
 
 def read_grey(path: str | Path) -> np.ndarray:
@@ -156,7 +172,11 @@ def mask_from_grey(grey: np.ndarray, cfg: TargetConfig | None = None, source: st
     if mask.all():
         raise TargetError(f"every pixel is shadow (no backdrop, check the polarity/threshold): {source}")
     mask = keep_largest_components(mask, cfg.max_components, cfg.min_component_share)
-    mask = fill_holes(mask, shade, cfg.backdrop_level * level, cfg.min_hole_area, cfg.min_core_share)
+    core_level = cfg.backdrop_level * level
+    mask = fill_pockets(
+        mask, shade, core_level, cfg.pocket_reach, cfg.pocket_neck, cfg.min_hole_area, cfg.min_core_share
+    )
+    mask = fill_holes(mask, shade, core_level, cfg.min_hole_area, cfg.min_core_share)
     if mask.all():
         raise TargetError(f"every pixel is shadow after filling holes (no backdrop left): {source}")
     return mask

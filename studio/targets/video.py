@@ -149,9 +149,10 @@ def detect_kind(frames: np.ndarray, colour_spread: float = VideoConfig.colour_sp
 def shadow_mask(grey: np.ndarray, polarity: str, cfg: VideoConfig, source: str = "<frame>") -> np.ndarray:
     """One grey frame ``(H, W)`` of shadow footage → its mask ``(H, W)`` uint8 (module doc, step 2): threshold,
     ruled lines and specks removed (:mod:`studio.targets.cleanup`), then the still-target pieces and holes."""
-    target_cfg = TargetConfig(
-        polarity=polarity, threshold=cfg.threshold, auto_otsu=cfg.auto_otsu, backdrop_level=cfg.backdrop_level
-    )
+    target_cfg = TargetConfig(  # no crease pockets: a shadow has no skin, its mid-dark is penumbra (a real gap's)
+        polarity=polarity, threshold=cfg.threshold, auto_otsu=cfg.auto_otsu, backdrop_level=cfg.backdrop_level,
+        pocket_reach=0.0,
+    )  # fmt: skip
     shade = shadowness(grey, polarity)
     level = threshold_level(shade, target_cfg, source)
     raw = (shade > level).astype(np.uint8)
