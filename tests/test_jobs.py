@@ -345,7 +345,11 @@ def snapshot(project) -> tuple:
 @pytest.mark.slow
 def test_project_jobs_apply_on_completion_and_nothing_on_cancel_or_failure(project, tmp_path, hand):
     from studio.imitate.config import CPU_SEQUENCE
-    from studio.project.jobs import keyframe_job, queue_for, video_job
+    from studio.project.jobs import queue_for, video_job
+
+    def one(search, model_path=None, **kw):  # keyframe k alone, searched from scratch (no retrieval index to build)
+        return video_job(project, [k], cfg=replace(CPU_SEQUENCE, first=search, retrieve=False, **kw),
+                         model_path=model_path)  # fmt: skip
 
     k = project.keyframes[0].id
     before = snapshot(project)
@@ -354,21 +358,21 @@ def test_project_jobs_apply_on_completion_and_nothing_on_cancel_or_failure(proje
     rec = Recorder("search")
     queue.subscribe(rec)
     try:
-        job = queue.submit(keyframe_job(project, k, search=LONG))
+        job = queue.submit(one(LONG))
         assert rec.seen.wait(60), job.error
         t0 = time.monotonic()
         job.cancel()
         assert job.wait(1.0) == JobState.CANCELLED and time.monotonic() - t0 < 1.0
         broken = tmp_path / "broken.pt"
         broken.write_bytes(b"not a checkpoint")
-        failed = queue.run(keyframe_job(project, k, search=TINY, model_path=broken))
+        failed = queue.run(one(TINY, model_path=broken))
         assert failed.state == JobState.FAILED and failed.error.message
         assert snapshot(project) == before and not project.can_undo
 
-        done = queue.run(keyframe_job(project, k, search=TINY, refine=RefineConfig(steps=10), candidates=1))
+        done = queue.run(one(TINY, refine=RefineConfig(steps=10), candidates=1))
         assert done.state == JobState.DONE, done.error
-        assert np.allclose(project.results[k].theta(hand.joint_names), done.result.theta)
-        assert np.array_equal(project.results[k].shadow, done.result.shadow)
+        assert np.allclose(project.results[k].theta(hand.joint_names), done.result.keyframes[0].theta)
+        assert np.array_equal(project.results[k].shadow, done.result.keyframes[0].shadow)
         assert project.pending_keyframes() == [] and project.history[-1] == f"result of keyframe {k}"
         project.undo()
         assert k not in project.results
@@ -383,12 +387,14 @@ def test_project_jobs_apply_on_completion_and_nothing_on_cancel_or_failure(proje
 
 @pytest.mark.slow
 def test_project_results_from_changed_inputs_are_stale_and_the_show_is_set(project, hand):
+    from studio.imitate.config import CPU_SEQUENCE
     from studio.motion.plan import Keyframes
-    from studio.project.jobs import keyframe_job, queue_for, show_job
+    from studio.project.jobs import queue_for, show_job, video_job
 
     k = project.keyframes[0].id
     with queue_for(project) as queue:
-        job = keyframe_job(project, k, search=TINY, refine=RefineConfig(steps=10), candidates=1)
+        tiny = replace(CPU_SEQUENCE, first=TINY, refine=RefineConfig(steps=10), candidates=1, retrieve=False)
+        job = video_job(project, [k], cfg=tiny)
         project.set_weights(w_iou=0.5)  # the artist edits while the job waits: its inputs were captured before
         assert queue.run(job).state == JobState.DONE, job.error
         assert project.is_stale(k) and project.stale_keyframes() == [k]

@@ -2,9 +2,11 @@
 through the Project API when it completes.
 
     queue = queue_for(project)                         # the project's one queue
-    for k in project.pending_keyframes():
-        queue.submit(keyframe_job(project, k))         # on completion: project.set_result(k, ...)
+    queue.submit(video_job(project, [k]))              # on completion: project.set_result(k, ...) for each
     queue.submit(show_job(project, keyframes))         # on completion: project.set_show(show, ...)
+
+A project's run (:mod:`studio.project.run`, what every face runs) submits these jobs in order, the mount roll
+chosen first (``roll_job``); ``video_job`` imitates its keyframes at the project's mount roll.
 
 Each job captures the project's input fingerprint (``keyframe_inputs``/``show_inputs``) when it is made, so a
 result whose inputs the artist changed while it ran is applied marked stale, never as current (the Project's rule).
@@ -22,13 +24,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from studio.jobs.engine import choose_roll_job, imitate_keyframe_job, imitate_video_job, plan_job
+from studio.jobs.engine import choose_roll_job, imitate_video_job, plan_job
 from studio.jobs.job import Job
 from studio.jobs.queue import DEFAULT_WORKER, JobQueue
 from studio.project.status import ProjectHandle
 
 if TYPE_CHECKING:
-    from studio.imitate.config import LossConfig, RefineConfig, SearchConfig, SequenceConfig
+    from studio.imitate.config import LossConfig, SequenceConfig
     from studio.motion.plan import Keyframes, PlanConfig
 
 _QUEUES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -46,35 +48,6 @@ def project_loss(project: ProjectHandle, side: int, clip: Any = None) -> LossCon
     """The project's loss weights for crops of ``side`` pixels; the CLIP terms only with an encoder."""
     w = project.weights
     return replace(w, use_clip=bool(w.use_clip and clip is not None), crop_size=side)
-
-
-def keyframe_job(
-    project: ProjectHandle,
-    k: int,
-    *,
-    search: SearchConfig | None = None,
-    refine: RefineConfig | None = None,
-    candidates: int = 4,
-    clip: Any = None,
-    model_path: Path | None = None,
-    preview: int = 64,
-) -> Job:
-    """Imitate keyframe ``k`` (its representative's target and expressive mask, the project's weights) →
-    ``project.set_result(k, pose, loss, shadow, ...)`` on completion (:func:`.engine.imitate_keyframe_job`)."""
-    target, expressive = (np.array(a) for a in project.keyframe_masks(k))
-    inputs = project.keyframe_inputs(k)
-
-    def apply(r) -> None:
-        project.set_result(k, r.theta, r.loss, r.shadow, inputs=inputs, collision_free=r.collision_free,
-                           seconds=r.seconds)  # fmt: skip
-
-    job = imitate_keyframe_job(
-        target, expressive if expressive.any() else None, search=search, refine=refine, candidates=candidates,
-        loss_cfg=project_loss(project, target.shape[-1], clip), clip=clip, model_path=model_path, preview=preview,
-        apply=apply, title=f"keyframe {k}",
-    )  # fmt: skip
-    job.meta["keyframes"] = [k]
-    return job
 
 
 def video_job(
