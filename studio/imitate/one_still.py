@@ -30,8 +30,10 @@ def imitate_still(
     cancel: threading.Event | None = None,
     threads: int | None = DEFAULT_THREADS,
 ) -> ImitationResult:
-    """One still target end to end with the shipped model (or ``model_path``), CLIP off, holes as expressive region;
-    ``progress`` and ``cancel`` as :meth:`Imitator.imitate` (its stages, its partial result).
+    """One still target end to end with the shipped model (or ``model_path``), CLIP off, holes as expressive region,
+    on the paper's upright rig (mount roll 0: the pose's show plays on an upright mount); ``progress`` and ``cancel``
+    as :meth:`Imitator.imitate` (its stages, its partial result). The studio's default, roll auto, is a project's
+    run: :func:`studio.imitate_video` takes a still too and writes a show that records its roll.
 
     ``target`` is an image path (loaded with ``target_cfg``) or a mask ``(R, R)`` framed at the model's resolution
     (``load_target(path, size=R)``). ``threads``: torch CPU threads for this call, restored after
