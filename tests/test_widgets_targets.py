@@ -335,3 +335,52 @@ def test_counts_and_times_read_as_a_person_writes_them(state):
     state.select(frame=len(state.project.frames) - 1)
     t = state.project.frames[-1].time_s
     assert panel.frame_info.value.endswith(f"{t:.2f} s") and "99999" not in panel.frame_info.value
+
+
+def side_lit_still(path: Path) -> Path:
+    """A bright hand (grey 200) on a black cut-out backdrop whose palm holds a crease's shade (grey 15, a few black
+    pixels) opening to the outside through a neck on the right: thresholding cuts it out as a notch."""
+    g = np.zeros((300, 300), np.uint8)
+    g[120:260, 60:240] = 200  # palm
+    g[30:120, 70:120] = g[30:120, 170:220] = 200  # two fingers, a true-black gap between them
+    g[150:200, 100:200] = 15  # the crease's shade …
+    g[150:152, 150:200] = 2
+    g[170:178, 200:240] = 15  # … and its neck to the outside
+    cv2.imwrite(str(path), g)
+    return path
+
+
+def test_a_still_s_crease_pockets_are_previewed_then_applied_and_undone(tmp_path):
+    """The checkbox shows in the stored picture what filling a still's crease pockets does (the palm's shade tinted
+    as skin, or cut out as a notch), applies it as one undoable edit, and is off for footage, which fills none."""
+    still = side_lit_still(tmp_path / "side_lit.png")
+    project = Project.create(tmp_path / "p.shadow", [still, DEFAULT_VIDEO], video=VideoConfig(size=64, hz=2.0))
+    s = StudioState(project, queue_for(project))
+    try:
+        panel = TargetsPanel(s)
+        panel._throttled = lambda: None  # draw only when asked
+        s.select(frame=next(i for i, f in enumerate(project.frames) if f.source == 0))
+        assert panel.pockets.value and not panel.pockets.disabled
+        side = panel.stored_rgb.shape[0]
+        at = (slice(155 * side // 300, 195 * side // 300), slice(105 * side // 300, 195 * side // 300))  # the shade
+        finger_gap = (slice(40 * side // 300, 110 * side // 300), slice(125 * side // 300, 165 * side // 300))
+        panel.refresh_preview()
+        filled = tinted(panel.stored_rgb)
+        assert filled[at].mean() > 0.95 and filled[finger_gap].mean() < 0.05  # skin; the black gap stays open
+        panel.pockets.value = False
+        panel.refresh_preview()
+        kept = tinted(panel.stored_rgb)
+        assert kept[at].mean() < 0.05 and kept.sum() < filled.sum()  # the notch, as the threshold cuts it
+        before = project.state.targets.copy()
+        panel.apply_threshold.click()
+        assert panel.messages.text == "" and project.state.still.pocket_reach == 0.0 and not panel.pockets.value
+        assert project.history[-1] == "crease pockets kept"
+        frame = next(i for i, f in enumerate(project.frames) if f.source == 0)
+        assert project.state.targets[frame].sum() < before[frame].sum()  # the stored mask lost the pocket
+        s.undo()
+        assert project.state.still.pocket_reach > 0 and np.array_equal(project.state.targets, before)
+        assert panel.pockets.value
+        s.select(frame=next(i for i, f in enumerate(project.frames) if f.source == 1))
+        assert panel.pockets.disabled
+    finally:
+        s.close()

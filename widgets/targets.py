@@ -7,15 +7,16 @@ after its cleanup, and segmentation of raw colour footage from a first-frame box
     panel = TargetsPanel(state)      # panel.widget goes in the notebook; tests set values and .click() buttons
 
 The left picture is the threshold alone on the frame's shadowness, the right one what the project stores at that
-threshold after its cleanup (ruled lines, specks, pieces, holes), both inside the project's square frame and both
-decided in source pixels with the source's polarity as the project finds it (:mod:`widgets.target_preview`); the
-project changes when the threshold is applied.
+threshold after its cleanup (ruled lines, specks, pieces, holes; for a still its crease pockets filled or not, as
+the checkbox says), both inside the project's square frame and both decided in source pixels with the source's
+polarity as the project finds it (:mod:`widgets.target_preview`); the project changes when they are applied.
 """
 
 from __future__ import annotations
 
 import html
 import threading
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -26,6 +27,7 @@ from studio.assets import asset
 from studio.jobs import Job
 from studio.project.sources import locate
 from studio.project.state import ProjectError
+from studio.targets.holes import POCKET_REACH
 from studio.targets.source import raw_frames
 from widgets.first_frame import FirstFrame
 from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, png, tint, title
@@ -85,7 +87,8 @@ class TargetsPanel(TargetsActions):
         self.apply_hz = w.Button(description="Apply sampling")
         self.threshold = w.FloatSlider(min=0.0, max=254.0, step=1.0, description="threshold", continuous_update=True)
         self.otsu = w.Checkbox(description="Otsu")
-        self.apply_threshold = w.Button(description="Apply threshold")
+        self.pockets = w.Checkbox(description="fill crease pockets")  # a still's: its shade cut in as a notch is skin
+        self.apply_threshold = w.Button(description="Apply")
         self.first = FirstFrame(PREVIEW_PX, on_change=self._first_changed)  # the object: a box or a painted mask
         self.box = self.first.box  # x, y, w, h (source pixels)
         self.segment = w.Button(description="Segment", icon="scissors")
@@ -101,6 +104,7 @@ class TargetsPanel(TargetsActions):
         self._throttled = Throttle(lambda: self.messages.run(self.refresh_preview, clear=False), hz=15.0)
         self.threshold.observe(lambda _: self._throttled(), names="value")
         self.otsu.observe(lambda _: self._throttled(), names="value")
+        self.pockets.observe(lambda _: self._throttled(), names="value")
         self.apply_threshold.on_click(lambda _: self.messages.run(self._apply_threshold))
         self.segment.on_click(lambda _: self.messages.run(self._segment))
         self.cancel_segment.on_click(lambda _: self.segment_job is not None and self.segment_job.cancel())
@@ -118,7 +122,7 @@ class TargetsPanel(TargetsActions):
             w.HBox([self.path, self.add_path, self.upload]),
             w.HBox([self.scrubber, self.frame_info]),
             self.pictures,
-            w.HBox([self.threshold, self.otsu, self.apply_threshold]),
+            w.HBox([self.threshold, self.otsu, self.pockets, self.apply_threshold]),
             w.HBox([self.hz, self.apply_hz]),
             self.first.widget,
             w.HBox([self.segment, self.cancel_segment]),
@@ -213,6 +217,7 @@ class TargetsPanel(TargetsActions):
                 self.otsu.value = cfg.threshold is None
                 if cfg.threshold is not None:
                     self.threshold.value = cfg.threshold
+            self.pockets.value, self.pockets.disabled = p.state.still.pocket_reach > 0, not self._is_still(f.source)
             self._first_of(f.source)
         self.threshold.disabled = self.otsu.value
         self.messages.run(self.refresh_preview, clear=False)
@@ -270,7 +275,8 @@ class TargetsPanel(TargetsActions):
         shown = frame_preview(
             grey, self._box(grey, source), PREVIEW_PX, self.polarity(source),
             None if self.otsu.value else float(self.threshold.value), src.footage or "shadow", p.state.video,
-            p.state.still, stored=p.state.targets[frame] if src.footage == "segmented" else None,
+            replace(p.state.still, pocket_reach=POCKET_REACH if self.pockets.value else 0.0),
+            stored=p.state.targets[frame] if src.footage == "segmented" else None,
         )  # fmt: skip
         self.preview_level, self.preview_mask, self.stored_mask = shown.level, shown.mask, shown.stored
         self._show(tint(grey_rgb(shown.grey), shown.mask, MASK_RGB, 0.55))

@@ -60,11 +60,17 @@ class TargetsActions:
         self._add(out)
 
     def _apply_threshold(self) -> None:
+        """The threshold (or Otsu) to the selected frame's kind of source; for a still also whether its crease
+        pockets are filled (one edit each that changes)."""
         level = None if self.otsu.value else float(self.threshold.value)
-        if self._is_still(self._source_index()):
-            self.state.edit("set_threshold", still=level)
-        else:
+        if not self._is_still(self._source_index()):
             self.state.edit("set_threshold", video=level)
+            return
+        fill = bool(self.pockets.value)  # read before the edit: the panel redraws from the project after it
+        if level != self.state.project.state.still.threshold:
+            self.state.edit("set_threshold", still=level)
+        if fill != (self.state.project.state.still.pocket_reach > 0):
+            self.state.edit("set_pockets", fill)
 
     def _segment(self) -> Job:
         project, pending = self.state.project, self.pending

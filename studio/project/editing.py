@@ -25,6 +25,7 @@ from studio.project.sources import load_sources, locate, make_source
 from studio.project.state import Mount, ProjectError, ProjectState, frozen
 from studio.project.status import SourceMissing
 from studio.sim.roll import roll_deg
+from studio.targets.holes import POCKET_REACH
 from studio.targets.images import read_grey
 
 log = logging.getLogger(__name__)
@@ -97,6 +98,12 @@ class Editing:
         v = self._state.video if video is KEEP else replace(self._state.video, threshold=video)
         s = self._state.still if still is KEEP else replace(self._state.still, threshold=still)
         self._edit_reloading(f"threshold video {v.threshold}, still {s.threshold}", progress, video=v, still=s)
+
+    def set_pockets(self, fill: bool, progress: ProgressFn | None = None) -> None:
+        """Whether the stills' crease pockets are filled (``TargetConfig.pocket_reach``: the default reach, or 0 to
+        keep them as the threshold cuts them; footage fills none). Frames, masks and keyframes recomputed."""
+        s = replace(self._state.still, pocket_reach=POCKET_REACH if fill else 0.0)
+        self._edit_reloading(f"crease pockets {'filled' if fill else 'kept'}", progress, still=s)
 
     def set_segmentation(
         self,
