@@ -187,3 +187,49 @@ def test_pocket_settings_out_of_range_are_refused():
     for bad in ({"pocket_reach": -0.1}, {"pocket_reach": 2.0}, {"pocket_neck": 1.5}):
         with pytest.raises(ValueError, match="pocket_reach and pocket_neck"):
             TargetConfig(**bad)
+
+
+def test_going_around_a_pocket_is_checked_against_counting_the_backdrop_s_pieces():
+    """fill_pockets' shortcut (the backdrop around a pocket is one piece, so filling it splits nothing) against the
+    slow reference: counting the backdrop's 4-connected pieces before and after, on random masks and pockets."""
+    from studio.targets.holes import _one_piece_around
+
+    rng = np.random.default_rng(7)
+    said = {True: 0, False: 0}
+    for _ in range(400):
+        mask = (rng.random((20, 20)) < rng.uniform(0.2, 0.6)).astype(np.uint8)
+        mask[0], mask[-1], mask[:, 0], mask[:, -1] = 1, 1, 1, 1  # pockets stay off the border, as in fill_pockets
+        r, c = rng.integers(1, 15, 2)
+        window = np.zeros_like(mask)
+        window[r : r + rng.integers(1, 5), c : c + rng.integers(1, 5)] = 1
+        n, parts = cv2.connectedComponents(window & (1 - mask), connectivity=4)
+        if n < 2:
+            continue
+        pocket = (parts == 1).astype(np.uint8)
+        filled = mask | pocket
+        pieces = cv2.connectedComponents(1 - mask, connectivity=4)[0]
+        whole = cv2.connectedComponents(1 - filled, connectivity=4)[0] == pieces - 1  # the pocket was a whole piece
+        if whole:
+            continue
+        ok = _one_piece_around(pocket, filled)
+        said[ok] += 1
+        if ok:
+            assert cv2.connectedComponents(1 - filled, connectivity=4)[0] == pieces
+    assert said[True] > 20 and said[False] > 20, said  # both answers were checked
+
+
+def test_mid_dark_specks_over_the_backdrop_leave_the_crease_filled_and_the_gap_open():
+    """A photo whose black backdrop is sprinkled with mid-dark specks (a dark cloth): the crease pocket is still
+    filled, the fingers' black gap stays open, and the specks add next to nothing to the shape."""
+    from studio.targets.images import mask_from_grey
+
+    g = _lit_hand()
+    g[150:200, 100:200] = 15
+    g[170:178, 200:240] = 15
+    g = cv2.resize(g, (600, 600), interpolation=cv2.INTER_NEAREST)
+    clean = mask_from_grey(g)
+    rng = np.random.default_rng(0)
+    noisy = np.where((g == 0) & (rng.random(g.shape) < 0.02), 12, g).astype(np.uint8)
+    got = mask_from_grey(noisy)
+    assert got[300:400, 200:400].all() and got[60:240, 250:330].sum() == 0
+    assert abs(int(got.sum()) - int(clean.sum())) < 0.002 * clean.sum()

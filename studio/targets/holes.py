@@ -111,27 +111,42 @@ def fill_pockets(
     for _ in range(r):  # reach r pixels into the backdrop, through the backdrop
         reached = cv2.dilate(reached, step) & back
     outside = back & (1 - find_holes(mask))  # a hole's mid-dark is fill_holes' to judge, by its core
-    n, labels = cv2.connectedComponents(outside & (1 - reached) & (1 - core), connectivity=4)  # mid-dark, unreached
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(outside & (1 - reached) & (1 - core), connectivity=4)
     out = mask.astype(np.uint8).copy()
 
     def openings(m: np.ndarray) -> np.ndarray:  # the holes that fill_holes keeps: real openings
         return find_holes(fill_holes(m, shade, core_level, min_hole_area, min_core_share))
 
     near_reached, near_shape = cv2.dilate(reached, step) > 0, cv2.dilate(mask.astype(np.uint8), step) > 0
-    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    border = np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])  # backdrop seen at the border
+    candidates = np.setdiff1d(np.unique(labels[near_shape]), np.append(border, 0))  # only those beside the shape
     kept = None  # the opening pixels of out, counted when a pocket first needs them
-    for i in np.setdiff1d(np.arange(1, n), border):  # a pocket on the image's border is backdrop seen there
-        pocket = (labels == i).astype(np.uint8)
+    for i in candidates:
+        x, y, w, h = stats[i, :4]
+        box = np.s_[y - 1 : y + h + 1, x - 1 : x + w + 1]  # off the border, so one pixel around is in the image
+        pocket = (labels[box] == i).astype(np.uint8)
         rim = (pocket - cv2.erode(pocket, step)) > 0
-        if not np.any(rim & near_shape):  # a mid-dark speck out in the backdrop: not the shape's
+        if np.count_nonzero(rim & near_reached[box]) >= neck_share * np.count_nonzero(rim):
             continue
-        if np.count_nonzero(rim & near_reached) < neck_share * np.count_nonzero(rim):
-            trial = out | pocket
-            kept = np.count_nonzero(openings(out)) if kept is None else kept
-            now = np.count_nonzero(openings(trial))
-            if now <= kept:  # never closes an opening into a hole
-                out, kept = trial, now
+        trial = out.copy()
+        trial[box] |= pocket
+        if _one_piece_around(pocket, trial[box]):  # every path through it goes around it: no hole can close
+            out, kept = trial, None  # (the shadow grew: fill_holes' area rule is counted again when needed)
+            continue
+        kept = np.count_nonzero(openings(out)) if kept is None else kept
+        now = np.count_nonzero(openings(trial))
+        if now <= kept:  # never closes an opening into a hole
+            out, kept = trial, now
     return out
+
+
+def _one_piece_around(pocket: np.ndarray, mask: np.ndarray) -> bool:
+    """Whether the backdrop of ``mask`` ``(h, w)`` around ``pocket`` ``(h, w)`` (both uint8, a box one pixel wider
+    than the pocket; the ring of its 8 neighbours) is one 4-connected piece: then a backdrop path through the pocket
+    can go around it instead, so filling the pocket disconnects no backdrop and closes no opening."""
+    square = cv2.getStructuringElement(cv2.MORPH_RECT, (3, 3))
+    ring = (cv2.dilate(pocket, square) - pocket) & (1 - mask)
+    return cv2.connectedComponents(ring, connectivity=4)[0] <= 2  # the label 0 and at most one piece
 
 
 def _grid_graph(cost: np.ndarray) -> coo_matrix:
