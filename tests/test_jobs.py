@@ -1,6 +1,7 @@
-"""Background jobs (studio.project.jobs): cancel within 1 s applying nothing, failures reported and applying nothing,
-FIFO one at a time with the right states, ordered events consumed by tqdm and by polling, apply exactly once; the
-engine jobs run the real engine (tiny searches), the play job real pyserial against the emulator."""
+"""Background jobs (studio.jobs): cancel within 1 s applying nothing, failures reported and applying nothing, FIFO
+one at a time with the right states, ordered events consumed by tqdm and by polling, apply exactly once; the engine
+jobs run the real engine (tiny searches), the play job real pyserial against the emulator. Jobs bound to a project
+(studio.project.jobs): tests/test_project_jobs.py."""
 
 from __future__ import annotations
 
@@ -12,9 +13,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from jobs_support import LONG, TARGET, TINY, Recorder  # the job tests' own helpers, beside this file
 from studio.assets import asset
 
-from studio.imitate.config import RefineConfig, SearchConfig
+from studio.imitate.config import RefineConfig
 from studio.jobs import (
     Job,
     JobQueue,
@@ -26,22 +28,6 @@ from studio.jobs import (
     plan_job,
 )
 from studio.project.play import play_job
-
-TARGET = asset("targets/asl_v.jpeg")
-TINY = SearchConfig(batch=4, iterations=20, lr=0.08, log_every=5)
-LONG = SearchConfig(batch=4, iterations=1_000_000, lr=0.08, log_every=1)
-
-
-class Recorder:
-    """A subscriber keeping every event, with a flag raised on the first one of a given stage."""
-
-    def __init__(self, stage: str | None = None):
-        self.events, self.stage, self.seen = [], stage, threading.Event()
-
-    def __call__(self, e) -> None:
-        self.events.append(e)
-        if self.stage is not None and e.stage == self.stage:
-            self.seen.set()
 
 
 def staged(stages, release: threading.Event | None = None, log: list | None = None, name: str = ""):
@@ -327,80 +313,3 @@ def test_best_pose_hook_gives_the_reported_pose(hand):
 
 
 # --- jobs bound to a project: applied through the Project API, nothing on failure or cancel ---------------------
-
-
-@pytest.fixture
-def project(tmp_path):
-    from studio.project.project import Project
-
-    return Project.create(tmp_path / "still.shadow", sources=[TARGET])
-
-
-def snapshot(project) -> tuple:
-    """What must not change: every file's bytes, the results, the undo list."""
-    files = {p.relative_to(project.path): p.read_bytes() for p in sorted(project.path.rglob("*")) if p.is_file()}
-    return files, dict(project.results), project.history
-
-
-@pytest.mark.slow
-def test_project_jobs_apply_on_completion_and_nothing_on_cancel_or_failure(project, tmp_path, hand):
-    from studio.imitate.config import CPU_SEQUENCE
-    from studio.project.jobs import queue_for, video_job
-
-    def one(search, model_path=None, **kw):  # keyframe k alone, searched from scratch (no retrieval index to build)
-        return video_job(project, [k], cfg=replace(CPU_SEQUENCE, first=search, retrieve=False, **kw),
-                         model_path=model_path)  # fmt: skip
-
-    k = project.keyframes[0].id
-    before = snapshot(project)
-    queue = queue_for(project)
-    assert queue_for(project) is queue
-    rec = Recorder("search")
-    queue.subscribe(rec)
-    try:
-        job = queue.submit(one(LONG))
-        assert rec.seen.wait(60), job.error
-        t0 = time.monotonic()
-        job.cancel()
-        assert job.wait(1.0) == JobState.CANCELLED and time.monotonic() - t0 < 1.0
-        broken = tmp_path / "broken.pt"
-        broken.write_bytes(b"not a checkpoint")
-        failed = queue.run(one(TINY, model_path=broken))
-        assert failed.state == JobState.FAILED and failed.error.message
-        assert snapshot(project) == before and not project.can_undo
-
-        done = queue.run(one(TINY, refine=RefineConfig(steps=10), candidates=1))
-        assert done.state == JobState.DONE, done.error
-        assert np.allclose(project.results[k].theta(hand.joint_names), done.result.keyframes[0].theta)
-        assert np.array_equal(project.results[k].shadow, done.result.keyframes[0].shadow)
-        assert project.pending_keyframes() == [] and project.history[-1] == f"result of keyframe {k}"
-        project.undo()
-        assert k not in project.results
-
-        cfg = replace(CPU_SEQUENCE, first=TINY, refine=RefineConfig(steps=5), candidates=1)
-        seq = queue.run(video_job(project, cfg=cfg))
-        assert seq.state == JobState.DONE, seq.error
-        assert project.pending_keyframes() == [] and k in project.results
-    finally:
-        queue.close()
-
-
-@pytest.mark.slow
-def test_project_results_from_changed_inputs_are_stale_and_the_show_is_set(project, hand):
-    from studio.imitate.config import CPU_SEQUENCE
-    from studio.motion.plan import Keyframes
-    from studio.project.jobs import queue_for, show_job, video_job
-
-    k = project.keyframes[0].id
-    with queue_for(project) as queue:
-        tiny = replace(CPU_SEQUENCE, first=TINY, refine=RefineConfig(steps=10), candidates=1, retrieve=False)
-        job = video_job(project, [k], cfg=tiny)
-        project.set_weights(w_iou=0.5)  # the artist edits while the job waits: its inputs were captured before
-        assert queue.run(job).state == JobState.DONE, job.error
-        assert project.is_stale(k) and project.stale_keyframes() == [k]
-        pose = hand.rest_pose().copy()
-        pose[hand.joint_names.index("index_pip")] = 0.6  # a collision-free pose (the tiny search's may not be)
-        plan = queue.run(show_job(project, Keyframes.at([0.5], [pose])))
-        assert plan.state == JobState.DONE, plan.error
-    assert project.show is not None and not project.is_show_stale()
-    assert np.allclose(project.show.positions[-1], pose) and project.history[-1] == "planned show"
