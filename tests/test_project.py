@@ -1,5 +1,6 @@
-"""Projects (studio.project.project): round trips, crash safety, undo/redo laws, missing and changed sources,
-format versions, staleness, colour footage (the ``project`` verbs: tests/test_project_cli.py)."""
+"""Projects (studio.project.project): round trips, crash safety, undo/redo laws, missing sources, format versions,
+painted strokes, export, colour footage (staleness: tests/test_project_stale.py; the ``project`` verbs:
+tests/test_project_cli.py)."""
 
 from __future__ import annotations
 
@@ -20,33 +21,16 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from PIL import Image
+from project_support import VIDEO, S, blob, make, rest_show  # the project tests' own helpers, beside this file
 
-from studio.motion.show import Show, load_show
+from studio.motion.show import load_show
 from studio.project.project import Project, ProjectError
 from studio.project.project_format import state_doc
 from studio.project.status import SourceMissing
-from studio.targets.video import SegmentationNeeded, VideoConfig
+from studio.targets.video import SegmentationNeeded
 
-S = 32  # mask side: small and fast
-VIDEO = VideoConfig(size=S, fps=8.0, hz=8.0)
 CLI = [sys.executable, "-m", "studio.cli.main"]
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def make(tmp_path: Path, sources: list[Path], name: str = "p.shadow") -> Project:
-    return Project.create(tmp_path / name, sources=[str(s) for s in sources], video=VIDEO)
-
-
-def rest_show(hand, seconds: float = 1.0) -> Show:
-    q = np.stack([hand.rest_pose(), hand.rest_pose()])
-    return Show.from_samples(hand, np.array([0.0, seconds]), q, title="test")
-
-
-def blob(rng, shape=(S, S)) -> np.ndarray:
-    m = np.zeros(shape, np.uint8)
-    r, c = rng.integers(0, S - 6, 2)
-    m[r : r + 6, c : c + 6] = 1
-    return m
 
 
 def test_create_loads_frames_masks_and_keyframes(tmp_path, sources):
@@ -283,56 +267,6 @@ def test_a_newer_format_version_is_refused_naming_it(tmp_path, sources):
         Project.open(p.path)
 
 
-def test_results_go_stale_when_their_source_changes(tmp_path, sources, hand):
-    p = make(tmp_path, sources)
-    for kf in p.keyframes:
-        p.set_result(kf.id, hand.rest_pose(), {"total": 0.1}, p.keyframe_masks(kf.id)[0])
-    p.set_show(rest_show(hand), inputs=p.show_inputs())
-    assert p.stale_keyframes() == [] and p.pending_keyframes() == [] and not p.is_show_stale()
-    video_kfs = [kf.id for kf in p.keyframes if p.frames[kf.representative].source == 0]
-    frame = np.asarray(Image.open(sources[0] / "00003.png"))
-    Image.fromarray(np.roll(frame, 5, axis=1)).save(sources[0] / "00003.png")  # the artist re-exported a frame
-    q = Project.open(p.path)
-    assert q.changed_sources == [0] and q.stale_keyframes() == video_kfs and q.pending_keyframes() == video_kfs
-    assert q.is_show_stale() and q.summary()["sources"][0]["changed"]
-    with pytest.raises(ProjectError, match="stale"):
-        q.export_show(tmp_path / "show.json")
-    q.reload_sources()  # re-read: the new hash is the source's, the old results stay stale
-    assert not q.changed_sources and q.sources[0].sha256 != p.sources[0].sha256
-    still_k = next(kf.id for kf in q.keyframes if q.frames[kf.representative].source == 1)
-    assert not q.is_stale(still_k) and still_k in q.results
-    assert q.stale_keyframes() == [kf.id for kf in q.keyframes if kf.id in q.results and kf.id != still_k] != []
-
-
-def test_results_go_stale_when_weights_masks_or_membership_change(tmp_path, sources, hand, rng):
-    p = make(tmp_path, sources)
-    big = max(p.keyframes, key=lambda kf: len(kf.members))
-    k = big.id
-    inputs = p.keyframe_inputs(k)
-    p.set_result(k, hand.rest_pose(), {"total": 0.1}, p.keyframe_masks(k)[0], inputs=inputs)
-    assert not p.is_stale(k)
-    p.set_weights(w_iou=0.5)
-    assert p.is_stale(k) and p.stale_keyframes() == [k] and k in p.pending_keyframes()
-    p.set_weights(w_iou=0.4)  # back as it was: current again
-    assert not p.is_stale(k)
-    p.set_hold(k, True)  # time and hold shape the show, not the pose
-    p.set_keyframe_time(k, 2.0)
-    assert not p.is_stale(k)
-    p.paint(big.representative, additions=blob(rng))  # the representative's expressive mask
-    assert p.is_stale(k)
-    p.undo()
-    other = next(m for m in big.members if m != big.representative)
-    p.add_keyframe(other)  # membership
-    assert p.is_stale(k)
-    p.undo()
-    assert not p.is_stale(k)
-    p.set_threshold(still=40.0)  # a still's threshold does not touch a video's keyframes
-    assert not p.is_stale(k)
-    # a result computed while the inputs changed is kept, but stale
-    p.set_result(k, hand.rest_pose(), {"total": 0.1}, p.keyframe_masks(k)[0], inputs="0" * 64)
-    assert p.is_stale(k) and p.results[k].inputs == "0" * 64
-
-
 def test_painted_strokes_survive_a_re_run(tmp_path, sources, rng):
     p = make(tmp_path, sources)
     stroke = blob(rng)
@@ -382,25 +316,3 @@ def test_colour_footage_needs_and_uses_a_first_frame_box(tmp_path):
     q = Project.open(p.path)
     assert q.sources[0].box is None and np.array_equal(q.sources[0].first_mask, first)
     assert state_doc(q.state) == state_doc(p.state)
-
-
-def test_a_project_from_before_crease_pockets_keeps_its_masks_and_results(tmp_path, sources, hand):
-    """A project saved before the loader filled crease pockets (its still settings without the pocket fields) made
-    its masks without them: it opens with them off and its results stay current. A new project fills them."""
-    from studio.project.project_format import DOC
-    from studio.targets.images import TargetConfig
-
-    assert make(tmp_path, sources, "new.shadow").state.still.pocket_reach > 0
-    p = Project.create(tmp_path / "p.shadow", sources=[str(s) for s in sources], video=VIDEO,
-                       still=TargetConfig(pocket_reach=0.0))  # fmt: skip
-    for kf in p.keyframes:
-        p.set_result(kf.id, hand.rest_pose(), {"total": 0.1}, p.keyframe_masks(kf.id)[0])
-    doc = json.loads((p.path / DOC).read_text())
-    del doc["settings"]["still"]["pocket_reach"], doc["settings"]["still"]["pocket_neck"]  # as an older release wrote
-    (p.path / DOC).write_text(json.dumps(doc))
-    old = Project.open(p.path)
-    assert old.state.still.pocket_reach == 0.0 and old.pending_keyframes() == [] and old.stale_keyframes() == []
-    doc["settings"]["still"]["pocket_reach"] = 0.01  # the same masks, read as made with pockets filled: the still's
-    (p.path / DOC).write_text(json.dumps(doc))  # keyframe is stale, the clip's (footage settings) are not
-    still = [kf.id for kf in p.keyframes if p.sources[p.frames[kf.representative].source].kind == "still"]
-    assert len(still) == 1 and Project.open(p.path).stale_keyframes() == still
