@@ -380,6 +380,13 @@ def test_a_still_s_crease_pockets_are_previewed_then_applied_and_undone(tmp_path
         s.undo()
         assert project.state.still.pocket_reach > 0 and np.array_equal(project.state.targets, before)
         assert panel.pockets.value
+        panel.threshold.value, panel.pockets.value = 100.0, False  # both at once: one edit, one reading of the sources
+        n = len(project.history)
+        panel.apply_threshold.click()
+        assert project.state.still.threshold == 100.0 and project.state.still.pocket_reach == 0.0
+        assert len(project.history) == n + 1 and project.history[-1].endswith("; crease pockets kept")
+        s.undo()
+        assert project.state.still.pocket_reach > 0 and np.array_equal(project.state.targets, before)
         s.select(frame=next(i for i, f in enumerate(project.frames) if f.source == 1))
         assert panel.pockets.disabled
     finally:

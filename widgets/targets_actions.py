@@ -61,16 +61,17 @@ class TargetsActions:
 
     def _apply_threshold(self) -> None:
         """The threshold (or Otsu) to the selected frame's kind of source; for a still also whether its crease
-        pockets are filled (one edit each that changes)."""
+        pockets are filled: one edit of what changed (the sources are read again once)."""
         level = None if self.otsu.value else float(self.threshold.value)
         if not self._is_still(self._source_index()):
             self.state.edit("set_threshold", video=level)
             return
-        fill = bool(self.pockets.value)  # read before the edit: the panel redraws from the project after it
-        if level != self.state.project.state.still.threshold:
-            self.state.edit("set_threshold", still=level)
-        if fill != (self.state.project.state.still.pocket_reach > 0):
-            self.state.edit("set_pockets", fill)
+        still = self.state.project.state.still
+        changes = {} if level == still.threshold else {"still": level}
+        if bool(self.pockets.value) != (still.pocket_reach > 0):
+            changes["pockets"] = bool(self.pockets.value)
+        if changes:
+            self.state.edit("set_threshold", **changes)
 
     def _segment(self) -> Job:
         project, pending = self.state.project, self.pending

@@ -92,18 +92,20 @@ class Editing:
         cfg = replace(self._state.video, **{k: v for k, v in (("hz", hz), ("fps", fps)) if v is not KEEP})
         self._edit_reloading(f"sampling {cfg.hz:g} Hz", progress, video=cfg)
 
-    def set_threshold(self, video: float | None = KEEP, still: float | None = KEEP, progress=None) -> None:
+    def set_threshold(
+        self, video: float | None = KEEP, still: float | None = KEEP, pockets: bool = KEEP, progress=None
+    ) -> None:
         """The shadow threshold of videos (``VideoConfig.threshold``) and/or stills (``TargetConfig.threshold``);
-        None = Otsu. Frames, masks and keyframes recomputed."""
+        None = Otsu; ``pockets``: whether the stills' crease pockets are filled (``TargetConfig.pocket_reach``: the
+        default reach, or 0 to keep them as the threshold cuts them; footage fills none). One edit: frames, masks
+        and keyframes recomputed once."""
         v = self._state.video if video is KEEP else replace(self._state.video, threshold=video)
         s = self._state.still if still is KEEP else replace(self._state.still, threshold=still)
-        self._edit_reloading(f"threshold video {v.threshold}, still {s.threshold}", progress, video=v, still=s)
-
-    def set_pockets(self, fill: bool, progress: ProgressFn | None = None) -> None:
-        """Whether the stills' crease pockets are filled (``TargetConfig.pocket_reach``: the default reach, or 0 to
-        keep them as the threshold cuts them; footage fills none). Frames, masks and keyframes recomputed."""
-        s = replace(self._state.still, pocket_reach=POCKET_REACH if fill else 0.0)
-        self._edit_reloading(f"crease pockets {'filled' if fill else 'kept'}", progress, still=s)
+        said = [] if video is KEEP and still is KEEP else [f"threshold video {v.threshold}, still {s.threshold}"]
+        if pockets is not KEEP:
+            s = replace(s, pocket_reach=POCKET_REACH if pockets else 0.0)
+            said.append(f"crease pockets {'filled' if pockets else 'kept'}")
+        self._edit_reloading("; ".join(said) or "threshold unchanged", progress, video=v, still=s)
 
     def set_segmentation(
         self,
