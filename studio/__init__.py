@@ -2,8 +2,8 @@
 
     import studio
     target = studio.load_target(studio.DEFAULT_TARGET, size=128)   # (128, 128) uint8, 1 = shadow
-    result = studio.imitate_still(target)                          # search → refine: a collision-free pose
-    keyframes = studio.Keyframes.at([2.0], [result.theta])          # hold that pose at t = 2 s
+    result = studio.imitate_still(target)                          # roll auto → search → refine: a free pose
+    keyframes = studio.Keyframes.at([2.0], [result.theta], roll=result.roll)  # hold it at t = 2 s, on that mount
     show = studio.plan_show(studio.load_hand(), keyframes).show      # jerk-limited, collision-checked
     studio.save_show(show, "show.json")
     horse = studio.imitate_video(studio.DEFAULT_VIDEO, "out/horse")     # a video → a project, its poses, the show

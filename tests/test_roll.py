@@ -18,7 +18,7 @@ from studio.motion.show import Show, load_show, save_show
 from studio.motion.show_info import show_info_lines
 from studio.sim.crop import crop_boxes, square_boxes
 from studio.sim.hand import load_hand
-from studio.sim.roll import into_hand_frame, mount_text, roll_deg, turn, wrap_deg
+from studio.sim.roll import into_hand_frame, mount_text, parse_roll, roll_deg, turn, wrap_deg
 from studio.sim.sampling import sample_poses
 from studio.sim.shadow import Rig, ShadowRenderer, iou
 
@@ -251,3 +251,49 @@ def test_show_files_with_and_without_a_roll_validate(tmp_path, hand):
     (tmp_path / "bad.json").write_text(json.dumps(bad))
     with pytest.raises(Exception, match="roll_deg"):
         load_show(tmp_path / "bad.json")
+
+
+@pytest.mark.parametrize(("setting", "deg"), [("auto", None), (" Auto ", None), (None, None), (30, 30.0),
+                                              ("-75.5", -75.5), (190.0, -170.0), (-180, 180.0)])  # fmt: skip
+def test_a_roll_is_auto_or_degrees(setting, deg):
+    got = parse_roll(setting)
+    assert got is None if deg is None else got == pytest.approx(math.radians(deg))
+
+
+@pytest.mark.parametrize("bad", ["sideways", float("nan"), float("inf"), [30]])
+def test_a_bad_roll_says_what_a_roll_is(bad):
+    with pytest.raises(ValueError, match="a roll is 'auto' or"):
+        parse_roll(bad)
+
+
+def test_keyframes_chosen_on_a_rolled_mount_plan_a_show_that_records_it(hand):
+    from studio.motion.errors import PlanError
+    from studio.motion.plan import Keyframes, plan_show
+
+    rolled = plan_show(hand, Keyframes.at([0.5], [np.zeros(hand.dof)], roll=math.radians(-35.5))).show
+    assert rolled.roll == pytest.approx(math.radians(-35.5))
+    assert any("35.5° clockwise" in line for line in show_info_lines(rolled))
+    upright = Keyframes.at([0.5], [np.zeros(hand.dof)])
+    assert upright.extra == {} and plan_show(hand, upright).show.roll == 0.0
+    with pytest.raises(PlanError, match="roll"):
+        Keyframes.at([0.5], [np.zeros(hand.dof)], roll=float("nan"))
+
+
+@pytest.mark.slow
+def test_imitate_still_rolls_the_mount_as_every_face_does(hand):
+    """``studio.imitate_still`` defaults to roll auto, as the command line, projects and the notebook do: the roll
+    is the one ``Imitator.choose_roll`` gives for the target, the shadow is the rolled mount's, and an asked roll
+    (degrees) is kept; a bad one is refused before the model loads."""
+    import studio
+    from studio.imitate.still import Imitator
+
+    target = studio.load_target(studio.DEFAULT_TARGET, size=R)
+    tiny = dict(search=studio.SearchConfig(batch=4, iterations=5), refine=studio.RefineConfig(restarts=1, steps=5))
+    got = studio.imitate_still(target, **tiny)
+    with Imitator() as im:
+        assert got.roll == im.choose_roll(target[None]).roll != 0.0
+    assert np.array_equal(got.shadow, ShadowRenderer(hand, Rig(resolution=R, roll=got.roll)).render_one(got.theta))
+    assert studio.imitate_still(target, roll=0, **tiny).roll == 0.0
+    assert studio.imitate_still(target, roll=-120, **tiny).roll == pytest.approx(math.radians(-120.0))
+    with pytest.raises(ValueError, match="a roll is 'auto' or"):
+        studio.imitate_still(target, roll="sideways", model_path="/nowhere/model.pt")

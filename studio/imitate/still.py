@@ -208,6 +208,7 @@ class Imitator:
             cancelled=cancelled,
             first=first,
             swept=swept,
+            roll=float(roll),
         )
 
     def choose_roll(

@@ -35,3 +35,4 @@ class ImitationResult:
     cancelled: bool = False  # the cancel event stopped the search or refinement: the best pose found so far
     first: Retrieved | None = None  # the retrieval's distinct best poses (first answer: row 0); None when off
     swept: Retrieved | None = None  # those poses after the block sweep, best first (seconds: the sweep's); None: off
+    roll: float = 0.0  # rad, the mount roll the pose was chosen for (its show must be played on a mount so rolled)

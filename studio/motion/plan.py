@@ -44,6 +44,7 @@ from studio.motion.timing import TimedTrajectory, TimingConfig, time_path
 from studio.progress import ProgressFn, report
 from studio.sim.hand import Hand
 from studio.sim.physics import CollisionWorld
+from studio.sim.roll import file_deg
 
 log = logging.getLogger(__name__)
 
@@ -70,8 +71,11 @@ class Keyframes:
     extra: dict[str, Any] = field(default_factory=dict)  # title, loss_weights, per-keyframe losses
 
     @classmethod
-    def at(cls, times: Sequence[float], poses: Sequence[np.ndarray] | np.ndarray, hold: bool = True) -> Keyframes:
-        """Keyframes from ``times (K,) s`` and ``poses (K, 21) rad`` (held at rest unless ``hold=False``)."""
+    def at(
+        cls, times: Sequence[float], poses: Sequence[np.ndarray] | np.ndarray, hold: bool = True, roll: float = 0.0
+    ) -> Keyframes:
+        """Keyframes from ``times (K,) s`` and ``poses (K, 21) rad`` (held at rest unless ``hold=False``), chosen for
+        a mount rolled by ``roll`` rad (``ImitationResult.roll``; the planned show records it, 0: upright)."""
         times_a = np.asarray(times, dtype=float).reshape(-1)
         poses_a = np.asarray(poses, dtype=float).reshape(len(times_a), -1)
         if len(times_a) == 0 or not np.isfinite(times_a).all() or (times_a < 0).any():
@@ -79,7 +83,10 @@ class Keyframes:
         if (np.diff(times_a) <= 0).any():
             raise PlanError(f"keyframe times must increase strictly: {times_a.tolist()}")
         n = len(times_a)
-        return cls(times_a, poses_a, np.full(n, bool(hold)), [None] * n, [None] * n)
+        if not math.isfinite(roll):
+            raise PlanError(f"the mount roll must be finite radians, not {roll!r}")
+        extra = {"roll_deg": file_deg(roll)} if roll else {}
+        return cls(times_a, poses_a, np.full(n, bool(hold)), [None] * n, [None] * n, extra)
 
 
 def parse_keyframes(doc: Any, hand: Hand) -> Keyframes:

@@ -19,7 +19,7 @@ import numpy as np
 from studio.errors import StudioError
 from studio.imitate.config import LossConfig
 from studio.motion.show import Show
-from studio.sim.roll import wrap_deg
+from studio.sim.roll import parse_roll
 from studio.targets.images import TargetConfig
 from studio.targets.keyframes import KeyframeConfig
 from studio.targets.video import VideoConfig
@@ -119,15 +119,11 @@ class Mount:
     @staticmethod
     def from_setting(roll: str | float | None) -> Mount:
         """``"auto"`` (or None) → to be chosen; a number → that roll in degrees, as the artist set it."""
-        if roll is None or (isinstance(roll, str) and roll.strip().lower() == "auto"):
-            return Mount(auto=True, chosen=False)
         try:
-            deg = float(roll)
-        except ValueError:
-            raise ProjectError(f"a roll is 'auto' or an angle in degrees, not {roll!r}") from None
-        if not math.isfinite(deg):
-            raise ProjectError(f"a roll is 'auto' or a finite angle in degrees, not {roll!r}")
-        return Mount(auto=False, roll=math.radians(wrap_deg(deg)))
+            rad = parse_roll(roll)
+        except ValueError as e:
+            raise ProjectError(str(e)) from None
+        return Mount(auto=True, chosen=False) if rad is None else Mount(auto=False, roll=rad)
 
 
 @dataclass(frozen=True, eq=False)

@@ -33,6 +33,20 @@ def wrap_deg(deg: float) -> float:
     return 0.0 if d == 0 else d
 
 
+def parse_roll(setting: str | float | None) -> float | None:
+    """A roll as people give it → rad: ``"auto"`` (or None) → None (the studio chooses it); a number, or its text,
+    in degrees → that roll, wrapped to ``(-180°, 180°]``. A ValueError saying what a roll is, otherwise."""
+    if setting is None or (isinstance(setting, str) and setting.strip().lower() == "auto"):
+        return None
+    try:
+        deg = float(setting)
+    except (TypeError, ValueError):
+        raise ValueError(f"a roll is 'auto' or an angle in degrees, not {setting!r}") from None
+    if not math.isfinite(deg):
+        raise ValueError(f"a roll is 'auto' or a finite angle in degrees, not {setting!r}")
+    return math.radians(wrap_deg(deg))
+
+
 def file_deg(roll: float) -> float:
     """A roll in rad → degrees as files record it: wrapped to ``(-180, 180]``, rounded to 1e-6° (so 30° stays 30)."""
     return wrap_deg(round(math.degrees(roll), 6))
