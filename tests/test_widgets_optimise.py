@@ -72,6 +72,8 @@ def test_progress_advances_and_a_cancel_within_a_second_leaves_the_project_uncha
         assert time.monotonic() - t0 < 1.0  # the kernel is free: the job runs in the queue's worker
         assert panel.buttons["keyframe"].disabled and not panel.cancel_button.disabled
         job = started(panel)
+        other = state.queue.submit(Job("add-source", lambda report, cancel: None, title="add o.jpeg"))  # meanwhile
+        assert panel._mine(job.id) and not panel._mine(other.id)  # another panel's job is never drawn as the run's
         assert until(lambda: panel.step > 0 and any(b.value > 0 for b in panel.bars.values()), 90, panel.refresh)
         first = panel.step
         assert until(lambda: panel.step > first, 30, panel.refresh)  # it keeps advancing

@@ -35,7 +35,7 @@ import numpy as np
 
 from studio.imitate.config import CPU_SEQUENCE, PRESETS, SequenceConfig
 from studio.jobs import Job, JobEvent
-from studio.project.run import RunConfig, RunReport
+from studio.project.run import RUN_JOB_KINDS, RunConfig, RunReport
 from studio.project.run_spread import source_keyframes
 from widgets.images import Messages, mask_picture, title
 from widgets.index_warmup import IndexWarmup
@@ -258,7 +258,8 @@ class OptimisePanel(OptimiseDrawing):
             return False  # drawn on its own line
         return any(j.id == job_id for j in list(self.jobs)) or (
             running and self._run_floor is not None and job_id > self._run_floor
-        )
+            and self.state.queue.get(job_id).kind in RUN_JOB_KINDS  # not another panel's (a source added meanwhile)
+        )  # fmt: skip
 
     def refresh(self) -> None:
         """Draw every pending event now (thread-safe; the writer calls it, tests may too)."""

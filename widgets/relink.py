@@ -8,7 +8,9 @@ content is read again, as if the source had been re-added.
 from __future__ import annotations
 
 import html
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import ipywidgets as w
 
@@ -25,9 +27,10 @@ def missing_line(project) -> str:
 class RelinkControl:
     """``widget``: the missing sources, a path box and a Relink button (hidden while nothing is missing)."""
 
-    def __init__(self, state: StudioState, messages):
+    def __init__(self, state: StudioState, messages, relink: Callable[[int, Path], Any]):
         self.state = state
         self.messages = messages  # widgets.images.Messages of the panel
+        self._relink = relink  # relink(source, where): the panel runs the edit (a job: the source is read again)
         self.which = w.Dropdown(description="source", layout=w.Layout(width="160px"))
         self.path = w.Text(placeholder="where that source is now", description="now at")
         self.button = w.Button(description="Relink", icon="link", tooltip="same content keeps every result")
@@ -51,7 +54,6 @@ class RelinkControl:
         if self.which.value is None:
             return
         where = Path(self.path.value.strip()).expanduser()
-        self.state.edit("relink_source", int(self.which.value), where)
-        self.messages.say(f"source {self.which.value} relinked to {where}")
-        self.path.value = ""
-        self.refresh()
+        if not where.exists():  # said at once; the rest (the source read again) is the panel's job
+            raise FileNotFoundError(f"source not found: {where}")
+        self._relink(int(self.which.value), where)

@@ -1,8 +1,8 @@
 """The Targets panel: sources (a bundled sample, a file path or an upload), a frame scrubber, the sampling rate, the
 threshold (or Otsu) with a live preview of the binary mask over the frame beside the mask the project would store
 after its cleanup, and segmentation of raw colour footage from a first-frame box or a mask painted on the first frame
-(:mod:`widgets.first_frame`), run as a job on the project's queue (what the buttons do:
-:mod:`widgets.targets_actions`).
+(:mod:`widgets.first_frame`). What the buttons do (:mod:`widgets.targets_actions`) reads the sources again, so it
+runs as a job on the project's queue, followed in the panel's job line, with Cancel.
 
     panel = TargetsPanel(state)      # panel.widget goes in the notebook; tests set values and .click() buttons
 
@@ -65,7 +65,7 @@ class TargetsPanel(TargetsActions):
         self.stored_mask: np.ndarray | None = None  # (PREVIEW_PX, PREVIEW_PX) uint8 {0, 1}: … after the cleanup
         self.stored_rgb: np.ndarray | None = None  # (PREVIEW_PX, PREVIEW_PX, 3) uint8: what the stored picture shows
         self._polarity: dict[int, str] = {}  # source → its polarity, as the project finds it (module doc)
-        self.segment_job: Job | None = None  # the last segmentation job
+        self.job: Job | None = None  # the panel's last job (an edit that reads the sources: module doc of the actions)
         self.preview_rgb: np.ndarray | None = None  # (PREVIEW_PX, PREVIEW_PX, 3) uint8: what the preview shows
         self._first_source: tuple | None = None  # (source, path, box) whose first frame the first-frame picture has
         self._drawing = threading.RLock()  # one preview drawn at a time: a late throttled draw never lands last stale
@@ -92,22 +92,22 @@ class TargetsPanel(TargetsActions):
         self.first = FirstFrame(PREVIEW_PX, on_change=self._first_changed)  # the object: a box or a painted mask
         self.box = self.first.box  # x, y, w, h (source pixels)
         self.segment = w.Button(description="Segment", icon="scissors")
-        self.cancel_segment = w.Button(description="Cancel", icon="stop", disabled=True)
-        self.segment_info = w.Label()
-        self.relink = RelinkControl(state, self.messages)  # shown while a source is missing
+        self.cancel_job = w.Button(description="Cancel", icon="stop", disabled=True)  # stops the panel's job
+        self.job_info = w.Label()  # what the panel's job is doing
+        self.relink = RelinkControl(state, self.messages, self._relink)  # shown while a source is missing
 
         self.add_sample.on_click(lambda _: self.messages.run(self._add, self._samples[self.sample.value]))
         self.add_path.on_click(lambda _: self.messages.run(self._add, Path(self.path.value.strip()).expanduser()))
         self.upload.observe(lambda ch: self.messages.run(self._uploaded, ch["new"]), names="value")
         self.scrubber.observe(lambda ch: self.state.select(frame=ch["new"]), names="value")
-        self.apply_hz.on_click(lambda _: self.messages.run(self.state.edit, "set_sampling", hz=float(self.hz.value)))
+        self.apply_hz.on_click(lambda _: self.messages.run(self._apply_sampling))
         self._throttled = Throttle(lambda: self.messages.run(self.refresh_preview, clear=False), hz=15.0)
         self.threshold.observe(lambda _: self._throttled(), names="value")
         self.otsu.observe(lambda _: self._throttled(), names="value")
         self.pockets.observe(lambda _: self._throttled(), names="value")
         self.apply_threshold.on_click(lambda _: self.messages.run(self._apply_threshold))
         self.segment.on_click(lambda _: self.messages.run(self._segment))
-        self.cancel_segment.on_click(lambda _: self.segment_job is not None and self.segment_job.cancel())
+        self.cancel_job.on_click(lambda _: self.job is not None and self.job.cancel())
 
         self.pictures = w.HBox([
             w.VBox([w.HTML("threshold alone"), self.preview]),
@@ -125,13 +125,13 @@ class TargetsPanel(TargetsActions):
             w.HBox([self.threshold, self.otsu, self.pockets, self.apply_threshold]),
             w.HBox([self.hz, self.apply_hz]),
             self.first.widget,
-            w.HBox([self.segment, self.cancel_segment]),
-            self.segment_info,
+            w.HBox([self.segment, self.cancel_job]),
+            self.job_info,
             self.messages.widget,
         ])  # fmt: skip
         self._stops = [
             state.on_change(self._changed),
-            state.queue.subscribe(self._job_event),  # the queue's thread writes only segment_info / messages
+            state.queue.subscribe(self._job_event),  # the queue's thread: the job line, the buttons, messages
         ]
         self.first.widget.layout.display = "none"
         self.redraw()

@@ -1,15 +1,21 @@
 """What the Targets panel does (mixed into :class:`widgets.targets.TargetsPanel`): add a source (a bundled sample, a
-file path or an upload, written inside the project), apply the threshold, and segment raw colour footage from its
-first frame's box or painted mask as a job on the project's queue, followed in the panel's line."""
+file path or an upload, written inside the project), apply the threshold or the sampling, relink a moved source, and
+segment raw colour footage from its first frame's box or painted mask. Each of these reads the sources again (seconds
+on a long video or a large photo), so each runs as a job on the project's queue, never in the click handler: the
+notebook stays live, the panel's line follows the job, Cancel stops it with the project unchanged, and the panel's
+edit buttons rest until it ends (an edit is decided on the project as the artist sees it, never on one that a queued
+edit is about to change)."""
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from studio.atomic import write_bytes
 from studio.jobs import Job
-from studio.progress import Progress
+from studio.progress import Progress, ProgressFn
 from studio.project.containment import check_subfolders
 from studio.project.state import ProjectError
 from studio.targets.source import source_kind
@@ -18,27 +24,40 @@ from studio.targets.video import SegmentationNeeded
 log = logging.getLogger(__name__)
 
 UPLOADS = "uploads"  # folder inside the project where uploaded files are written
+EDIT_BUTTONS = ("add_sample", "add_path", "upload", "apply_threshold", "apply_hz", "segment")  # rest while a job runs
 
 
 class TargetsActions:
-    """Actions of ``TargetsPanel`` (it provides ``state``, ``messages``, ``pending``, ``segment_job``, ``first``,
-    ``segment_info``, ``cancel_segment``, ``_waiting``, ``redraw``, ``_is_still`` and ``_source_index``)."""
+    """Actions of ``TargetsPanel`` (it provides ``state``, ``messages``, ``pending``, ``job``, ``first``,
+    ``job_info``, ``cancel_job``, ``relink``, the buttons of ``EDIT_BUTTONS``, ``_waiting``, ``redraw``, ``_is_still``
+    and ``_source_index``)."""
 
-    def _add(self, path: Path) -> None:
+    def _add(self, path: Path) -> Job:
         if not path.exists():
             raise ProjectError(f"no such file or folder: {path} (give a still, a video or a folder of frames)")
-        try:
-            index = self.state.edit("add_source", path)
-        except SegmentationNeeded as e:
-            self._waiting(path, e.footage.frames[0])  # the box's first guess: the middle of the frame
-            self.redraw()
-            self.messages.say(
-                f"{path.name} is colour footage: give the object's box on its first frame, or paint it, then Segment"
-            )
-            return
-        self._waiting(None)
-        first = next(i for i, f in enumerate(self.state.project.frames) if f.source == index)
-        self.state.select(frame=first)
+        project = self.state.project
+
+        def run(progress: ProgressFn) -> int | SegmentationNeeded:
+            try:
+                return project.add_source(path, progress=progress)
+            except SegmentationNeeded as e:  # not a failure: the artist gives the object next
+                return e
+
+        def apply(added: int | SegmentationNeeded) -> None:
+            if isinstance(added, SegmentationNeeded):
+                self._waiting(path, added.footage.frames[0])  # the box's first guess: the middle of the frame
+                self.messages.say(f"{path.name} is colour footage: give the object's box on its first frame, or "
+                                  "paint it, then Segment")  # fmt: skip
+                return
+            self._waiting(None)
+            self._select_source(added)
+
+        return self._submit("add-source", f"add {path.name}", run, apply)
+
+    def _select_source(self, index: int) -> None:
+        """Bring source ``index``'s first frame into view."""
+        frames = self.state.project.frames
+        self.state.select(frame=next((i for i, f in enumerate(frames) if f.source == index), 0))
 
     def _uploaded(self, value) -> None:
         if not value:
@@ -59,19 +78,37 @@ class TargetsActions:
         log.info("uploaded %s (%d bytes)", out, len(data))
         self._add(out)
 
-    def _apply_threshold(self) -> None:
+    def _apply_threshold(self) -> Job | None:
         """The threshold (or Otsu) to the selected frame's kind of source; for a still also whether its crease
         pockets are filled: one edit of what changed (the sources are read again once)."""
         level = None if self.otsu.value else float(self.threshold.value)
         if not self._is_still(self._source_index()):
-            self.state.edit("set_threshold", video=level)
-            return
-        still = self.state.project.state.still
-        changes = {} if level == still.threshold else {"still": level}
-        if bool(self.pockets.value) != (still.pocket_reach > 0):
-            changes["pockets"] = bool(self.pockets.value)
-        if changes:
-            self.state.edit("set_threshold", **changes)
+            changes: dict[str, Any] = {"video": level}
+        else:
+            still = self.state.project.state.still
+            changes = {} if level == still.threshold else {"still": level}
+            if bool(self.pockets.value) != (still.pocket_reach > 0):
+                changes["pockets"] = bool(self.pockets.value)
+        if not changes:
+            return None
+        project = self.state.project
+        return self._submit("threshold", "apply the threshold", lambda p: project.set_threshold(**changes, progress=p))
+
+    def _apply_sampling(self) -> Job:
+        hz, project = float(self.hz.value), self.state.project
+        return self._submit(
+            "sampling", f"sample the videos at {hz:g} Hz", lambda p: project.set_sampling(hz=hz, progress=p)
+        )
+
+    def _relink(self, source: int, where: Path) -> Job:
+        project = self.state.project
+
+        def apply(_) -> None:
+            self.messages.say(f"source {source} relinked to {where}")
+            self.relink.path.value = ""
+
+        return self._submit("relink", f"relink source {source}", lambda p: project.relink_source(source, where, p),
+                            apply)  # fmt: skip
 
     def _segment(self) -> Job:
         project, pending = self.state.project, self.pending
@@ -80,11 +117,7 @@ class TargetsActions:
         prompt = self.first.prompt()  # {"box": ...} or {"first_mask": ...}
         source = self._source_index()
 
-        def run(report, cancel) -> int:
-            def progress(p: Progress) -> None:
-                report(p)
-                report.check()  # a cancelled job stops within a frame
-
+        def run(progress: ProgressFn) -> int:
             if pending is not None:
                 return project.add_source(pending, progress=progress, **prompt)
             project.set_segmentation(source, progress=progress, **prompt)
@@ -93,28 +126,54 @@ class TargetsActions:
         def apply(index: int) -> None:
             if pending is not None and self.pending == pending:
                 self._waiting(None)
-            self.state.changed("project")
-            frames = self.state.project.frames
-            self.state.select(frame=next((i for i, f in enumerate(frames) if f.source == index), 0))  # its first
+            self._select_source(index)
 
         what = pending.name if pending is not None else f"source {source}"
-        job = Job("segment", run, apply=apply, title=f"segment {what}")
-        self.segment_job = job
-        self.cancel_segment.disabled = False
+        return self._submit("segment", f"segment {what}", run, apply)
+
+    def _submit(self, kind: str, title: str, run: Callable[[ProgressFn], Any],
+                apply: Callable[[Any], None] | None = None) -> Job:  # fmt: skip
+        """``run(progress)``, a project edit, as a job of kind ``kind`` on the project's queue (module doc);
+        ``apply(result)`` after it succeeded, on the queue's thread, then every panel redraws."""
+        if self.job is not None and not self.job.finished:
+            raise ProjectError(f"{self.job.title} has not ended yet: wait for it, or cancel it")
+
+        def job_run(report, cancel) -> Any:
+            def progress(p: Progress) -> None:
+                report(p)
+                report.check()  # a cancelled job stops at its next step: the project stays as it was
+
+            return run(progress)
+
+        def job_apply(result: Any) -> None:
+            if apply is not None:
+                apply(result)
+            self.state.changed("project")
+
+        job = Job(kind, job_run, apply=job_apply, title=title)
+        self.job = job
+        self._busy(True)
+        self.job_info.value = f"{title}: queued"
         self.state.queue.submit(job)
-        self.segment_info.value = f"segmenting {what} (job {job.id})"
         self.state.changed("jobs")
         return job
 
+    def _busy(self, busy: bool) -> None:
+        """While the panel's job runs its edit buttons rest and Cancel is offered (and the other way round)."""
+        for name in EDIT_BUTTONS:
+            getattr(self, name).disabled = busy
+        self.relink.button.disabled = busy
+        self.cancel_job.disabled = not busy
+
     def _job_event(self, event) -> None:
-        job = self.segment_job
+        job = self.job
         if job is None or event.job_id != job.id:
             return
         if not event.final:
             counted = f" {event.step}/{event.total}" if event.total else ""
-            self.segment_info.value = f"{job.title}: {event.stage}{counted}"
+            self.job_info.value = f"{job.title}: {event.stage or event.state.value}{counted}"
             return
-        self.cancel_segment.disabled = True
-        self.segment_info.value = f"{job.title}: {event.state.value}"
+        self._busy(False)
+        self.job_info.value = f"{job.title}: {event.state.value}"
         if event.error is not None:
-            self.messages.say(f"segmentation failed: {event.error}", error=True)
+            self.messages.say(f"{job.title} failed: {event.error.message}", error=True)

@@ -50,6 +50,9 @@ if TYPE_CHECKING:
     from studio.motion.plan import Keyframes
 
 
+RUN_JOB_KINDS = ("choose-roll", "imitate-keyframes", "imitate-together", "plan")  # the kinds of job a run submits
+
+
 @dataclass(frozen=True)
 class RunConfig:
     """What a project run does (every face's: ``project run``'s flags, the notebook's settings)."""
