@@ -422,7 +422,7 @@ def test_an_edit_runs_as_a_job_the_notebook_never_waits_on_and_cancel_leaves_the
     panel.sample.value = "muybridge_horse.gif"
     panel.add_sample.click()
     assert len(state.project.sources) == 1  # the click returned with the source unread: it waits on the queue
-    assert panel.job_info.value == "add muybridge_horse.gif: queued"
+    assert panel.job_info.value == "add muybridge_horse.gif: queued behind 1 job (the Optimise tab's list)"
     assert panel.add_sample.disabled and panel.apply_threshold.disabled and panel.upload.disabled
     assert not panel.cancel_job.disabled
     panel.threshold.value = 100.0

@@ -14,12 +14,13 @@ from pathlib import Path
 from typing import Any
 
 from studio.atomic import write_bytes
-from studio.jobs import Job
+from studio.jobs import Job, JobState
 from studio.progress import Progress, ProgressFn
 from studio.project.containment import check_subfolders
 from studio.project.state import ProjectError
 from studio.targets.source import source_kind
 from studio.targets.video import SegmentationNeeded
+from widgets.words import count
 
 log = logging.getLogger(__name__)
 
@@ -155,6 +156,9 @@ class TargetsActions:
         self._busy(True)
         self.job_info.value = f"{title}: queued"
         self.state.queue.submit(job)
+        ahead = sum(not j.finished for j in self.state.queue.jobs() if j.id < job.id)  # e.g. the Optimise tab's run
+        if ahead and job.state == JobState.QUEUED:
+            self.job_info.value = f"{title}: queued behind {count(ahead, 'job')} (the Optimise tab's list)"
         self.state.changed("jobs")
         return job
 
