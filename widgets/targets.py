@@ -27,7 +27,7 @@ from studio.assets import asset
 from studio.jobs import Job
 from studio.project.sources import locate
 from studio.project.state import ProjectError
-from studio.targets.holes import POCKET_REACH
+from studio.targets.pockets import POCKET_REACH
 from studio.targets.source import raw_frames
 from widgets.first_frame import FirstFrame
 from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, png, tint, title

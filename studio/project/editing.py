@@ -25,8 +25,8 @@ from studio.project.sources import load_sources, locate, make_source
 from studio.project.state import Mount, ProjectError, ProjectState, frozen
 from studio.project.status import SourceMissing
 from studio.sim.roll import roll_deg
-from studio.targets.holes import POCKET_REACH
 from studio.targets.images import read_grey
+from studio.targets.pockets import POCKET_REACH
 
 log = logging.getLogger(__name__)
 

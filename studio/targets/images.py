@@ -21,7 +21,7 @@ The steps, each a config field with a default that loads every target in ``share
    black backdrop and stays. In binary images every hole pixel is core, so only the area counts. Before that, the
    crease *pockets* are filled: mid-dark backdrop that surely-backdrop pixels do not reach (``pocket_reach`` of the
    shape's longer side) and that opens to the rest through a neck (``pocket_neck``), as a crease's shade does
-   under a side light (:func:`~studio.targets.holes.fill_pockets`). Binary images have no mid-dark pixels.
+   under a side light (:func:`~studio.targets.pockets.fill_pockets`). Binary images have no mid-dark pixels.
 
 :func:`square_frame` turns a mask into the square ``size × size`` frame the optimiser works in, with the mask's
 holes and no others (a gap narrower than a frame pixel stays open, :mod:`studio.targets.holes`, which also finds
@@ -41,16 +41,8 @@ from PIL import Image, ImageOps, UnidentifiedImageError
 
 from studio.assets import asset
 from studio.errors import TargetError
-from studio.targets.holes import (
-    MIN_CORE_SHARE,
-    MIN_HOLE_AREA,
-    POCKET_NECK,
-    POCKET_REACH,
-    fill_holes,
-    fill_pockets,
-    find_holes,
-    threshold_keeping_gaps,
-)
+from studio.targets.holes import MIN_CORE_SHARE, MIN_HOLE_AREA, fill_holes, find_holes, threshold_keeping_gaps
+from studio.targets.pockets import POCKET_NECK, POCKET_REACH, fill_pockets
 
 log = logging.getLogger(__name__)
 
