@@ -4,7 +4,6 @@ live preview, and segment raw colour footage as a job; every edit undoable."""
 from __future__ import annotations
 
 import threading
-import time
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -56,7 +55,7 @@ def test_the_panel_has_its_title_and_adds_a_bundled_video(state):
     assert "Targets" in labels(targets_panel(state))
     panel = TargetsPanel(state)
     others = KeyframesPanel(state), MasksPanel(state)  # they follow the scrubber and redraw after every edit
-    assert panel.scrubber.max == 0 and panel.preview.value  # one still, previewed
+    assert panel.drawer.settle() and panel.scrubber.max == 0 and panel.preview.value  # one still, previewed
     panel.sample.value = "muybridge_horse.gif"
     panel.add_sample.click()
     finished(panel)
@@ -248,15 +247,38 @@ def test_raw_footage_segmented_from_a_mask_painted_on_its_first_frame(state, tmp
 
 def test_the_preview_is_throttled_but_ends_on_the_latest_value(state):
     panel = TargetsPanel(state)
-    time.sleep(0.1)
-    panel.threshold.value = 10.0  # due: drawn at once
-    assert panel.preview_level == 10.0
-    panel.threshold.value = 60.0  # within 1/15 s: drawn at the end of the interval
-    panel.threshold.value = 90.0
-    deadline = time.monotonic() + 2.0
-    while panel.preview_level != 90.0 and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert panel.preview_level == 90.0
+    assert panel.drawer.settle()
+    panel.threshold.value = 10.0
+    assert panel.drawer.settle() and panel.preview_level == 10.0
+    for level in (60.0, 70.0, 80.0, 90.0):  # faster than 15 a second: not each drawn, the last one surely
+        panel.threshold.value = level
+    assert panel.drawer.settle() and panel.preview_level == 90.0
+
+
+def test_a_slow_preview_never_holds_the_notebook(state, monkeypatch):
+    """A large photo's cleanup takes seconds: the slider's handler (the kernel's thread) only asks for a preview,
+    and the drawing thread draws the latest level once the slow draw ends."""
+    import widgets.targets as targets
+
+    panel = TargetsPanel(state)
+    assert panel.drawer.settle()
+    inside, release = threading.Event(), threading.Event()
+    real = targets.frame_preview
+
+    def slow(*args, **kw):
+        inside.set()
+        release.wait(30.0)
+        return real(*args, **kw)
+
+    monkeypatch.setattr(targets, "frame_preview", slow)
+    moved = threading.Thread(target=lambda: setattr(panel.threshold, "value", 40.0))
+    moved.start()
+    assert inside.wait(10.0)  # the draw has begun …
+    moved.join(5.0)
+    assert not moved.is_alive()  # … and the slider's handler has returned while it runs
+    panel.threshold.value = 120.0  # asked for during the slow draw: drawn once it ends
+    release.set()
+    assert panel.drawer.settle() and panel.preview_level == 120.0
 
 
 def test_a_moved_source_is_relinked_from_the_panel_and_names_are_never_markup(tmp_path):
@@ -313,7 +335,8 @@ def test_the_horse_preview_tints_the_horse_not_its_backdrop_and_shows_what_is_st
     s = StudioState(project, queue_for(project))
     try:
         panel = TargetsPanel(s)
-        panel._throttled = lambda: None  # draw only when asked: no timer thread racing the drawing below
+        assert panel.drawer.settle()
+        panel._throttled = lambda: None  # draw only when asked: no drawing thread racing the drawing below
         side = panel.preview_rgb.shape[0]
         for frame in range(len(project.frames)):
             s.select(frame=frame)
@@ -373,6 +396,7 @@ def test_a_still_s_crease_pockets_are_previewed_then_applied_and_undone(tmp_path
     s = StudioState(project, queue_for(project))
     try:
         panel = TargetsPanel(s)
+        assert panel.drawer.settle()
         panel._throttled = lambda: None  # draw only when asked
         s.select(frame=next(i for i, f in enumerate(project.frames) if f.source == 0))
         assert panel.pockets.value and not panel.pockets.disabled

@@ -134,36 +134,57 @@ class Messages:
 
 
 class Throttle:
-    """Call a function at most ``hz`` times a second: at once when it is due, else once more at the end of the
-    interval with the latest arguments (a timer thread; DESIGN §6: 10–30 Hz)."""
+    """Call a function in a thread of its own, never the caller's (a draw that takes seconds, a large photo's, must not
+    hold the notebook), at most ``hz`` times a second, the latest request last: requests made while it runs are
+    served by one more call when it ends, never a backlog (DESIGN §6: one writer thread per widget, 10–30 Hz)."""
 
     def __init__(self, fn: Callable[[], None], hz: float = 15.0):
         self.fn = fn  # what to call (no arguments)
         self.interval = 1.0 / hz  # s between calls
-        self._last = -1e9
-        self._timer: threading.Timer | None = None
+        self._wanted = threading.Event()
+        self._idle = threading.Event()  # set while nothing is asked for nor being drawn
+        self._idle.set()
+        self._closed = False
+        self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
 
     def __call__(self) -> None:
         with self._lock:
-            wait = self._last + self.interval - time.monotonic()
-            if wait > 0:
-                if self._timer is None:
-                    self._timer = threading.Timer(wait, self._late)
-                    self._timer.daemon = True
-                    self._timer.start()
+            if self._closed:
                 return
-            self._last = time.monotonic()
-        self.fn()
+            self._idle.clear()
+            self._wanted.set()
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._serve, name="throttled-draw", daemon=True)
+                self._thread.start()
 
-    def _late(self) -> None:
+    def settle(self, timeout: float = 10.0) -> bool:
+        """Wait until every request so far has been served (True), or ``timeout`` s (False)."""
+        return self._idle.wait(timeout)
+
+    def close(self) -> None:
+        """Serve no more requests (the thread ends after a call in progress)."""
         with self._lock:
-            self._timer = None
-            self._last = time.monotonic()
-        try:
-            self.fn()
-        except Exception:
-            log.debug("throttled redraw failed", exc_info=True)
+            self._closed = True
+            self._wanted.set()
+
+    def _serve(self) -> None:
+        last = -1e9
+        while True:
+            self._wanted.wait()
+            time.sleep(max(0.0, last + self.interval - time.monotonic()))
+            with self._lock:
+                if self._closed:
+                    return
+                self._wanted.clear()
+            last = time.monotonic()
+            try:
+                self.fn()
+            except Exception:
+                log.debug("throttled redraw failed", exc_info=True)
+            with self._lock:
+                if not self._wanted.is_set():
+                    self._idle.set()
 
 
 def mask_picture(mask: np.ndarray | None, side: int) -> bytes:

@@ -101,7 +101,8 @@ class TargetsPanel(TargetsActions):
         self.upload.observe(lambda ch: self.messages.run(self._uploaded, ch["new"]), names="value")
         self.scrubber.observe(lambda ch: self.state.select(frame=ch["new"]), names="value")
         self.apply_hz.on_click(lambda _: self.messages.run(self._apply_sampling))
-        self._throttled = Throttle(lambda: self.messages.run(self.refresh_preview, clear=False), hz=15.0)
+        self.drawer = Throttle(lambda: self.messages.run(self.refresh_preview, clear=False), hz=15.0)
+        self._throttled = self.drawer  # asks for a preview (drawn in the drawer's thread, the latest state last)
         self.threshold.observe(lambda _: self._throttled(), names="value")
         self.otsu.observe(lambda _: self._throttled(), names="value")
         self.pockets.observe(lambda _: self._throttled(), names="value")
@@ -140,6 +141,7 @@ class TargetsPanel(TargetsActions):
         """Stop following the state (the widget stays as it is)."""
         for stop in self._stops:
             stop()
+        self.drawer.close()
 
     # ---------------------------------------------------------------- reading the project
     def _source_index(self) -> int:
@@ -220,7 +222,7 @@ class TargetsPanel(TargetsActions):
             self.pockets.value, self.pockets.disabled = p.state.still.pocket_reach > 0, not self._is_still(f.source)
             self._first_of(f.source)
         self.threshold.disabled = self.otsu.value
-        self.messages.run(self.refresh_preview, clear=False)
+        self._throttled()  # drawn in the preview's own thread: a large photo's cleanup takes seconds
 
     def _show(self, rgb: np.ndarray) -> None:
         self.preview_rgb = rgb
