@@ -153,6 +153,25 @@ def test_engine_events_feed_tqdm_and_a_poller_alike():
     assert np.array_equal(job.shadow, shadows[-1])
 
 
+@pytest.mark.slow
+def test_a_keyframe_job_on_a_rolled_mount_casts_and_previews_the_rolled_shadow():
+    import math
+
+    from studio.sim.hand import load_hand
+    from studio.sim.shadow import Rig, ShadowRenderer
+
+    roll = math.radians(40.0)
+    with JobQueue() as queue:
+        job = queue.run(imitate_keyframe_job(TARGET, search=TINY, refine=RefineConfig(steps=5), candidates=1,
+                                             roll=roll), timeout=120)  # fmt: skip
+    assert job.state == JobState.DONE, job.error
+    got, hand = job.result, load_hand()
+    rolled = ShadowRenderer(hand, Rig(resolution=128, roll=roll)).render_one(got.theta)
+    assert got.roll == roll and np.array_equal(got.shadow, rolled)
+    preview = ShadowRenderer(hand, Rig(resolution=64, roll=roll)).render_one(got.theta)
+    assert np.array_equal(job.shadow, preview)  # the live preview is the rolled mount's too (the last pose shown)
+
+
 def test_a_completed_jobs_apply_runs_once_with_its_result():
     calls, rec = [], Recorder()
 

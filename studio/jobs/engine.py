@@ -49,6 +49,7 @@ def imitate_keyframe_job(
     model_path: Path | None = None,
     target_cfg: TargetConfig | None = None,
     preview: int = 64,
+    roll: float = 0.0,
     apply: Apply = None,
     title: str = "",
 ) -> Job:
@@ -58,19 +59,21 @@ def imitate_keyframe_job(
     mask ``(R, R)`` uint8 framed at the model's resolution. ``expressive``: a mask ``(R, R)``, ``"holes"`` (the
     target's holes) or None. ``search``/``refine``/``candidates``/``sweep`` default to the studio presets
     (``STUDIO_SEARCH``, ``CPU_REFINE``, ``SweepConfig()``); ``clip``: a CLIP encoder for the CLIP terms (None: off;
-    an encoder object suits the thread worker); ``preview``: side of the live shadow previews (8–64; 0: none).
+    an encoder object suits the thread worker); ``preview``: side of the live shadow previews (8–64; 0: none);
+    ``roll``: the mount roll, rad, as for :func:`imitate_video_job` (``result.roll``; :func:`choose_roll_job` chooses
+    one).
     """
     run = functools.partial(
         _imitate_keyframe, target=target, expressive=expressive, search=search, refine=refine,
         refine_enabled=refine_enabled, candidates=candidates, sweep=sweep, loss_cfg=loss_cfg, clip=clip,
-        model_path=model_path, target_cfg=target_cfg, preview=preview,
+        model_path=model_path, target_cfg=target_cfg, preview=preview, roll=roll,
     )  # fmt: skip
     name = title or (Path(target).name if isinstance(target, (str, Path)) else "keyframe")
     return Job("imitate-keyframe", run, apply, name)
 
 
 def _imitate_keyframe(report: Reporter, cancel, *, target, expressive, search, refine, refine_enabled, candidates,
-                      sweep, loss_cfg, clip, model_path, target_cfg, preview):  # fmt: skip
+                      sweep, loss_cfg, clip, model_path, target_cfg, preview, roll=0.0):  # fmt: skip
     from studio.imitate.config import ImitateConfig
     from studio.imitate.still import Imitator
     from studio.targets.expressive import still_expressive
@@ -87,10 +90,10 @@ def _imitate_keyframe(report: Reporter, cancel, *, target, expressive, search, r
                     f"target mask is {mask.shape}; this model works at ({r}, {r}): load_target(..., size={r})"
                 )
         exp = still_expressive(mask) if isinstance(expressive, str) and expressive == HOLES else expressive
-        pv = PosePreview(im.hand, preview) if preview else None
+        pv = PosePreview(im.hand, preview, roll=roll) if preview else None
         return im.imitate(
             mask, exp, refine=refine_enabled, progress=report.engine_progress(pv), cancel=cancel,
-            best_pose=pv.pose if pv else None,
+            best_pose=pv.pose if pv else None, roll=roll,
         )  # fmt: skip
 
 
