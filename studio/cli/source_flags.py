@@ -56,14 +56,17 @@ def add_source_flags(
 
 
 def roll_arg(text: str) -> str | float:
-    """``auto`` or an angle in degrees; an argparse error otherwise."""
-    if text.strip().lower() == "auto":
-        return "auto"
+    """``auto`` or an angle in degrees in [-360, 360] (:func:`studio.sim.roll.parse_roll`); an argparse error
+    otherwise."""
+    from studio.sim.roll import parse_roll
+
     try:
+        if parse_roll(text) is None:
+            return "auto"
         deg = float(text)
     except ValueError:
-        deg = float("nan")
-    if deg != deg or not -360 <= deg <= 360:  # NaN, inf, or more than a turn
+        deg = float("inf")
+    if not -360 <= deg <= 360:  # not an angle, or more than a turn (a slip of the keyboard)
         raise argparse.ArgumentTypeError(f"expected auto or an angle in degrees in [-360, 360], got {text!r}")
     return deg
 
