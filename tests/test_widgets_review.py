@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
+import time
 from types import SimpleNamespace
 
 import ipywidgets as w
@@ -45,6 +47,7 @@ def test_review_panel_follows_the_selection_and_results_and_closes_its_scene(sta
     p = state.project
     panel = review_panel(state)
     try:
+        assert panel.opened.wait(60)
         assert "Review" in panel.widget.children[0].value
         assert os.environ["RERUN_NOTEBOOK_ASSET"] == "inline"  # the viewer never fetches its JavaScript online
         assert panel.rrd == p.path.with_suffix(".rrd") and panel.rrd.exists()
@@ -92,11 +95,51 @@ def test_review_panel_follows_the_selection_and_results_and_closes_its_scene(sta
     assert panel.shown_frame == last
 
 
+def test_the_panel_opens_at_once_and_its_viewer_follows_when_ready(state, monkeypatch):
+    """The recording and its viewer take seconds to open (the self-model's and the viewer's code load): the panel is
+    built without waiting for them, says it is opening, follows the selection meanwhile, and an edit made while the
+    project is first logged is in the recording once it is open."""
+    from studio.review.recording import ProjectRecording
+
+    release, logged = threading.Event(), []
+    real = ProjectRecording.log_project
+
+    def slow_first(self, project, model=None):
+        logged.append(project.state)
+        if len(logged) == 1:
+            release.wait(30)
+        return real(self, project, model)
+
+    monkeypatch.setattr(ProjectRecording, "log_project", slow_first)
+    built = []
+    maker = threading.Thread(target=lambda: built.append(review_panel(state, ReviewConfig(scene=False))))
+    maker.start()
+    maker.join(20)
+    assert built, "the panel waited for its recording"
+    panel = built[0]
+    try:
+        assert "opening the Rerun viewer" in panel.viewer_box.children[0].value
+        state.select(frame=2)
+        assert panel.shown_frame == 2  # the panel works meanwhile
+        deadline = time.monotonic() + 30
+        while not logged and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert logged and not panel.opened.is_set() and panel.recording is None
+        state.edit("set_keyframe_time", state.project.keyframes[0].id, 0.5)  # an edit while it is logged
+        release.set()
+        assert panel.opened.wait(60) and panel.recording is not None
+        assert len(logged) == 2 and logged[-1] is state.project.state  # logged again: the project as it is now
+    finally:
+        release.set()
+        panel.close()
+
+
 def test_without_rerun_notebook_the_panel_says_how_to_get_it(state, monkeypatch):
     monkeypatch.setitem(sys.modules, "rerun_notebook", None)  # as if the package were not installed
     assert "pip install rerun-notebook" in notebook_viewer_missing()
     panel = review_panel(state, ReviewConfig(scene=False))
     try:
+        assert panel.opened.wait(60)
         assert panel.viewer is None and panel.scene is None and panel.scene_view.page == ""
         text = panel.viewer_box.children[0].value
         assert "pip install rerun-notebook" in text and f"rerun {panel.rrd}" in text
@@ -112,6 +155,7 @@ def test_the_viewer_follows_the_studio(state, hand):
     if notebook_viewer_missing() is not None:
         pytest.skip("the notebook viewer needs the rerun-notebook package")
     panel = review_panel(state, ReviewConfig(follow_interval_s=0.0))
+    assert panel.opened.wait(60)
     box, q = panel.viewer_controls, state.queue
     try:
         box.height.value = 800

@@ -89,7 +89,9 @@ class ReviewPanel:
         self.viewer_controls: ViewerBox | None = None  # the viewer with its height control and "follow" switch
         self.self_model = None  # θ (K, 21) → the self-model's shadows (K, R, R) for the viewer (None: not drawn)
         self._unsubscribe = lambda: None
-        self.viewer_box = w.VBox([])
+        self.opened = threading.Event()  # set once the recording and its viewer are open (or could not be)
+        self.viewer_box = w.VBox([w.HTML("<i>opening the Rerun viewer (the first time in a session takes a few "
+                                         "seconds; the other tabs work meanwhile)</i>")])  # fmt: skip
         self.target_image = w.Image(format="png", width=self.cfg.image_px, height=self.cfg.image_px)
         self.shadow_image = w.Image(format="png", width=self.cfg.image_px, height=self.cfg.image_px)
         self.caption = w.HTML("")
@@ -98,8 +100,8 @@ class ReviewPanel:
         self.shown_shadow: np.ndarray | None = None  # that frame's keyframe's result shadow (None: no result yet)
         self.scene_pose: np.ndarray | None = None  # (21,) rad shown in the meshcat scene
         self._scene_drawn = 0.0  # monotonic time of the last snapshot drawn
-        self._open_recording()
-        if self.cfg.scene:
+        threading.Thread(target=self._open_recording, name="review-open", daemon=True).start()  # seconds: in the
+        if self.cfg.scene:  # background, so that the studio opens at once
             self.scene = self.messages.run(ShadowScene)
         pictures = w.HBox([w.VBox([w.HTML("target"), self.target_image]),
                            w.VBox([w.HTML("shadow"), self.shadow_image])])  # fmt: skip
@@ -115,28 +117,56 @@ class ReviewPanel:
 
     # ---------------------------------------------------------------- the recording
     def _open_recording(self) -> None:
-        serve = self.missing is None
-        if self.cfg.self_model:
-            self.self_model = self.messages.run(self_model_predictor)  # None (and the reason said) when it fails
+        """The recording, the project logged in it and the viewer streaming it (the panel's opening thread: the
+        self-model's and the viewer's code load for seconds); then published, under the lock, to the rest."""
         try:
-            self.recording = ProjectRecording(path=self.rrd, notebook=serve)
-            self.recording.log_project(self.state.project, self.self_model)
-            self.recording.flush()
-            queue = self.state.queue
+            self._publish(*self._open())
+        except Exception as e:  # never a traceback, never a panel stuck on "opening"
+            log.warning("review: the recording could not be opened", exc_info=True)
+            self.missing = self.missing or f"the recording could not be opened ({type(e).__name__}: {e})"
+            self._show_viewer()
+        finally:
+            self.opened.set()
+
+    def _open(self) -> tuple:
+        """(recording, viewer box, the project state logged, self-model) opened without the lock (None where none)."""
+        serve = self.missing is None
+        model = self.messages.run(self_model_predictor) if self.cfg.self_model else None  # None: the reason is said
+        try:
+            logged = self.state.project.state
+            recording = ProjectRecording(path=self.rrd, notebook=serve)
+            recording.log_project(self.state.project, model)
+            recording.flush()
+            box = None
             if serve:
-                self.viewer_controls = ViewerBox(self.recording, queue, self.cfg.viewer_height,
-                                                 self.cfg.follow_interval_s)  # fmt: skip
-                self.viewer = self.viewer_controls.viewer
-            if queue is not None:  # job progress on opt_step, and a finished play's servo angles, as they come
-                box = self.viewer_controls
-                stops = [
-                    queue.subscribe(self.recording.job_progress(on_step=box and box.on_step)),
-                    queue.subscribe(box.job_event if box else partial(log_finished_play, self.recording, queue)),
-                ]
-                self._unsubscribe = lambda: [stop() for stop in stops]
+                box = ViewerBox(recording, self.state.queue, self.cfg.viewer_height, self.cfg.follow_interval_s)
         except (StudioError, OSError, RuntimeError) as e:
             self.missing = self.missing or str(e)
             log.warning("review: %s", e)
+            return None, None, None, model
+        return recording, box, logged, model
+
+    def _publish(self, recording: ProjectRecording | None, box: ViewerBox | None, logged, model) -> None:
+        with self._lock:
+            self.self_model = model
+            if self.closed:  # closed while it opened
+                if recording is not None:
+                    recording.close()
+                return
+            self.recording, self.viewer_controls = recording, box
+            self.viewer = None if box is None else box.viewer
+            queue = self.state.queue
+            if recording is not None and queue is not None:  # job progress on opt_step, a finished play's angles
+                stops = [
+                    queue.subscribe(recording.job_progress(on_step=box and box.on_step)),
+                    queue.subscribe(box.job_event if box else partial(log_finished_play, recording, queue)),
+                ]
+                self._unsubscribe = lambda: [stop() for stop in stops]
+            if recording is not None and self.state.project.state is not logged:  # edited while it opened
+                self.relog()
+            self._show_viewer()
+
+    def _show_viewer(self) -> None:
         if self.viewer_controls is not None:
             self.viewer_box.children = (self.viewer_controls.widget,)
             return
@@ -224,7 +254,8 @@ class ReviewPanel:
                 self.viewer_controls.at_frame(self.shown_frame)  # the viewer shows the frame selected
 
     def close(self) -> None:
-        """Stop following the project, finish the recording and stop the meshcat server (idempotent)."""
+        """Stop following the project, finish the recording and stop the meshcat server (idempotent; a recording
+        still opening is closed as soon as it is open)."""
         with self._lock:
             if self.closed:
                 return
