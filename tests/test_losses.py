@@ -19,15 +19,8 @@ from hypothesis import strategies as st
 
 from studio.cli.clip_flags import add_clip_arguments, clip_from_args
 from studio.errors import StudioError
-from studio.imitate.clip_loss import (
-    KNOWN_SOURCES,
-    TINY_CLIP_CFG,
-    ClipWeightsError,
-    cache_candidates,
-    find_clip,
-    load_clip,
-    tiny_clip,
-)
+from studio.imitate.clip_files import KNOWN_SOURCES, cache_candidates
+from studio.imitate.clip_loss import TINY_CLIP_CFG, ClipWeightsError, find_clip, load_clip, tiny_clip
 from studio.imitate.config import COMPONENTS, LossConfig
 from studio.imitate.losses import ImageLoss, mae, soft_iou, temporal_loss
 from studio.sim.crop import align, as_image_batch, pad_pixels, square_boxes

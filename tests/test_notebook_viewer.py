@@ -81,3 +81,33 @@ def test_the_guard_lets_only_local_fetches_through(tmp_path):
         "http://localhost:9/y",
         "data:application/octet-stream;base64,AA==",
     ]
+
+
+def test_silencing_the_viewer_s_import_in_a_thread_keeps_the_other_threads_output():
+    """The Review panel makes its viewer in a background thread: rerun_notebook's import line is dropped there, while
+    what the notebook's own thread writes meanwhile still reaches the output (a plain redirect swallowed it)."""
+    import io
+    import sys
+    import threading
+
+    from studio.review.notebook_viewer import _quiet
+
+    out, inside, done = io.StringIO(), threading.Event(), threading.Event()
+
+    def importing() -> None:
+        with _quiet():
+            print("Loading inline widget")
+            inside.set()
+            done.wait(10)
+
+    real, sys.stdout = sys.stdout, out
+    try:
+        thread = threading.Thread(target=importing)
+        thread.start()
+        assert inside.wait(10)
+        print("the notebook's own line")
+        done.set()
+        thread.join(10)
+    finally:
+        sys.stdout = real
+    assert out.getvalue() == "the notebook's own line\n"

@@ -466,3 +466,36 @@ def test_an_edit_runs_as_a_job_the_notebook_never_waits_on_and_cancel_leaves_the
     gate.set()
     assert state.queue.wait(30) and list(state.project.history) == history and state.project.state.video.hz == 2.0
     assert not panel.apply_hz.disabled and panel.job_info.value.endswith("cancelled")
+
+
+def test_the_interpreter_exits_cleanly_while_a_preview_is_being_drawn(tmp_path):
+    """A daemon thread stopped at exit inside OpenCV aborts the process ("terminate called without an active
+    exception"): the studio's background threads are waited for at exit instead. Here the script ends while the
+    preview's thread is busy in OpenCV (a large photo's cleanup, made long and certain)."""
+    import subprocess
+    import sys
+
+    script = f"""
+import threading, time
+import cv2, numpy as np
+import widgets.targets as targets
+from studio.project.jobs import queue_for
+from studio.project.project import Project
+from widgets.state import StudioState
+busy, real = threading.Event(), targets.frame_preview
+def slow(*args, **kw):
+    big = np.zeros((2000, 2000), np.float32)
+    busy.set()
+    end = time.monotonic() + 2.0
+    while time.monotonic() < end:
+        cv2.GaussianBlur(big, (0, 0), 9.0)
+    return real(*args, **kw)
+targets.frame_preview = slow
+project = Project.create({str(tmp_path / "b.shadow")!r}, [{str(STILL)!r}], roll=0)
+panel = targets.TargetsPanel(StudioState(project, queue_for(project)))
+assert busy.wait(30)
+print("leaving while it draws", flush=True)
+"""
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert out.returncode == 0 and "leaving while it draws" in out.stdout, out.stderr[-2000:]
+    assert "terminate called" not in out.stderr

@@ -3,10 +3,12 @@ an error line instead of a traceback (DESIGN §5.7, §6 "ipywidgets from a threa
 
 from __future__ import annotations
 
+import atexit
 import html
 import logging
 import threading
 import time
+import weakref
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -21,6 +23,7 @@ log = logging.getLogger(__name__)
 ADD_RGB = (60, 200, 90)  # painted additions
 ERASE_RGB = (230, 60, 60)  # painted erasures
 MASK_RGB = (255, 170, 0)  # an automatic / binary mask over a frame
+EXIT_WAIT_S = 10.0  # s the interpreter waits at exit for the panels' background work (below) to end
 
 
 def frame_in_view(state: Any) -> int:
@@ -133,6 +136,28 @@ class Messages:
             return None
 
 
+_background: list[threading.Thread] = []  # the panels' background threads, waited for at exit
+_throttles: weakref.WeakSet = weakref.WeakSet()  # every Throttle, closed at exit
+
+
+def background(target: Callable[[], None], name: str) -> threading.Thread:
+    """Run ``target()`` in a daemon thread that the interpreter waits for (up to :data:`EXIT_WAIT_S`) when it exits:
+    a daemon thread stopped at exit while inside OpenCV's or torch's C++ code aborts the whole process."""
+    thread = threading.Thread(target=target, name=name, daemon=True)
+    _background[:] = [t for t in _background if t.is_alive()] + [thread]
+    thread.start()
+    return thread
+
+
+@atexit.register
+def _wait_for_background() -> None:
+    for throttle in list(_throttles):
+        throttle.close()
+    deadline = time.monotonic() + EXIT_WAIT_S
+    for thread in list(_background):
+        thread.join(max(0.0, deadline - time.monotonic()))
+
+
 class Throttle:
     """Call a function in a thread of its own, never the caller's (a draw that takes seconds, a large photo's, must not
     hold the notebook), at most ``hz`` times a second, the latest request last: requests made while it runs are
@@ -147,6 +172,7 @@ class Throttle:
         self._closed = False
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
+        _throttles.add(self)
 
     def __call__(self) -> None:
         with self._lock:
@@ -155,8 +181,7 @@ class Throttle:
             self._idle.clear()
             self._wanted.set()
             if self._thread is None:
-                self._thread = threading.Thread(target=self._serve, name="throttled-draw", daemon=True)
-                self._thread.start()
+                self._thread = background(self._serve, "throttled-draw")
 
     def settle(self, timeout: float = 10.0) -> bool:
         """Wait until every request so far has been served (True), or ``timeout`` s (False)."""

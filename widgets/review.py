@@ -39,7 +39,7 @@ from studio.project.outputs import self_model_predictor
 from studio.review.recording import ProjectRecording
 from studio.review.scene import ShadowScene
 from widgets.frame_picker import frame_picker
-from widgets.images import Messages, mask_picture, title
+from widgets.images import Messages, background, mask_picture, title
 from widgets.review_viewer import ViewerBox, log_finished_play
 from widgets.scene_snapshot import SceneSnapshot
 from widgets.show_player import ShowPreviewPanel
@@ -100,8 +100,8 @@ class ReviewPanel:
         self.shown_shadow: np.ndarray | None = None  # that frame's keyframe's result shadow (None: no result yet)
         self.scene_pose: np.ndarray | None = None  # (21,) rad shown in the meshcat scene
         self._scene_drawn = 0.0  # monotonic time of the last snapshot drawn
-        threading.Thread(target=self._open_recording, name="review-open", daemon=True).start()  # seconds: in the
-        if self.cfg.scene:  # background, so that the studio opens at once
+        background(self._open_recording, "review-open")  # seconds: in the background, so the studio opens at once
+        if self.cfg.scene:
             self.scene = self.messages.run(ShadowScene)
         pictures = w.HBox([w.VBox([w.HTML("target"), self.target_image]),
                            w.VBox([w.HTML("shadow"), self.shadow_image])])  # fmt: skip

@@ -80,7 +80,7 @@ def clip_unavailable(state: StudioState) -> str | None:
         path = Path(given).expanduser()
         return None if path.is_file() else f"the CLIP weights file {path} does not exist: give another in the box below"
     try:
-        from studio.imitate.clip_loss import cache_candidates
+        from studio.imitate.clip_files import cache_candidates
 
         if any(p.is_file() for p in cache_candidates(CLIP_MODEL, "openai")):
             return None

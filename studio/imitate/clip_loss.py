@@ -14,7 +14,6 @@ when there are none or they cannot be read. :func:`tiny_clip` builds a small ran
 from __future__ import annotations
 
 import logging
-import os
 from pathlib import Path
 
 import torch
@@ -22,6 +21,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from studio.errors import StudioError
+from studio.imitate.clip_files import cache_candidates, missing_message
 
 log = logging.getLogger(__name__)
 
@@ -33,16 +33,6 @@ TINY_CLIP_CFG = {
 }
 OPENAI_MEAN = (0.48145466, 0.4578275, 0.40821073)  # open_clip.constants.OPENAI_DATASET_MEAN
 OPENAI_STD = (0.26862954, 0.26130258, 0.27577711)  # open_clip.constants.OPENAI_DATASET_STD
-# Where the studio's default CLIP is published (open_clip's pretrained table), read without importing open_clip: every
-# run without local weights asks where they would be, and importing open_clip costs 0.7 s beyond what torch loads
-# anyway (torchvision). Held equal to open_clip's own table by tests/test_losses.py; other models ask open_clip.
-KNOWN_SOURCES = {
-    ("ViT-B-32", "openai"): {
-        "hf_hub": "timm/vit_base_patch32_clip_224.openai/",
-        "url": "https://openaipublic.azureedge.net/clip/models/40d365715913c9da98579312b702a82c18be219cc2a73407c4526f58"
-        "eba950af/ViT-B-32.pt",
-    },
-}
 
 
 class ClipWeightsError(StudioError):
@@ -103,56 +93,6 @@ def tiny_clip(seed: int = 0, invert: bool = True) -> ClipImageEncoder:
     return ClipImageEncoder(model.visual, cfg["vision_cfg"]["image_size"], invert=invert, name="tiny-random")
 
 
-def pretrained_sources(model_name: str, pretrained: str) -> dict:
-    """Where ``model_name``/``pretrained`` is published: open_clip's pretrained config (``hf_hub``, ``url``, …), from
-    :data:`KNOWN_SOURCES` when it is there (no open_clip import), else from open_clip ({} for an unknown pair)."""
-    known = KNOWN_SOURCES.get((model_name, pretrained))
-    if known is not None:
-        return dict(known)
-    import open_clip
-
-    return open_clip.get_pretrained_cfg(model_name, pretrained) or {}
-
-
-def cache_candidates(model_name: str, pretrained: str, cache_dir: str | Path | None = None) -> list[Path]:
-    """Where a cached checkpoint of ``model_name``/``pretrained`` could be (existing or not), best first."""
-    cfg = pretrained_sources(model_name, pretrained)
-    out: list[Path] = []
-    hub = cfg.get("hf_hub", "")
-    if hub:
-        from huggingface_hub import try_to_load_from_cache
-
-        repo, filename = os.path.split(hub)  # "org/model/" → default file names, as open_clip does
-        names = [filename] if filename else []
-        names += ["open_clip_model.safetensors", "open_clip_pytorch_model.bin"]
-        for name in dict.fromkeys(names):
-            found = try_to_load_from_cache(repo, name, cache_dir=str(cache_dir) if cache_dir else None)
-            if isinstance(found, str):
-                out.append(Path(found))
-    url = cfg.get("url", "")
-    if url:
-        out.append(Path(cache_dir or Path.home() / ".cache" / "clip") / os.path.basename(url))
-    return out
-
-
-def _missing_message(model_name: str, pretrained: str, cache_dir: str | Path | None, given: Path | None) -> str:
-    from huggingface_hub import constants
-
-    cfg = pretrained_sources(model_name, pretrained)
-    hub = cfg.get("hf_hub", "").rstrip("/")
-    where = f"open_clip_model.safetensors from https://huggingface.co/{hub}" if hub else "an open_clip checkpoint"
-    if given is not None:
-        problem = f"CLIP weights file not found: {given}"
-    else:
-        places = [str(Path(cache_dir or constants.HF_HUB_CACHE) / ("models--" + hub.replace("/", "--")))] if hub else []
-        places += [str(p) for p in cache_candidates(model_name, pretrained, cache_dir)]
-        problem = (
-            f"CLIP weights for {model_name} ({pretrained}) are not on this machine (looked in {', '.join(places)}); "
-            "they are never downloaded"
-        )
-    return f"{problem}. Get {where} on a machine with internet and give that file as the CLIP weights"
-
-
 def _load_state(model: nn.Module, path: Path) -> None:
     """Load a checkpoint file into ``model``: an open_clip state dict, or an OpenAI TorchScript archive."""
     import open_clip
@@ -193,11 +133,11 @@ def load_clip(
     if weights is not None:
         path = Path(weights).expanduser()
         if not path.is_file():
-            raise ClipWeightsError(_missing_message(model_name, pretrained, cache_dir, given=path))
+            raise ClipWeightsError(missing_message(model_name, pretrained, cache_dir, given=path))
     else:
         path = next((p for p in cache_candidates(model_name, pretrained, cache_dir) if p.is_file()), None)
         if path is None:
-            raise ClipWeightsError(_missing_message(model_name, pretrained, cache_dir, given=None))
+            raise ClipWeightsError(missing_message(model_name, pretrained, cache_dir, given=None))
     tag = open_clip.get_pretrained_cfg(model_name, pretrained) or {}
     model = open_clip.create_model(
         model_name, pretrained=None, force_quick_gelu=bool(tag.get("quick_gelu", False)), device="cpu"

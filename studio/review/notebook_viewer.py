@@ -27,8 +27,9 @@ it is logged. ``studio.review`` sets ``RERUN_NOTEBOOK_ASSET=inline`` before this
 from __future__ import annotations
 
 import contextlib
-import io
 import os
+import sys
+import threading
 from collections.abc import Mapping
 from typing import Any
 
@@ -60,6 +61,24 @@ const fetch = (input, init) => {
 _viewer_class: type | None = None
 
 
+class _QuietHere:
+    """A stand-in for ``sys.stdout`` that drops what this thread writes and passes the other threads' writes on (a
+    viewer made in a background thread must not swallow the notebook's own output meanwhile)."""
+
+    def __init__(self, out: Any):
+        self.out, self.thread = out, threading.current_thread()
+
+    def write(self, text: str) -> int:
+        return len(text) if threading.current_thread() is self.thread else self.out.write(text)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.out, name)
+
+
+def _quiet() -> contextlib.AbstractContextManager:
+    return contextlib.redirect_stdout(_QuietHere(sys.stdout))
+
+
 class NotebookViewerError(StudioError):
     """The notebook viewer cannot be made here (the message says what to install)."""
 
@@ -70,7 +89,7 @@ def viewer_class() -> type:
     global _viewer_class
     if _viewer_class is None:
         try:
-            with contextlib.redirect_stdout(io.StringIO()):  # its "Loading inline widget ..." line
+            with _quiet():  # its "Loading inline widget ..." line
                 import rerun_notebook
         except ImportError as e:
             raise NotebookViewerError(f"the Rerun viewer in the notebook needs the rerun-notebook package ({e}): "
@@ -78,7 +97,7 @@ def viewer_class() -> type:
         esm, inline = rerun_notebook.ESM_MOD, rerun_notebook.ASSET_ENV == rerun_notebook.ASSET_MAGIC_INLINE
         if not inline and os.environ.get("RERUN_NOTEBOOK_ASSET") == rerun_notebook.ASSET_MAGIC_INLINE:
             # imported before studio.review set the variable, so it would fetch its module from the internet
-            with contextlib.redirect_stdout(io.StringIO()):
+            with _quiet():
                 esm, inline = rerun_notebook._inline_widget(), True
         attrs: dict[str, Any] = {"__module__": __name__, "__doc__": "rerun_notebook.Viewer, offline (module doc)."}
         if inline:
