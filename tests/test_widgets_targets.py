@@ -499,3 +499,28 @@ print("leaving while it draws", flush=True)
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert out.returncode == 0 and "leaving while it draws" in out.stdout, out.stderr[-2000:]
     assert "terminate called" not in out.stderr
+
+
+def test_the_threshold_alone_lands_before_a_slow_cleanup(state, monkeypatch):
+    """On a large photo the stored picture (the project's whole cleanup) takes seconds: the threshold alone is shown
+    at the new level first, the stored picture says it is being cleaned up, then lands."""
+    import widgets.target_preview as target_preview
+
+    panel = TargetsPanel(state)
+    assert panel.drawer.settle()
+    stored_before = panel.stored.value
+    inside, release = threading.Event(), threading.Event()
+    real = target_preview.mask_from_grey
+
+    def slow(*args, **kw):
+        inside.set()
+        release.wait(30.0)
+        return real(*args, **kw)
+
+    monkeypatch.setattr(target_preview, "mask_from_grey", slow)
+    panel.threshold.value = 150.0
+    assert inside.wait(10.0)  # the cleanup has begun, and the left picture is already the new level's
+    assert panel.preview_level == 150.0 and "cleaning up at level 150" in panel.stored_info.value
+    assert panel.stored.value == stored_before
+    release.set()
+    assert panel.drawer.settle() and panel.stored.value != stored_before and "cleaning" not in panel.stored_info.value

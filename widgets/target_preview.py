@@ -11,6 +11,7 @@ still), run with the slider's level (None: Otsu).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import cv2
@@ -56,18 +57,24 @@ def frame_preview(
     video: VideoConfig,
     still: TargetConfig,
     stored: np.ndarray | None = None,
+    first: Callable[[np.ndarray, float, np.ndarray], None] | None = None,
 ) -> FramePreview:
     """The preview of one frame ``grey (H, W)`` uint8 (source pixels) in ``box`` at ``side²`` (module doc).
 
     ``polarity``: the source's (:func:`source_polarity`); ``level``: the slider's shadowness level, None for Otsu;
     ``footage``: what the source is ("still", "shadow", "mask" or "segmented": the project's ``Source.footage``);
-    ``stored``: for segmented footage, the project's mask of this frame ``(S, S)`` (its threshold does not apply)."""
+    ``stored``: for segmented footage, the project's mask of this frame ``(S, S)`` (its threshold does not apply);
+    ``first(grey, level, mask)``: given the threshold alone as soon as it is known, before the cleanup (which takes
+    seconds on a large photo)."""
     grey = np.asarray(grey, np.uint8)
     shade = shadowness(grey, polarity)
     shown = level
     if shown is None:
         shown, _ = cv2.threshold(shade, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     mask = (shade > shown).astype(np.uint8)
+    grey_sq, mask_sq = square(grey, box, side), square(mask, box, side, mask=True)
+    if first is not None:
+        first(grey_sq, float(shown), mask_sq)
     note = ""
     kept: np.ndarray | None
     if footage == "segmented":
@@ -83,4 +90,4 @@ def frame_preview(
             kept = square_mask(full, box, side)  # as the project frames it (its holes kept, no others)
         except TargetError as e:
             kept, note = None, f"nothing would be stored for this frame: {str(e).removesuffix(': this frame')}"
-    return FramePreview(square(grey, box, side), float(shown), square(mask, box, side, mask=True), kept, note)
+    return FramePreview(grey_sq, float(shown), mask_sq, kept, note)

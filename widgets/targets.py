@@ -274,14 +274,19 @@ class TargetsPanel(TargetsActions):
         p = self.state.project
         cfg = p.state.still if self._is_still(source) else p.state.video
         src = p.sources[source]
+
+        def threshold_alone(grey_sq: np.ndarray, level: float, mask: np.ndarray) -> None:  # shown before the cleanup
+            self.preview_level, self.preview_mask = level, mask
+            self._show(tint(grey_rgb(grey_sq), mask, MASK_RGB, 0.55))
+            self.stored_info.value = f"<small>cleaning up at level {level:.0f}…</small>"  # a large photo: seconds
+
         shown = frame_preview(
             grey, self._box(grey, source), PREVIEW_PX, self.polarity(source),
             None if self.otsu.value else float(self.threshold.value), src.footage or "shadow", p.state.video,
             replace(p.state.still, pocket_reach=POCKET_REACH if self.pockets.value else 0.0),
-            stored=p.state.targets[frame] if src.footage == "segmented" else None,
+            stored=p.state.targets[frame] if src.footage == "segmented" else None, first=threshold_alone,
         )  # fmt: skip
-        self.preview_level, self.preview_mask, self.stored_mask = shown.level, shown.mask, shown.stored
-        self._show(tint(grey_rgb(shown.grey), shown.mask, MASK_RGB, 0.55))
+        self.stored_mask = shown.stored
         empty = np.zeros_like(shown.mask)
         self.stored_rgb = tint(grey_rgb(shown.grey), shown.stored if shown.stored is not None else empty, MASK_RGB,
                                0.55)  # fmt: skip
