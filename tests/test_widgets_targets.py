@@ -255,6 +255,17 @@ def test_the_preview_is_throttled_but_ends_on_the_latest_value(state):
     assert panel.drawer.settle() and panel.preview_level == 90.0
 
 
+def held(fn, inside: threading.Event, release: threading.Event):
+    """``fn`` made slow: it says it has begun (``inside``), then waits for ``release`` before it runs."""
+
+    def slow(*args, **kw):
+        inside.set()
+        release.wait(30.0)
+        return fn(*args, **kw)
+
+    return slow
+
+
 def test_a_slow_preview_never_holds_the_notebook(state, monkeypatch):
     """A large photo's cleanup takes seconds: the slider's handler (the kernel's thread) only asks for a preview,
     and the drawing thread draws the latest level once the slow draw ends."""
@@ -263,14 +274,7 @@ def test_a_slow_preview_never_holds_the_notebook(state, monkeypatch):
     panel = TargetsPanel(state)
     assert panel.drawer.settle()
     inside, release = threading.Event(), threading.Event()
-    real = targets.frame_preview
-
-    def slow(*args, **kw):
-        inside.set()
-        release.wait(30.0)
-        return real(*args, **kw)
-
-    monkeypatch.setattr(targets, "frame_preview", slow)
+    monkeypatch.setattr(targets, "frame_preview", held(targets.frame_preview, inside, release))
     moved = threading.Thread(target=lambda: setattr(panel.threshold, "value", 40.0))
     moved.start()
     assert inside.wait(10.0)  # the draw has begun …
@@ -510,14 +514,7 @@ def test_the_threshold_alone_lands_before_a_slow_cleanup(state, monkeypatch):
     assert panel.drawer.settle()
     stored_before = panel.stored.value
     inside, release = threading.Event(), threading.Event()
-    real = target_preview.mask_from_grey
-
-    def slow(*args, **kw):
-        inside.set()
-        release.wait(30.0)
-        return real(*args, **kw)
-
-    monkeypatch.setattr(target_preview, "mask_from_grey", slow)
+    monkeypatch.setattr(target_preview, "mask_from_grey", held(target_preview.mask_from_grey, inside, release))
     panel.threshold.value = 150.0
     assert inside.wait(10.0)  # the cleanup has begun, and the left picture is already the new level's
     assert panel.preview_level == 150.0 and "cleaning up at level 150" in panel.stored_info.value
