@@ -7,9 +7,9 @@ runs as a job on the project's queue, followed in the panel's job line, with Can
     panel = TargetsPanel(state)      # panel.widget goes in the notebook; tests set values and .click() buttons
 
 The left picture is the threshold alone on the frame's shadowness, the right one what the project stores at that
-threshold after its cleanup (ruled lines, specks, pieces, holes; for a still its crease pockets filled or not, as
-the checkbox says), both inside the project's square frame and both decided in source pixels with the source's
-polarity as the project finds it (:mod:`widgets.target_preview`); the project changes when they are applied.
+threshold after its cleanup (ruled lines, specks, pieces, holes; a still's crease pockets as the checkbox says), both
+in the project's square frame, decided in source pixels with the source's polarity as the project finds it
+(:mod:`widgets.target_preview`), drawn in the panel's own thread (``drawer``); the project changes when applied.
 """
 
 from __future__ import annotations
@@ -287,9 +287,8 @@ class TargetsPanel(TargetsActions):
             stored=p.state.targets[frame] if src.footage == "segmented" else None, first=threshold_alone,
         )  # fmt: skip
         self.stored_mask = shown.stored
-        empty = np.zeros_like(shown.mask)
-        self.stored_rgb = tint(grey_rgb(shown.grey), shown.stored if shown.stored is not None else empty, MASK_RGB,
-                               0.55)  # fmt: skip
+        stored = shown.stored if shown.stored is not None else np.zeros_like(shown.mask)
+        self.stored_rgb = tint(grey_rgb(shown.grey), stored, MASK_RGB, 0.55)
         self.stored.value = png(self.stored_rgb)
         level = f"at Otsu's level {shown.level:.0f}" if self.otsu.value else f"at level {shown.level:.0f}"
         reading = POLARITY_WORDS[self.polarity(source)] + (" (found)" if cfg.polarity == "auto" else "")
