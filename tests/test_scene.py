@@ -158,6 +158,28 @@ def test_close_stops_the_server():
     s.close()  # idempotent
 
 
+def test_the_server_stops_by_itself_when_its_studio_is_killed():
+    """A studio killed without its exit handlers (a kernel killed, an abort) must not leave the server holding its
+    ports: it sees its parent gone and stops within seconds."""
+    import subprocess
+    import sys
+    import time
+
+    script = (
+        "import os\n"
+        "from studio.review.meshcat_server import start_local_server\n"
+        "proc, _, _ = start_local_server()\n"
+        "print(proc.pid, flush=True)\n"
+        "os._exit(0)  # no atexit: the server is left to itself\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    pid = int(out.stdout.split()[-1])
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline and psutil.pid_exists(pid) and psutil.Process(pid).status() != "zombie":
+        time.sleep(0.1)
+    assert not psutil.pid_exists(pid) or psutil.Process(pid).status() == "zombie", "the server outlived its studio"
+
+
 def listening(pid: int) -> set[tuple[str, int]]:
     """``(address, port)`` of every TCP socket that process ``pid`` listens on."""
     return {(c.laddr.ip, c.laddr.port) for c in psutil.Process(pid).net_connections("tcp") if c.status == "LISTEN"}

@@ -4,21 +4,26 @@ meshcat 0.3.2's own server (``meshcat.servers.zmqserver``, which ``meshcat.Visua
 to 127.0.0.1 but its web server (the viewer page and its websocket, no authentication) to every interface, 0.0.0.0
 and [::], and has no option to change that. This module runs the same bridge with the web server bound to
 ``HOST`` too, as ``python -m studio.review.meshcat_server``; :func:`start_local_server` starts it the way meshcat
-starts its own (its own session, so a notebook's interrupt does not stop it) and reads the two URLs it prints.
+starts its own (its own session, so a notebook's interrupt does not stop it) and reads the two URLs it prints. It is
+killed when the studio's interpreter exits, and stops by itself within a second or two when the process that started
+it is gone without that (a kernel killed, an abort), so no server is left holding its ports.
 """
 
 from __future__ import annotations
 
 import atexit
+import os
 import subprocess
 import sys
 import tempfile
 
+import tornado.ioloop
 from meshcat.servers import zmqserver
 
 from studio.errors import StudioError
 
 HOST = "127.0.0.1"  # the only address either listener binds
+PARENT_CHECK_MS = 1000  # ms between two looks at whether the process that started the server is still there
 
 
 class LocalBridge(zmqserver.ZMQWebSocketBridge):
@@ -66,6 +71,13 @@ def _kill(proc: subprocess.Popen) -> None:
 
 def main() -> None:
     bridge = LocalBridge()
+    parent = os.getppid()
+
+    def orphaned() -> None:  # the studio that started it is gone without stopping it (killed, or aborted)
+        if os.getppid() != parent:
+            bridge.ioloop.stop()
+
+    tornado.ioloop.PeriodicCallback(orphaned, PARENT_CHECK_MS).start()
     print(f"zmq_url={bridge.zmq_url}", flush=True)
     print(f"web_url={bridge.web_url}", flush=True)
     try:
