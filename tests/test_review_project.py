@@ -239,7 +239,7 @@ def test_live_stream_reaches_a_running_viewer(tmp_path, scene_data):
 
     proc, port = _viewer(tmp_path / "live.rrd")
     try:
-        for _ in range(100):  # until it listens
+        for _ in range(400):  # until it listens (a loaded machine takes seconds to start the viewer)
             with socket.socket() as s:
                 if s.connect_ex(("127.0.0.1", port)) == 0:
                     break
