@@ -179,7 +179,7 @@ def test_operator_stops(hand, cal, rig, how):
 @pytest.mark.slow
 def test_echo_adapter_and_bad_inputs(hand, cal):
     with ServoEmulator(cal.ids, EmulatorConfig(echo=True)) as emu:
-        with SerialServoBus(BusConfig(emu.port, echo=True, timeout_s=0.01)) as bus:
+        with SerialServoBus(BusConfig(emu.port, echo=True, timeout_s=0.05)) as bus:
             t, q, names = show(hand, 0.5)
             r = Player(bus, cal, PlayerConfig(ramp_speed_rad_s=2.0)).play(t, q, names)
             assert r.ok and np.abs(measured_rad(emu, cal) - q[-1]).max() < 0.01
