@@ -21,6 +21,7 @@ from studio.project.jobs import queue_for
 from studio.project.project import Project
 from studio.review.blueprint import RENDERED, SELF_MODEL, TARGET
 from studio.review.readback import read_recording
+from studio.review.scene import ShadowScene
 from studio.targets.video import DEFAULT_VIDEO
 from widgets.images import mask_picture
 from widgets.review import ReviewConfig, notebook_viewer_missing, review_panel
@@ -132,6 +133,56 @@ def test_the_panel_opens_at_once_and_its_viewer_follows_when_ready(state, monkey
     finally:
         release.set()
         panel.close()
+
+
+def test_the_rig_scene_opens_in_the_background_and_draws_the_frame_in_view(state, hand, monkeypatch):
+    """The meshcat scene's server takes a second or two to start: the panel is built without it, says so, and once
+    the scene is up it shows the pose of the frame selected meanwhile; a panel closed while its scene starts stops
+    that scene's server as soon as it is up."""
+    import widgets.review as review
+
+    release, made = threading.Event(), []
+
+    def held_scene(*args, **kwargs):
+        release.wait(30)
+        made.append(ShadowScene(*args, **kwargs))
+        return made[-1]
+
+    def built_aside():  # the panel built in another thread, or None if that waited 20 s
+        built = []
+        maker = threading.Thread(target=lambda: built.append(review_panel(state, ReviewConfig(viewer=False))))
+        maker.start()
+        maker.join(20)
+        return built[0] if built else None
+
+    monkeypatch.setattr(review, "ShadowScene", held_scene)
+    for close_early in (False, True):
+        release.clear()
+        panel = built_aside()
+        assert panel is not None, "the panel waited for its scene"
+        try:
+            assert panel.scene is None and panel.scene_view.page == "" and "starting" in panel.rig_heading.value
+            if close_early:
+                panel.close()
+            else:  # meanwhile the artist selects frame 2, whose keyframe gets a result
+                p = state.project
+                k = p.keyframes[int(p.assignment()[2])].id
+                pose = hand.rest_pose().copy()
+                pose[hand.joint_names.index("index_pip")] = 0.9
+                shadow = np.ones((8, 8), np.uint8)
+                state.edit("set_result", k, pose, {"total": 0.25}, shadow, inputs=p.keyframe_inputs(k))
+                state.select(frame=2)
+            release.set()
+            assert panel.opened.wait(60)
+            if close_early:
+                assert made[-1].closed and panel.scene is None  # its server was stopped as soon as it was up
+                continue
+            assert panel.scene is made[-1] and "starting" not in panel.rig_heading.value
+            assert np.allclose(panel.scene_pose, pose) and np.array_equal(panel.scene.theta, pose)
+            assert "MeshCat" in panel.scene_view.page and panel.shown_frame == 2
+        finally:
+            release.set()
+            panel.close()
 
 
 def test_without_rerun_notebook_the_panel_says_how_to_get_it(state, monkeypatch):

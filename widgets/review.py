@@ -12,7 +12,8 @@ keyframe pose (the model the studio's jobs search, loaded once). The project is 
 progress as it comes (the queue's events on ``opt_step``) and a finished play's commanded vs measured angles when it
 ends. Without
 ``rerun-notebook`` the panel says how to install it and how to open the file instead. The meshcat scene
-(:class:`studio.review.scene.ShadowScene`, framed on the light, the hand and the backdrop) shows the pose of the
+(:class:`studio.review.scene.ShadowScene`, framed on the light, the hand and the backdrop; its server starts in
+a thread of the panel's, as the recording opens in another, so the studio opens without waiting) shows the pose of the
 frame's keyframe (the rest pose before it has a result) as an offline snapshot, redrawn when the selection changes,
 and the pose the show player plays (:meth:`ReviewPanel.follow_player`); :class:`widgets.scene_snapshot.SceneSnapshot`
 swaps the snapshots in the browser only once the new one is drawn, so the scene never goes blank. The show
@@ -89,7 +90,7 @@ class ReviewPanel:
         self.viewer_controls: ViewerBox | None = None  # the viewer with its height control and "follow" switch
         self.self_model = None  # θ (K, 21) → the self-model's shadows (K, R, R) for the viewer (None: not drawn)
         self._unsubscribe = lambda: None
-        self.opened = threading.Event()  # set once the recording and its viewer are open (or could not be)
+        self.opened = threading.Event()  # set once the recording, its viewer and the scene are open (or could not be)
         self.viewer_box = w.VBox([w.HTML("<i>opening the Rerun viewer (the first time in a session takes a few "
                                          "seconds; the other tabs work meanwhile)</i>")])  # fmt: skip
         self.target_image = w.Image(format="png", width=self.cfg.image_px, height=self.cfg.image_px)
@@ -100,9 +101,11 @@ class ReviewPanel:
         self.shown_shadow: np.ndarray | None = None  # that frame's keyframe's result shadow (None: no result yet)
         self.scene_pose: np.ndarray | None = None  # (21,) rad shown in the meshcat scene
         self._scene_drawn = 0.0  # monotonic time of the last snapshot drawn
+        self._opening = 2 if self.cfg.scene else 1  # threads still opening (the recording's, the scene's)
         background(self._open_recording, "review-open")  # seconds: in the background, so the studio opens at once
-        if self.cfg.scene:
-            self.scene = self.messages.run(ShadowScene)
+        self.rig_heading = w.HTML("<b>the rig</b>" + (" <i>(starting its 3-D scene)</i>" if self.cfg.scene else ""))
+        if self.cfg.scene:  # its server starts in a second or two: in the background too
+            background(self._open_scene, "review-scene")
         pictures = w.HBox([w.VBox([w.HTML("target"), self.target_image]),
                            w.VBox([w.HTML("shadow"), self.shadow_image])])  # fmt: skip
         self.frame_picker, self._stop_picker = frame_picker(state)  # selects the frame in view in every tab
@@ -110,10 +113,11 @@ class ReviewPanel:
         self.follow_player(self.preview.player)
         self.widget = w.VBox([
             title("Review"), self.viewer_box, self.preview.widget, self.frame_picker, self.caption, pictures,
-            w.HTML("<b>the rig</b>"), self.scene_view, self.messages.widget,
+            self.rig_heading, self.scene_view, self.messages.widget,
         ])  # fmt: skip
         self._stop = state.on_change(self._on_change)
-        self.show_frame()
+        with self._lock:  # the scene may open meanwhile and draw the frame in view too
+            self.show_frame()
 
     # ---------------------------------------------------------------- the recording
     def _open_recording(self) -> None:
@@ -126,7 +130,28 @@ class ReviewPanel:
             self.missing = self.missing or f"the recording could not be opened ({type(e).__name__}: {e})"
             self._show_viewer()
         finally:
-            self.opened.set()
+            self._opened_one()
+
+    def _open_scene(self) -> None:
+        """The meshcat scene (the panel's second opening thread), then the pose of the frame in view drawn in it."""
+        try:
+            scene = self.messages.run(ShadowScene)  # None: the panel says why
+            with self._lock:
+                if self.closed:  # closed while it opened
+                    if scene is not None:
+                        scene.close()
+                    return
+                self.scene = scene
+                self.rig_heading.value = "<b>the rig</b>" if scene else "<b>the rig</b> (no 3-D scene: see below)"
+                self.show_frame()
+        finally:
+            self._opened_one()
+
+    def _opened_one(self) -> None:
+        with self._lock:
+            self._opening -= 1
+            if self._opening == 0:
+                self.opened.set()
 
     def _open(self) -> tuple:
         """(recording, viewer box, the project state logged, self-model) opened without the lock (None where none)."""
