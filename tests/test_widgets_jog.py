@@ -17,7 +17,9 @@ from hardware.calibration import load_calibration
 from hardware.jog import JogConfig
 from studio.project.jobs import queue_for
 from studio.project.project import Project
+from widgets.images import mask_picture
 from widgets.jog import JogPanel, JogPanelConfig, jog_panel
+from widgets.sculpt import PX
 from widgets.state import StudioState
 
 STILL = asset("targets/asl_o.jpeg")
@@ -202,11 +204,13 @@ def test_the_panels_estop_is_every_processs_and_a_latch_set_elsewhere_holds_here
 def test_sculpting_without_servos_shows_the_shadow_and_saves_a_keyframe(panel, state, hand):
     """Disconnected, the sliders shape the shadow alone (pixels change with a joint); the pose is kept as the
     keyframe result of the frame in view, current, with the loss the caption showed."""
+    assert panel.sculpt.drawer.settle()  # drawn in the view's own thread
     before = panel.sculpt.commanded_shadow.copy()
     assert not panel.sliders[0].disabled and panel.jog is None
     wrist = next(k for k, n in enumerate(panel.cal.joint_names) if "wrist" in n)
     s = panel.sliders[wrist]
     s.value = s.max
+    assert panel.sculpt.drawer.settle()
     after = panel.sculpt.commanded_shadow
     assert after.sum() > 50 and (before != after).sum() > 20  # a black shadow that moved with the wrist
     assert panel.sculpt.measured_shadow is None and "loss" in panel.sculpt.caption.value
@@ -220,6 +224,38 @@ def test_sculpting_without_servos_shows_the_shadow_and_saves_a_keyframe(panel, s
     assert f"saved as keyframe {k}" in panel.sculpt.messages.text
 
 
+def test_a_slider_never_waits_for_the_shadow_and_the_newest_pose_is_drawn(panel, monkeypatch):
+    """The shadow is rendered and scored in the view's own thread: with a draw held, a slider's handler returns at
+    once, and once the draw goes on the pictures show the slider's newest pose, not the one held."""
+    import threading
+
+    from studio.project.sculpt import Sculptor
+
+    assert panel.sculpt.drawer.settle()
+    release, held, real = threading.Event(), threading.Event(), Sculptor.score
+
+    def slow_score(self, *args):
+        held.set()
+        release.wait(30)
+        return real(self, *args)
+
+    monkeypatch.setattr(Sculptor, "score", slow_score)
+    s = panel.sliders[next(k for k, n in enumerate(panel.cal.joint_names) if "wrist" in n)]
+    try:
+        s.value = s.min
+        assert held.wait(10)  # a draw is now held in the view's thread
+        moved = threading.Thread(target=lambda: setattr(s, "value", s.max))
+        moved.start()
+        moved.join(5)
+        assert not moved.is_alive(), "the slider's handler waited for the held draw"
+    finally:
+        release.set()
+    assert panel.sculpt.drawer.settle()
+    newest = panel.sculpt.sculptor.shadow(panel.state.project, panel.commanded_pose())
+    assert np.array_equal(panel.sculpt.commanded_shadow, newest)
+    assert panel.sculpt.commanded_image.value == mask_picture(newest, PX)
+
+
 def test_connected_the_measured_shadow_follows_the_servos(panel, hand):
     assert panel.connect()
     assert wait_until(lambda: panel.sculpt.measured_shadow is not None)
@@ -228,9 +264,10 @@ def test_connected_the_measured_shadow_follows_the_servos(panel, hand):
     panel.read()
     time.sleep(0.15)  # past the read-back throttle
     panel.read()
+    assert panel.sculpt.drawer.settle()
     assert panel.sculpt.measured_shadow is not None and panel.sculpt.measured_shadow.any()
     panel.disconnect()
-    assert panel.sculpt.measured_shadow is None
+    assert panel.sculpt.drawer.settle() and panel.sculpt.measured_shadow is None
 
 
 def test_the_estop_button_looks_latched_until_reset(panel):

@@ -187,11 +187,15 @@ class Throttle:
         """Wait until every request so far has been served (True), or ``timeout`` s (False)."""
         return self._idle.wait(timeout)
 
-    def close(self) -> None:
-        """Serve no more requests (the thread ends after a call in progress)."""
+    def close(self, wait_s: float = 0.0) -> None:
+        """Serve no more requests: the thread ends after a call in progress, waited for up to ``wait_s`` s (for a
+        caller about to release what the calls use)."""
         with self._lock:
             self._closed = True
             self._wanted.set()
+            thread = self._thread
+        if wait_s > 0 and thread is not None and thread is not threading.current_thread():
+            thread.join(wait_s)
 
     def _serve(self) -> None:
         last = -1e9

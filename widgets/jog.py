@@ -274,7 +274,7 @@ class JogPanel(JogActions):
     # ------------------------------------------------------------------ periodic read-back and the studio
     def _on_change(self, what: str) -> None:
         if what in ("selection", "project"):
-            self.sculpt.redraw(force=True)  # the target of the frame in view
+            self.sculpt.redraw()  # the target of the frame in view
             k = self.selected_keyframe()
             self.keyframe_button.description = "go to keyframe" if k is None else f"go to keyframe {k}"
 

@@ -2,8 +2,10 @@
 when connected) beside the selected frame's target, with its loss, and "save as keyframe".
 
 A thin face of :mod:`studio.project.sculpt`: the panel tells it the commanded pose (``(21,)`` rad, the hand's joint
-order) after every slider move (redrawn at once) and the measured one after every read-back (redrawn at most
-:data:`MAX_HZ` times a second, from whichever thread called: only image values are set). Without servos the sliders
+order) after every slider move and the measured one after every read-back; the pictures are drawn in the view's own
+thread (:class:`widgets.images.Throttle`, at most :data:`MAX_HZ` times a second, the latest poses last), never the
+caller's: the first draw loads the losses' code (torch) and compiles the renderer's kernels, seconds the studio does not
+wait for when it opens, and a slider's handler never holds the notebook for a render. Without servos the sliders
 shape the shadow alone, so an artist can sculpt a shadow at the desk and keep it.
 """
 
@@ -11,8 +13,6 @@ from __future__ import annotations
 
 import html
 import logging
-import threading
-import time
 
 import ipywidgets as W
 import numpy as np
@@ -20,7 +20,7 @@ import numpy as np
 from studio.errors import StudioError
 from studio.project.sculpt import Sculptor, keep_pose, keyframe_at
 from studio.sim.hand import Hand
-from widgets.images import Messages, frame_in_view, mask_picture
+from widgets.images import Messages, Throttle, frame_in_view, mask_picture
 from widgets.state import StudioState
 
 log = logging.getLogger(__name__)
@@ -41,9 +41,7 @@ class SculptView:
         self.measured: np.ndarray | None = None  # (21,) rad, the last read-back (None: not connected)
         self.commanded_shadow: np.ndarray | None = None  # (S, S) uint8 shown under "commanded"
         self.measured_shadow: np.ndarray | None = None
-        self._last = 0.0
-        self._pending: threading.Timer | None = None  # a redraw due when the throttle interval ends
-        self._lock = threading.Lock()
+        self.drawer = Throttle(lambda: self.messages.run(self._draw, clear=False), hz=MAX_HZ)  # draws, in its thread
         self.target_image = W.Image(format="png", width=PX, height=PX)
         self.commanded_image = W.Image(format="png", width=PX, height=PX)
         self.measured_image = W.Image(format="png", width=PX, height=PX)
@@ -57,35 +55,22 @@ class SculptView:
             W.HBox([W.VBox([W.HTML(f"<b>{label}</b>"), image]) for label, image in pictures]),
             self.caption, self.save_button, self.messages.widget,
         ])  # fmt: skip
-        self.redraw(force=True)
+        self.redraw()
 
     def command(self, theta: np.ndarray) -> None:
         """The sliders now command ``theta (21,)`` rad: redraw its shadow."""
         self.commanded = np.asarray(theta, np.float64).copy()
-        self.redraw(force=True)
+        self.redraw()
 
     def measure(self, theta: np.ndarray | None) -> None:
         """The servos report ``theta (21,)`` rad (NaN where one did not answer; None: disconnected)."""
         self.measured = None if theta is None else np.asarray(theta, np.float64).copy()
-        self.redraw(force=theta is None)
+        self.redraw()
 
-    def redraw(self, force: bool = False) -> None:
-        """Target, both shadows and the loss of the commanded pose against the frame in view (throttled)."""
-        now = time.monotonic()
-        wait = self._last + 1.0 / MAX_HZ - now
-        if not force and wait > 0:  # too soon: draw once when the interval is over (the latest pose then)
-            if self._pending is None:
-                self._pending = threading.Timer(wait, self._trailing)
-                self._pending.daemon = True
-                self._pending.start()
-            return
-        self._last = now
-        with self._lock:
-            self.messages.run(self._draw, clear=False)
-
-    def _trailing(self) -> None:
-        self._pending = None
-        self.redraw(force=True)
+    def redraw(self) -> None:
+        """Target, both shadows and the loss of the commanded pose against the frame in view, drawn soon in the view's
+        thread (``drawer.settle()`` waits for it)."""
+        self.drawer()
 
     def _draw(self) -> None:
         project = self.state.project
@@ -118,12 +103,10 @@ class SculptView:
         k = keep_pose(project, frame, scored)
         self.state.changed("project")
         self.messages.say(f"saved as keyframe {k} (loss {scored.loss['total']:.4f}); undo in Keyframes")
-        self.redraw(force=True)
+        self.redraw()
         return k
 
     def close(self) -> None:
-        """Release the collision world (a redraw still due is dropped)."""
-        pending, self._pending = self._pending, None
-        if pending is not None:
-            pending.cancel()
+        """Stop drawing (a draw in progress ends first) and release the collision world."""
+        self.drawer.close(wait_s=5.0)
         self.sculptor.close()
