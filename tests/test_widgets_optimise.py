@@ -293,6 +293,11 @@ def test_the_budgets_list_offers_the_presets_and_the_choice_reaches_the_run(stat
         no_gpu, gpu = budget_list(TINY, gpu=False).options, budget_list(TINY, gpu=True).options
         assert "no GPU here: its search is 938× the studio's" in no_gpu[2][0] and "no GPU" not in gpu[2][0]
         assert "no GPU" not in no_gpu[1][0]  # the studio's own preset is the CPU's
+        asked = budget_list(PRESETS["paper"])  # GPU or not asked of torch in the background, the choice kept
+        import torch
+
+        if not torch.cuda.is_available():
+            assert until(lambda: "no GPU here" in asked.options[1][0], 30) and asked.value == "paper"
         for choice, want in ((None, TINY), ("paper", PRESETS["paper"]), (STUDIO, PRESETS[STUDIO])):
             panel.budget.value = choice
             panel.start("stale")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import html
 import math
+from functools import partial
 
 import ipywidgets as w
 import numpy as np
@@ -14,18 +15,26 @@ import numpy as np
 from studio.imitate.config import PRESET_WORDS, PRESETS, STUDIO, SequenceConfig
 from studio.jobs import JobEvent, JobState
 from studio.project.run import RunReport
-from widgets.images import mask_picture
+from widgets.images import background, mask_picture
 from widgets.words import ALLOW_LATE, bar_label, count, late_lines, stage
 
 
 def budget_list(sequence: SequenceConfig, gpu: bool | None = None) -> w.Dropdown:
     """The budgets list: the presets every verb's ``--preset`` names (``sequence``'s selected when it is one), and
     first, when ``sequence`` is none of them, "this studio's own" (value None: ``sequence`` itself). Without a GPU
-    (``gpu``; None: whether torch sees CUDA) a preset whose search is far larger than the studio's says so."""
+    (``gpu``; None: whether torch sees CUDA, asked in the background once torch has loaded, so that the studio opens
+    without waiting for torch) a preset whose search is far larger than the studio's says so."""
+    chosen = next((name for name, cfg in PRESETS.items() if cfg == sequence), None)
+    options = _budget_options(chosen, gpu is not False)
+    dropdown = w.Dropdown(options=options, value=chosen, description="budgets", style={"description_width": "60px"},
+                          layout=w.Layout(width="860px"), tooltip="the search and refinement budgets of every "
+                          "keyframe (the same presets as the command line's)")  # fmt: skip
     if gpu is None:
-        import torch
+        background(partial(_say_when_no_gpu, dropdown, chosen), "budgets-gpu")
+    return dropdown
 
-        gpu = torch.cuda.is_available()
+
+def _budget_options(chosen: str | None, gpu: bool) -> list[tuple[str, str | None]]:
     ours = PRESETS[STUDIO].first.batch * PRESETS[STUDIO].first.iterations
 
     def label(name: str, words: str) -> str:
@@ -33,13 +42,19 @@ def budget_list(sequence: SequenceConfig, gpu: bool | None = None) -> w.Dropdown
         slow = "" if gpu or times < 2 else f" — no GPU here: its search is {times:,.0f}× the studio's"
         return f"{name}: {words}{slow}"
 
-    options = [(label(name, words), name) for name, words in PRESET_WORDS.items()]
-    chosen = next((name for name, cfg in PRESETS.items() if cfg == sequence), None)
+    options: list[tuple[str, str | None]] = [(label(name, words), name) for name, words in PRESET_WORDS.items()]
     if chosen is None:
         options.insert(0, ("this studio's own (set where the studio was opened)", None))
-    return w.Dropdown(options=options, value=chosen, description="budgets", style={"description_width": "60px"},
-                      layout=w.Layout(width="860px"), tooltip="the search and refinement budgets of every keyframe "
-                      "(the same presets as the command line's)")  # fmt: skip
+    return options
+
+
+def _say_when_no_gpu(dropdown: w.Dropdown, chosen: str | None) -> None:
+    import torch
+
+    if not torch.cuda.is_available():
+        value = dropdown.value  # the artist's choice meanwhile stays chosen
+        dropdown.options = _budget_options(chosen, gpu=False)
+        dropdown.value = value
 
 
 class OptimiseDrawing:
