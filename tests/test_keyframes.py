@@ -347,3 +347,43 @@ def test_a_single_frame_clusters_without_importing_scikit_learn():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.split() == ["[0]", "[0]", "False"], done.stdout
+
+
+def test_merge_order_counts_what_clustering_makes_at_every_tau():
+    """``merge_order(...).count(tau)`` (the Keyframes panel's live count) is ``cluster_keyframes``' count at every
+    τ: on the boundaries 1 − d of each merge and between them, for shapes that change (the two-keyframe rule holds)
+    and random frames."""
+    from studio.targets.keyframes import merge_order
+
+    rng = np.random.default_rng(5)
+    changing = ellipses(np.geomspace(0.25, 4.0, 12))
+    steady = ellipses(np.full(8, 0.5))
+    noisy = (rng.random((15, 16, 16)) < 0.4).astype(np.uint8)
+    checked = 0
+    for masks in (changing, steady, noisy, changing[:1]):
+        cfg = KeyframeConfig()
+        order = merge_order(masks, cfg)
+        assert len(order.d) == len(masks) - 1
+        edges = 1.0 - order.d
+        taus = np.unique(np.clip(np.concatenate([edges, edges + 1e-9, edges - 1e-9, np.linspace(0, 1, 21)]), 0, 1))
+        for tau in taus:
+            want = cluster_keyframes(masks, KeyframeConfig(tau=float(tau))).count
+            assert order.count(float(tau)) == want, (len(masks), tau)
+            checked += 1
+    assert checked > 60
+    assert merge_order(changing).changes_shape and not merge_order(steady).changes_shape
+    assert merge_order(changing).count(0.0) == 2 and merge_order(steady).count(0.0) == 1
+
+
+def test_most_different_iou_is_the_all_pairs_minimum():
+    """The row-at-a-time soft IoU equals every pair's at once (the (N, N, size²) reference, small N)."""
+    from studio.targets.keyframes import _crops, most_different_iou
+
+    rng = np.random.default_rng(6)
+    for masks in (ellipses(np.geomspace(0.5, 2.0, 7)), (rng.random((9, 24, 24)) < 0.3).astype(np.uint8)):
+        cfg = KeyframeConfig()
+        c = np.stack(_crops(masks, cfg, None)).reshape(len(masks), -1)
+        lo = np.minimum(c[:, None, :], c[None, :, :]).sum(axis=-1)
+        hi = np.maximum(c[:, None, :], c[None, :, :]).sum(axis=-1)
+        reference = float(np.where(hi > 0, lo / np.maximum(hi, 1e-12), 1.0).min())
+        assert most_different_iou(masks, cfg) == pytest.approx(reference, abs=1e-12)

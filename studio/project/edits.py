@@ -19,7 +19,7 @@ import numpy as np
 
 from studio.project.state import Frame, Keyframe, ProjectError, ProjectState
 from studio.targets.expressive import combine
-from studio.targets.keyframes import KeyframeConfig, cluster_keyframes
+from studio.targets.keyframes import KeyframeConfig, MergeOrder, cluster_keyframes, merge_order
 
 
 def combined_masks(state: ProjectState) -> np.ndarray:
@@ -74,6 +74,18 @@ def cluster(
                 found.append(Keyframe(next_id, rep, members))
                 used.add(next_id)
     return _ordered(found), max(next_id, max(used, default=-1) + 1)
+
+
+def merge_orders(
+    frames: Sequence[Frame], masks: np.ndarray, cfg: KeyframeConfig, shadows: np.ndarray | None = None
+) -> list[MergeOrder]:
+    """Per source, in :func:`cluster`'s order, the :class:`~studio.targets.keyframes.MergeOrder` of its frames: the
+    keyframe count :func:`cluster` makes at any τ is ``sum(o.count(tau) for o in merge_orders(...))``."""
+    out = []
+    for s in sorted({f.source for f in frames}):
+        idx = np.array([i for i, f in enumerate(frames) if f.source == s])
+        out.append(merge_order(masks[idx], cfg, None if shadows is None else np.asarray(shadows)[idx]))
+    return out
 
 
 def _owner(keyframes: Sequence[Keyframe], frame: int) -> Keyframe:

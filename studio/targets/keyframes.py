@@ -124,11 +124,16 @@ def _crops(masks: np.ndarray, cfg: KeyframeConfig, shadows: np.ndarray | None) -
 
 def most_different_iou(expressive: np.ndarray, cfg: KeyframeConfig, shadows: np.ndarray | None = None) -> float:
     """The soft IoU (Σ min / Σ max) of the aligned crops of the two frames least alike, 1 when all are alike: how
-    much the subject's shape changes through the clip, in the crops' own terms (not relative to the clip)."""
+    much the subject's shape changes through the clip, in the crops' own terms (not relative to the clip). One frame
+    against the later ones at a time: memory O(N·size²), not the (N, N, size²) of every pair at once (1.9 GB for
+    240 frames)."""
     c = np.stack(_crops(np.asarray(expressive), cfg, shadows)).reshape(len(expressive), -1)
-    lo = np.minimum(c[:, None, :], c[None, :, :]).sum(axis=-1)
-    hi = np.maximum(c[:, None, :], c[None, :, :]).sum(axis=-1)
-    return float(np.where(hi > 0, lo / np.maximum(hi, 1e-12), 1.0).min())
+    worst = 1.0
+    for i in range(len(c) - 1):
+        lo = np.minimum(c[i], c[i + 1 :]).sum(axis=-1)
+        hi = np.maximum(c[i], c[i + 1 :]).sum(axis=-1)
+        worst = min(worst, float(np.where(hi > 0, lo / np.maximum(hi, 1e-12), 1.0).min()))
+    return worst
 
 
 def embed(
@@ -156,13 +161,16 @@ def embed(
     return pca.transform(unique)[inverse.ravel()]  # identical frames get bit-identical embeddings (d = 0 exactly)
 
 
-def merge_clusters(embeddings: np.ndarray, tau: float, keep: int = 1) -> list[list[int]]:
+def merge_clusters(
+    embeddings: np.ndarray, tau: float, keep: int = 1, distances: list[float] | None = None
+) -> list[list[int]]:
     """Centroid merging of ``embeddings (N, C)`` until the closest pair's similarity ``1 − d`` falls below ``tau``
     (or only ``keep`` clusters are left).
 
     ``d`` is the L2 distance between the clusters' mean embeddings over the largest distance between two frames.
-    Returns the clusters as ascending member lists, ordered by first member. O(N²·C) time: after a merge only the
-    merged cluster's row of the distance matrix is recomputed.
+    Returns the clusters as ascending member lists, ordered by first member; ``distances``, when given, gets the ``d``
+    of each merge made, in order. O(N²·C) time: after a merge only the merged cluster's row of the distance matrix is
+    recomputed.
     """
     e = np.asarray(embeddings, np.float64)
     n = len(e)
@@ -181,6 +189,8 @@ def merge_clusters(embeddings: np.ndarray, tau: float, keep: int = 1) -> list[li
         i, j = divmod(flat, n)
         if not np.isfinite(d[i, j]) or 1.0 - d[i, j] < tau:
             break
+        if distances is not None:
+            distances.append(float(d[i, j]))
         i, j = min(i, j), max(i, j)
         centroids[i] = (sizes[i] * centroids[i] + sizes[j] * centroids[j]) / (sizes[i] + sizes[j])
         sizes[i] += sizes[j]
@@ -213,6 +223,32 @@ def cluster_keyframes(
         reps[k] = group[int(np.argmin(np.linalg.norm(e[group] - centre, axis=1)))]
     log.debug("%d frames → %d keyframes (tau %.3f)", len(e), len(members), cfg.tau)
     return Clusters(assignment=assignment, representatives=reps, members=members)
+
+
+@dataclass(frozen=True)
+class MergeOrder:
+    """Every merge :func:`cluster_keyframes` would make, in its order (which does not depend on ``tau``): the
+    keyframe count at any ``tau`` at once, e.g. under a slider, without clustering again."""
+
+    d: np.ndarray  # (N − 1,) the normalised distance of each merge, in order (N frames)
+    changes_shape: bool  # the two least alike frames' crops overlap less than one_iou: never one keyframe
+
+    def count(self, tau: float) -> int:
+        """How many keyframes :func:`cluster_keyframes` makes at ``tau`` (the same comparison, the same merges)."""
+        stop = np.flatnonzero(1.0 - self.d < tau)
+        k = len(self.d) + 1 - (int(stop[0]) if len(stop) else len(self.d))
+        return 2 if k == 1 and len(self.d) and self.changes_shape else k
+
+
+def merge_order(
+    expressive: np.ndarray, cfg: KeyframeConfig = KeyframeConfig(), shadows: np.ndarray | None = None
+) -> MergeOrder:
+    """The :class:`MergeOrder` of expressive masks ``(N, S, S)`` (``cfg.tau`` is not used; ``shadows`` as in
+    :func:`cluster_keyframes`)."""
+    distances: list[float] = []
+    merge_clusters(embed(expressive, cfg, shadows), -np.inf, distances=distances)
+    changes = len(distances) > 0 and most_different_iou(expressive, cfg, shadows) < cfg.one_iou
+    return MergeOrder(np.array(distances, np.float64), bool(changes))
 
 
 def keyframe_targets(
