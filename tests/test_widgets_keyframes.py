@@ -42,6 +42,7 @@ def test_tau_counts_live_and_edits_only_when_applied(state):
     panel = KeyframesPanel(state)
     p = state.project
     before, n_frames = state_doc(p.state), len(p.frames)
+    assert panel.counter.settle()  # the merge orders are worked out in the panel's thread
     assert n_frames == 9 and panel.live_count == len(p.keyframes) == 3
     assert len(panel.strip.children) == len(p.keyframes)
     last = p.keyframes[-1]
@@ -61,6 +62,7 @@ def test_tau_counts_live_and_edits_only_when_applied(state):
     assert state_doc(p.state) == before and not p.can_undo  # the project is untouched
     state.edit("paint", 0, additions=np.ones(p.state.auto.shape[1:], np.uint8))  # the masks change: recounted
     panel.tau.value = 0.3
+    assert panel.counter.settle()
     by_shape = cluster_keyframes(p.combined_masks(), KeyframeConfig(tau=0.3), p.state.targets)
     assert panel.live_count == len(by_shape.members)
     state.undo()
@@ -126,6 +128,7 @@ def test_tau_follows_the_project_after_undo_redo_and_another_panels_edit(state):
     assert p.state.clustering.tau == 0.99
     state.undo()
     assert p.state.clustering.tau == 0.42 and panel.tau.value == 0.42  # the slider says what the project has
+    assert panel.counter.settle()
     assert panel.live_count == len(p.keyframes) and f"(project: {len(p.keyframes)})" in panel.count.value
     state.redo()
     assert panel.tau.value == 0.99
@@ -174,3 +177,41 @@ def test_cards_show_each_keyframes_status_and_loss_counts_and_times_in_words(sta
     assert p.state.keyframe(first.id).time_s == 0.8
     card = panel.strip.children[[kf.id for kf in p.keyframes].index(first.id)]
     assert "at 0.80 s" in card.children[2].value and "99999" not in card.children[2].value
+
+
+def test_the_count_is_worked_out_aside_and_only_when_what_it_reads_changes(state, monkeypatch):
+    """Edits that leave the clustering's inputs alone (hold, weights) cost no recount; a paint stroke recounts in the
+    panel's thread: the edit returns at once, the count says "counting…" and lands when done."""
+    import threading
+
+    import widgets.keyframes as module
+
+    calls, release = [], threading.Event()
+    release.set()
+    real = module.merge_orders
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        release.wait(30)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(module, "merge_orders", counted)
+    panel = KeyframesPanel(state)
+    p = state.project
+    try:
+        assert panel.counter.settle() and len(calls) == 1
+        state.edit("set_hold", p.keyframes[0].id, True)
+        state.edit("set_weights", w_iou=2.0)
+        panel.tau.value = 0.99
+        assert panel.counter.settle() and len(calls) == 1 and panel.live_count == 9  # no recount, counted at once
+        release.clear()
+        edit = threading.Thread(target=state.edit, args=("paint", 0), kwargs={"additions": np.ones((48, 48), np.uint8)})
+        edit.start()
+        edit.join(10)
+        assert not edit.is_alive(), "the paint edit waited for the recount"
+        assert "counting keyframes at τ 0.990" in panel.count.value
+        release.set()
+        assert panel.counter.settle() and len(calls) == 2 and panel.count.value.startswith(f"{panel.live_count} ")
+    finally:
+        release.set()
+        panel.close()

@@ -1,5 +1,7 @@
 """The Keyframes panel: a τ slider whose cluster count updates live (computed, the project untouched until "Apply τ"
-re-clusters it; it follows the project after an undo, a redo or another panel's edit), a strip of the clusters
+re-clusters it; it follows the project after an undo, a redo or another panel's edit; the count at any τ comes at
+once from the clustering's merge order, :func:`studio.project.edits.merge_orders`, worked out again in the panel's
+own thread only when what the clustering reads changes: targets, expressive masks, paint), a strip of the clusters
 (representative framed in the colour of its result's status, member count, time range, status and loss), and the
 keyframe edits: add
 one at the scrubber's frame, remove one, move the frame to another cluster, a keyframe's show time and hold flag,
@@ -11,15 +13,17 @@ undo and redo. Every edit goes through :meth:`StudioState.edit` (saved, undoable
 from __future__ import annotations
 
 import logging
+import threading
 from dataclasses import replace
 
 import ipywidgets as w
 import numpy as np
 
+from studio.project.edits import combined_masks, merge_orders
 from studio.project.state import Keyframe
 from studio.project.status import ProjectStatus
-from studio.targets.keyframes import cluster_keyframes
-from widgets.images import MASK_RGB, Messages, frame_in_view, grey_rgb, png, tint, title, upscale
+from studio.targets.keyframes import MergeOrder
+from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, png, tint, title, upscale
 from widgets.state import StudioState
 from widgets.words import count, loss, seconds, span
 
@@ -39,7 +43,10 @@ class KeyframesPanel:
         self.messages = Messages()
         self._masks_of: object = None  # the project state the cached masks were combined from
         self._masks: np.ndarray | None = None  # (N, S, S) the expressive masks the artist sees
-        self._counts: dict[float, int] = {}  # τ → keyframe count, for the cached masks (the slider goes back and forth)
+        self._orders_of: tuple | None = None  # what the clustering read when the merge orders were worked out
+        self._orders: list[MergeOrder] = []  # per source: the keyframe count at any τ
+        self._count_lock = threading.Lock()  # the count is shown by the kernel's thread and the counting thread
+        self.counter = Throttle(lambda: self.messages.run(self._recount, clear=False), hz=5.0)  # merge orders, aside
         self._drawing = False  # True while redraw() sets values (their observers must not edit)
         self.live_count = 0  # keyframes at the slider's τ (computed; the project is not edited)
         self._tau_seen: float | None = None  # the project's τ the slider last followed
@@ -93,27 +100,25 @@ class KeyframesPanel:
         """Stop following the state (the widget stays as it is)."""
         for stop in self._stops:
             stop()
+        self.counter.close(wait_s=5.0)
 
     # ---------------------------------------------------------------- reading the project
     def masks(self) -> np.ndarray:
         """The project's expressive masks ``(N, S, S)`` (paint included), combined once per project state."""
         s = self.state.project.state
         if self._masks_of is not s:
-            self._masks, self._masks_of, self._counts = self.state.project.combined_masks(), s, {}
+            self._masks, self._masks_of = combined_masks(s), s
         return self._masks
 
-    def count_at(self, tau: float) -> int:
-        """How many keyframes clustering at ``tau`` would make (per source, as the project clusters)."""
-        p = self.state.project
-        masks, cfg = self.masks(), replace(p.state.clustering, tau=float(tau))
-        if cfg.tau not in self._counts:
-            sources = np.array([f.source for f in p.frames])
-            targets = p.state.targets
-            self._counts[cfg.tau] = sum(
-                len(cluster_keyframes(masks[sources == s], cfg, targets[sources == s]).members)
-                for s in np.unique(sources)
-            )
-        return self._counts[cfg.tau]
+    def _clustering_reads(self, s=None) -> tuple:
+        """What the keyframe count depends on in project state ``s`` (None: now), besides τ (edits replace these
+        objects, never change them)."""
+        s = self.state.project.state if s is None else s
+        return s.frames, s.targets, s.auto, s.additions, s.erasures, replace(s.clustering, tau=0.0)
+
+    def _orders_current(self) -> bool:
+        was, now = self._orders_of, self._clustering_reads()
+        return was is not None and all(a is b for a, b in zip(was[:-1], now[:-1])) and was[-1] == now[-1]
 
     def selected(self) -> int:
         """The keyframe id in view: the selection's, else the one the scrubber's frame plays."""
@@ -138,10 +143,34 @@ class KeyframesPanel:
             self.redraw()
 
     def update_count(self) -> None:
-        """The live count at the slider's τ (the project is not edited)."""
-        self.live_count = self.count_at(self.tau.value)
+        """The live count at the slider's τ (the project is not edited): at once from the merge orders, or, after an
+        edit of what the clustering reads, "counting…" until the panel's thread has worked them out again."""
+        with self._count_lock:
+            if self._orders_current():
+                self._show_count()
+                return
+            self.count.value = f"counting keyframes at τ {self.tau.value:.3f}…"
+        self.counter()
+
+    def _recount(self) -> None:
+        """The merge orders of the project as it is now (the counting thread: seconds for a long video)."""
+        with self._count_lock:
+            if self._orders_current():  # asked twice for one edit (a redraw and a selection): counted already
+                self._show_count()
+                return
+        s = self.state.project.state
+        reads = self._clustering_reads(s)
+        orders = merge_orders(s.frames, combined_masks(s), s.clustering, s.targets)
+        with self._count_lock:
+            self._orders_of, self._orders = reads, orders
+            if self._orders_current():  # else an edit meanwhile has asked for another count
+                self._show_count()
+
+    def _show_count(self) -> None:
+        tau = float(self.tau.value)
+        self.live_count = sum(o.count(tau) for o in self._orders)
         now = len(self.state.project.keyframes)
-        self.count.value = f"{count(self.live_count, 'keyframe')} at τ {self.tau.value:.3f} (project: {now})"
+        self.count.value = f"{count(self.live_count, 'keyframe')} at τ {tau:.3f} (project: {now})"
 
     def _card(self, kf: Keyframe, chosen: bool, status: ProjectStatus) -> w.Widget:
         p = self.state.project
