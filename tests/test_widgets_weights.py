@@ -95,3 +95,35 @@ def test_the_clip_reason_says_what_an_artist_does_never_code_or_a_flag(state, tm
     again.clip_path.value = ""
     again.clip_use.click()
     assert "type the path of a CLIP weights file" in again.messages.text
+
+
+def test_clip_weights_load_aside_and_a_missing_file_is_answered_at_once(state, tmp_path, monkeypatch):
+    """ "Use these weights": a missing file is refused at once, loading nothing; a file is loaded in the panel's
+    thread (the click returns while it loads, the button rests and the panel says so), and one that is no CLIP
+    checkpoint is then refused in words, the CLIP terms left as they were."""
+    import threading
+
+    import studio.imitate.clip_loss as clip_loss
+
+    panel = weights_panel(state)
+    panel.clip_path.value = str(tmp_path / "absent.safetensors")
+    panel.clip_use.click()
+    assert panel.loading is None and "no CLIP weights file at" in panel.messages.text
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(b"not a checkpoint")
+    release, real = threading.Event(), clip_loss.find_clip
+
+    def held(*args, **kwargs):
+        release.wait(30)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(clip_loss, "find_clip", held)
+    panel.clip_path.value = str(bad)
+    try:
+        panel.clip_use.click()  # returns while the load is held
+        assert panel.clip_use.disabled and "loading the CLIP weights bad.safetensors" in panel.messages.text
+    finally:
+        release.set()
+    panel.loading.join(60)
+    assert not panel.loading.is_alive() and not panel.clip_use.disabled and state.extras.get("clip") is None
+    assert "loading" not in panel.messages.text and "Traceback" not in panel.messages.text, panel.messages.text

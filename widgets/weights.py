@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import html
 import logging
+import threading
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -23,7 +24,7 @@ import ipywidgets as w
 
 from studio.imitate.config import LossConfig
 from widgets.app import CLIP_ENV
-from widgets.images import Messages, title
+from widgets.images import Messages, background, title
 from widgets.state import StudioState
 
 log = logging.getLogger(__name__)
@@ -114,7 +115,8 @@ class WeightsPanel:
         self.clip_path = w.Text(placeholder="/path/to/open_clip_model.safetensors", description="CLIP weights file",
                                 style={"description_width": "120px"}, layout=w.Layout(width="520px"))  # fmt: skip
         self.clip_use = w.Button(description="Use these weights", icon="check", layout=w.Layout(width="180px"))
-        self.clip_use.on_click(lambda _: self.use_clip_weights(self.clip_path.value))
+        self.clip_use.on_click(lambda _: self.load_clip_aside(self.clip_path.value))
+        self.loading: threading.Thread | None = None  # the button's load of CLIP weights, while it runs
         self.clip_path.value = str(state.extras.get("clip_weights") or "")  # given when the studio opened
         self.sync()
         self._stop = state.on_change(self._on_change)
@@ -160,6 +162,24 @@ class WeightsPanel:
         if float(getattr(self.state.project.weights, name)) != float(change["new"]):  # refused: show what holds
             self.sync()
 
+    def load_clip_aside(self, path: str) -> None:
+        """ "Use these weights": an empty box or a missing file is answered at once; a file is loaded (torch and
+        open_clip: seconds) in a thread of the panel's, the button resting and the panel saying so meanwhile."""
+        given = Path(path.strip()).expanduser()
+        if not path.strip() or not given.is_file():
+            self.use_clip_weights(path)  # says what is wrong, without loading anything
+            return
+        self.clip_use.disabled = True
+        self.messages.say(f"loading the CLIP weights {given.name} (the first time in a session takes a few seconds)")
+
+        def load() -> None:
+            try:
+                self.use_clip_weights(path)
+            finally:
+                self.clip_use.disabled = False
+
+        self.loading = background(load, "clip-load")
+
     def use_clip_weights(self, path: str) -> bool:
         """Load the CLIP weights file at ``path`` for this studio (the CLIP terms then count); a message says what
         is wrong with a file that cannot be used, and nothing changes. True when loaded."""
@@ -168,6 +188,9 @@ class WeightsPanel:
         path = path.strip()
         if not path:
             self.messages.say("type the path of a CLIP weights file first", error=True)
+            return False
+        if not Path(path).expanduser().is_file():
+            self.messages.say(f"no CLIP weights file at {Path(path).expanduser()}: check the path", error=True)
             return False
         try:
             clip, line = find_clip(Path(path).expanduser())
