@@ -209,7 +209,7 @@ def panel(planned):
     project = planned[0]
     state = StudioState(project, queue_for(project))
     panel = ShowPreviewPanel(state)
-    assert panel.job is not None and panel.job.wait(60).value == "done"
+    assert panel.refresher.settle() and panel.job is not None and panel.job.wait(60).value == "done"
     yield panel
     panel.close()
     state.close()
@@ -250,6 +250,34 @@ def test_a_click_on_the_strip_selects_the_frame_under_it(panel):
     assert panel.state.selection.frame == frame and strip.selected == frame
     assert strip.click(boxes[0][0] + boxes[0][2] + 2, 5) is None  # the gap between two cells names no frame
     assert panel.state.selection.frame == frame
+
+
+def test_an_edit_never_waits_for_the_strip_and_the_strip_shows_the_edit(panel, monkeypatch):
+    """The strip (every frame drawn) and the preview's content hash are worked out in the panel's thread: with the
+    strip's drawing held, a paint edit returns at once, and the strip then shows the painted mask."""
+    import widgets.show_player as module
+
+    release, held, real = threading.Event(), threading.Event(), module.frame_strip
+
+    def held_strip(*args, **kwargs):
+        held.set()
+        release.wait(30)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(module, "frame_strip", held_strip)
+    state, before = panel.state, decode_image(panel.strip.image)
+    painted = np.ones(state.project.state.auto.shape[1:], np.uint8)
+    edit = threading.Thread(target=state.edit, args=("paint", 0), kwargs={"additions": painted})
+    try:
+        edit.start()
+        assert held.wait(10)  # the strip is being drawn for the edit, in the panel's thread
+        edit.join(10)
+        assert not edit.is_alive(), "the edit waited for the strip"
+    finally:
+        release.set()
+    assert panel.refresher.settle()
+    after = decode_image(panel.strip.image)
+    assert np.array_equal(after, real(state.project)[0]) and not np.array_equal(after, before)
 
 
 def test_a_stills_preview_moves_from_home_and_holds_the_pose(tmp_path, hand):
@@ -299,6 +327,7 @@ from widgets.show_player import ShowPreviewPanel
 from widgets.state import StudioState
 project = Project.open({path!r})
 panel = ShowPreviewPanel(StudioState(project, queue_for(project)))
+panel.refresher.settle(60)
 panel.job.wait(120)
 panel.widget
 """

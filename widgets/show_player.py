@@ -30,7 +30,7 @@ import traitlets as t
 from hardware.player import PlayerConfig
 from studio.project.preview import PreviewConfig, ShowPreview, frame_strip, preview_inputs, preview_job, preview_key
 from studio.review.preview_strips import cell_at, timeline_image
-from widgets.images import Messages, png
+from widgets.images import Messages, Throttle, png
 from widgets.state import StudioState
 
 log = logging.getLogger(__name__)
@@ -130,12 +130,15 @@ class ShowPreviewPanel:
             w.HBox([self.progress, self.cancel_button]), w.HTML("<b>frames</b> (click one to select it)"),
             self.strip, self.messages.widget,
         ])  # fmt: skip
+        self.refresher = Throttle(lambda: self.refresh(), hz=4.0)  # refresh() in the panel's thread after an edit
         self._stops = [state.on_change(self._changed), state.queue.subscribe(self._job_event)]
-        self.refresh()
+        self.refresher()
 
     # ---------------------------------------------------------------- rendering
     def refresh(self) -> None:
-        """Bring the strip and the preview up to date with the project (a render job when the content changed)."""
+        """Bring the strip and the preview up to date with the project (a render job when the content changed); the
+        panel asks :attr:`refresher` to, so that the strip (every frame drawn: 0.4 s at 240 frames) and the preview's
+        content hash are worked out in its own thread, never an edit's."""
         self.messages.run(self._draw_strip)
         self.messages.run(self._want_preview, clear=False)
 
@@ -232,7 +235,7 @@ class ShowPreviewPanel:
 
     def _changed(self, what: str) -> None:
         if what == "project":
-            self.refresh()
+            self.refresher()
         elif what == "selection":
             self._follow_selection()
 
@@ -240,4 +243,5 @@ class ShowPreviewPanel:
         """Stop following the state and cancel a preview being rendered."""
         for stop in self._stops:
             stop()
+        self.refresher.close(wait_s=5.0)
         self.cancel()
