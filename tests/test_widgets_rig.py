@@ -9,6 +9,7 @@ from __future__ import annotations
 import io
 import math
 import re
+import threading
 import time
 
 import cv2
@@ -84,7 +85,16 @@ def losses(text: str) -> tuple[float, float]:
 
 def test_show_camera_outlines_the_window_and_shows_its_shadow_then_clicked_corners_do_the_same(panel, hand):
     assert "Rig" in panel.widget.children[0].value and panel.true_rig.disabled is False
-    panel.show_button.click()
+    release, grab = threading.Event(), panel._show_camera
+    panel._show_camera = lambda: release.wait(30) and grab()  # held: the click must not wait for the camera
+    try:
+        panel.show_button.click()  # the frame is grabbed in the panel's thread, the buttons resting meanwhile
+        assert panel.show_button.disabled and panel.calibrate_button.disabled and panel.showing.is_alive()
+    finally:
+        release.set()
+    panel.showing.join(60)
+    del panel._show_camera
+    assert not panel.show_button.disabled and not panel.calibrate_button.disabled
     assert "backdrop found" in panel.messages.text, panel.messages.text
     photo = panel.view.photo
     shown = pixels(panel.view.picker.image.value)

@@ -35,7 +35,7 @@ from studio.progress import Progress
 from studio.project.capture import open_camera_source
 from studio.project.rig_calibration import RigCalibration, RigCalibrationConfig, calibrate_rig
 from studio.sim.hand import Hand, load_hand
-from widgets.images import Messages, shown_when_drawn, title
+from widgets.images import Messages, background, shown_when_drawn, title
 from widgets.rig_view import WindowView, progress_line, summary_lines
 from widgets.state import StudioState
 
@@ -70,6 +70,7 @@ class RigPanel:
         self.last_close: CloseReport | None = None  # how the servos this panel opened were left
         self._borrowed = False  # the last run's servos were the Jog panel's (not closed by this panel)
         self._thread: threading.Thread | None = None
+        self.showing: threading.Thread | None = None  # the "Show camera" button's grab, while it runs
         self._cancel = threading.Event()
         self._drawn = (0.0, "")  # (monotonic time, stage) of the last progress redraw
         self.cal = self._start_calibration()
@@ -105,7 +106,7 @@ class RigPanel:
         self.save_path = w.Text(value=str(calibration_path(self.state)), description="calibration",
                                 layout=lay(width="520px"))  # fmt: skip
         self.save_button = w.Button(description="Save to calibration", icon="save", disabled=True)
-        for button, act in ((self.show_button, self.show_camera), (self.calibrate_button, self.calibrate),
+        for button, act in ((self.show_button, self.show_camera_aside), (self.calibrate_button, self.calibrate),
                             (self.cancel_button, self.cancel), (self.save_button, self.save)):  # fmt: skip
             button.on_click(lambda _, act=act: act())
         self.widget = w.VBox([
@@ -155,6 +156,13 @@ class RigPanel:
     def show_camera(self) -> bool:
         """Grab one frame, find the backdrop's window in it and show both; whether a frame came."""
         return bool(self.messages.run(self._show_camera))
+
+    def show_camera_aside(self) -> None:
+        """ "Show camera": :meth:`show_camera` (never raises) in the panel's thread: a USB camera opens in seconds."""
+        if not self.running and (self.showing is None or not self.showing.is_alive()):
+            self.show_button.disabled = self.calibrate_button.disabled = True
+            self.messages.say("opening the camera for one frame")
+            self.showing = background(lambda: (self.show_camera(), self._busy(self.running)), "rig-show-camera")
 
     def _show_camera(self) -> bool:
         with ExitStack() as stack:
