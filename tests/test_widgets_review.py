@@ -139,7 +139,7 @@ def test_the_rig_scene_opens_in_the_background_and_draws_the_frame_in_view(state
     """The meshcat scene's server takes a second or two to start: the panel is built without it, says so, and once
     the scene is up it shows the pose of the frame selected meanwhile; a panel closed while its scene starts stops
     that scene's server as soon as it is up."""
-    import widgets.review as review
+    import widgets.review_rig as review
 
     release, made = threading.Event(), []
 
@@ -248,3 +248,34 @@ def test_the_viewer_follows_the_studio(state, hand):
     commanded = [e for e in recording if e.startswith("/servo/") and e.endswith("/commanded")]
     assert len(commanded) == len(names) and "/servo/wrist/measured" in recording  # the play's angles
     assert any(e.startswith("/loss/job") for e in recording)  # the optimisation's best loss on opt_step
+
+
+def test_an_edit_never_waits_for_the_recording(state, monkeypatch):
+    """The project is logged again after an edit in the panel's thread (a long video's project takes a tenth of a
+    second or more): with that logging held, the edit returns at once; the edit is then logged, and closing the
+    panel waits for it."""
+    from studio.review.recording import ProjectRecording
+
+    panel = review_panel(state, ReviewConfig(scene=False, viewer=False))
+    release, held, logged = threading.Event(), threading.Event(), []
+    try:
+        assert panel.opened.wait(60)
+        real = ProjectRecording.log_project
+
+        def slow(self, project, model=None):
+            held.set()
+            release.wait(30)
+            logged.append(project.state)
+            return real(self, project, model)
+
+        monkeypatch.setattr(ProjectRecording, "log_project", slow)
+        k = state.project.keyframes[0].id
+        edit = threading.Thread(target=state.edit, args=("set_hold", k, True))
+        edit.start()
+        assert held.wait(10)  # the logging has started, in the panel's thread
+        edit.join(10)
+        assert not edit.is_alive(), "the edit waited for the recording"
+    finally:
+        release.set()
+        panel.close()
+    assert logged and logged[-1].keyframe(k).hold  # the edit is in the recording

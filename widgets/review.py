@@ -40,7 +40,8 @@ from studio.project.outputs import self_model_predictor
 from studio.review.recording import ProjectRecording
 from studio.review.scene import ShadowScene
 from widgets.frame_picker import frame_picker
-from widgets.images import Messages, background, mask_picture, title
+from widgets.images import Messages, Throttle, background, mask_picture, title
+from widgets.review_rig import ReviewRig
 from widgets.review_viewer import ViewerBox, log_finished_play
 from widgets.scene_snapshot import SceneSnapshot
 from widgets.show_player import ShowPreviewPanel
@@ -72,7 +73,7 @@ def notebook_viewer_missing() -> str | None:
     return None
 
 
-class ReviewPanel:
+class ReviewPanel(ReviewRig):
     """The Review panel (module doc) over ``state``; ``.widget`` is what the notebook shows."""
 
     def __init__(self, state: StudioState, cfg: ReviewConfig | None = None):
@@ -101,6 +102,7 @@ class ReviewPanel:
         self.shown_shadow: np.ndarray | None = None  # that frame's keyframe's result shadow (None: no result yet)
         self.scene_pose: np.ndarray | None = None  # (21,) rad shown in the meshcat scene
         self._scene_drawn = 0.0  # monotonic time of the last snapshot drawn
+        self.relogger = Throttle(self._relog_now, hz=4.0)  # the project logged again after an edit, in its thread
         self._opening = 2 if self.cfg.scene else 1  # threads still opening (the recording's, the scene's)
         background(self._open_recording, "review-open")  # seconds: in the background, so the studio opens at once
         self.rig_heading = w.HTML("<b>the rig</b>" + (" <i>(starting its 3-D scene)</i>" if self.cfg.scene else ""))
@@ -129,21 +131,6 @@ class ReviewPanel:
             log.warning("review: the recording could not be opened", exc_info=True)
             self.missing = self.missing or f"the recording could not be opened ({type(e).__name__}: {e})"
             self._show_viewer()
-        finally:
-            self._opened_one()
-
-    def _open_scene(self) -> None:
-        """The meshcat scene (the panel's second opening thread), then the pose of the frame in view drawn in it."""
-        try:
-            scene = self.messages.run(ShadowScene)  # None: the panel says why
-            with self._lock:
-                if self.closed:  # closed while it opened
-                    if scene is not None:
-                        scene.close()
-                    return
-                self.scene = scene
-                self.rig_heading.value = "<b>the rig</b>" if scene else "<b>the rig</b> (no 3-D scene: see below)"
-                self.show_frame()
         finally:
             self._opened_one()
 
@@ -202,6 +189,11 @@ class ReviewPanel:
             "the project while this studio is open).</div>"
         ),)  # fmt: skip
 
+    def _relog_now(self) -> None:
+        with self._lock:
+            if not self.closed:
+                self.relog()
+
     def relog(self) -> None:
         """Log the project's current state to the recording again (after an edit or an applied result)."""
         if self.recording is not None and not self.recording.closed:
@@ -227,21 +219,6 @@ class ReviewPanel:
         if self.scene is not None:
             names = self.scene.hand.joint_names
             self.show_pose(self.scene.hand.rest_pose() if result is None else result.theta(names))
-
-    # ---------------------------------------------------------------- the rig in meshcat
-    def show_pose(self, theta: np.ndarray) -> bool:
-        """Show ``theta (21,) rad`` in the meshcat scene (the hand as the show mounts it, its shadow on the
-        backdrop) and redraw the snapshot; False when there is no scene or the pose is invalid (the panel says
-        why)."""
-        if self.scene is None or self.scene.closed:
-            return False
-        self.scene.set_roll(self.state.project.mount.roll)
-        if self.messages.run(self.scene.set_pose, theta) is None:
-            return False
-        self.scene_pose = np.asarray(theta)
-        self.scene_view.page = self.scene.static_html()
-        self._scene_drawn = time.monotonic()
-        return True
 
     def follow_player(self, player: w.Widget) -> None:
         """Follow the show player ``player`` (``self.preview.player``: ``index``, the preview frame in view, and
@@ -272,7 +249,7 @@ class ReviewPanel:
             if self.closed:
                 return
             if what == "project":
-                self.relog()
+                self.relogger()  # in its thread: logging a long video's project takes a tenth of a second or more
             if what in ("project", "selection"):
                 self.show_frame()
             if what == "selection" and self.viewer_controls is not None and self.shown_frame is not None:
@@ -281,10 +258,12 @@ class ReviewPanel:
     def close(self) -> None:
         """Stop following the project, finish the recording and stop the meshcat server (idempotent; a recording
         still opening is closed as soon as it is open)."""
+        self.relogger.settle(10.0)  # the last edit is in the file
         with self._lock:
             if self.closed:
                 return
             self.closed = True
+        self.relogger.close(wait_s=10.0)
         self._stop()
         self._stop_picker()
         self._unsubscribe()
