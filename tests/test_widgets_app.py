@@ -75,3 +75,35 @@ def test_open_studio_reads_the_project_from_the_environment_and_reports_a_bad_on
     message = app.open_studio()
     assert isinstance(message, w.HTML) and "could not open the project" in message.value
     assert "nothing.shadow" in message.value
+
+
+@pytest.mark.slow
+def test_every_panels_code_is_imported_before_any_panel_starts_its_background_work(tmp_path):
+    """Panels start background work (the recording, the meshcat scene, torch); imports the notebook's thread makes
+    meanwhile wait on the import lock, so the studio imports every panel's module first (in a fresh interpreter:
+    here the test process has imported them already)."""
+    import subprocess
+    import sys
+
+    code = f"""
+import sys
+from widgets import app
+from widgets.state import StudioState
+from studio.project.project import Project
+from studio.assets import asset
+seen = []
+real = app.build_panel
+def watched(state, name, module):
+    seen.append(all(f"widgets.{{m}}" in sys.modules for _, m in app.PANELS))
+    return real(state, name, module)
+app.build_panel = watched
+project = Project.create({str(tmp_path / "p.shadow")!r}, sources=[asset("targets/asl_o.jpeg")])
+state = StudioState.open(project.path)
+app.studio_app(state)
+print("ALL-IMPORTED-FIRST" if seen and seen[0] else "NOT-FIRST")
+for panel in state.extras["panels"].values():
+    getattr(panel, "close", lambda: None)()
+state.close()
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert "ALL-IMPORTED-FIRST" in done.stdout, done.stdout[-2000:] + done.stderr[-3000:]
