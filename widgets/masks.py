@@ -90,7 +90,7 @@ class MasksPanel:
         s = self.state.project.state
         f = self.frame
         key = s.frames[f].key
-        rgb = tint(grey_rgb(s.targets[f]), self.state.project.combined_masks()[f], MASK_RGB, 0.5)
+        rgb = tint(grey_rgb(s.targets[f]), self.state.project.combined_mask(f), MASK_RGB, 0.5)
         if key in s.additions:
             rgb = tint(rgb, s.additions[key], ADD_RGB, 0.6)
         if key in s.erasures:

@@ -23,11 +23,18 @@ from studio.targets.keyframes import KeyframeConfig, MergeOrder, cluster_keyfram
 
 
 def combined_masks(state: ProjectState) -> np.ndarray:
-    """The expressive masks the artist sees, ``(N, S, S)`` uint8: ``combine(auto, additions, erasures)`` per frame."""
+    """The expressive masks the artist sees, ``(N, S, S)`` uint8: :func:`combined_mask` of every frame."""
     out = np.empty_like(state.auto)
-    for i, f in enumerate(state.frames):
-        out[i] = combine(state.auto[i], state.additions.get(f.key), state.erasures.get(f.key))
+    for i in range(len(state.frames)):
+        out[i] = combined_mask(state, i)
     return out
+
+
+def combined_mask(state: ProjectState, i: int) -> np.ndarray:
+    """Frame ``i``'s expressive mask as the artist sees it, ``(S, S)`` uint8: ``combine(auto, additions, erasures)``
+    (one frame: a tab showing the frame in view need not combine every frame of a long video)."""
+    key = state.frames[i].key
+    return combine(state.auto[i], state.additions.get(key), state.erasures.get(key))
 
 
 def nearest_mean(members: Sequence[int], masks: np.ndarray) -> int:

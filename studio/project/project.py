@@ -215,6 +215,10 @@ class Project(Editing, KeyframeEditing, Running, History):
         """The expressive masks the artist sees ``(N, S, S)`` uint8: automatic ∪ additions minus erasures."""
         return edits.combined_masks(self._state)
 
+    def combined_mask(self, frame: int) -> np.ndarray:
+        """Frame ``frame``'s expressive mask as the artist sees it, ``(S, S)`` uint8 (:meth:`combined_masks`' row)."""
+        return edits.combined_mask(self._state, frame)
+
     def assignment(self) -> np.ndarray:
         """``(N,)`` int: each frame's keyframe as its position in :attr:`keyframes` (first-appearance order)."""
         return edits.assignment(self._state.keyframes, len(self._state.frames))
@@ -222,7 +226,7 @@ class Project(Editing, KeyframeEditing, Running, History):
     def keyframe_masks(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """Keyframe ``k``'s optimisation targets: its representative's mask and expressive mask, ``(S, S)`` each."""
         rep = self._state.keyframe(k).representative
-        return self._state.targets[rep], self.combined_masks()[rep]
+        return self._state.targets[rep], self.combined_mask(rep)
 
     def keyframe_inputs(self, k: int) -> str:
         """The fingerprint of keyframe ``k``'s inputs now (capture it before computing a result)."""

@@ -65,7 +65,7 @@ class Sculptor:
         th = np.clip(np.asarray(theta, np.float64), self.hand.lower, self.hand.upper)
         shadow = self.shadow(project, th)
         target = np.array(project.state.targets[frame])  # writable copies (torch)
-        expressive = np.array(project.combined_masks()[frame])
+        expressive = np.array(project.combined_mask(frame))
         cfg = replace(project_loss(project, target.shape[-1]), use_clip=False)
         loss_fn = RenderedLoss(ImageLoss(target, cfg, expressive=expressive if expressive.any() else None))
         _, parts = loss_fn(shadow[None])
