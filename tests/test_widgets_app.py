@@ -107,3 +107,30 @@ state.close()
 """
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert "ALL-IMPORTED-FIRST" in done.stdout, done.stdout[-2000:] + done.stderr[-3000:]
+
+
+@pytest.mark.slow
+def test_a_selection_reaches_every_tab_once_and_a_keyframe_click_keeps_its_keyframe(tmp_path):
+    """In the whole studio, a click on a Keyframes card selects its keyframe and frame, told to every tab once (the
+    Targets tab's scrubber, moved to that frame, used to select the frame again: every tab redrew twice and the
+    keyframe was dropped); a selection that changes nothing tells no one."""
+    from studio.targets.video import DEFAULT_VIDEO
+
+    project = Project.create(tmp_path / "horse.shadow", sources=[DEFAULT_VIDEO])
+    state = StudioState.open(project.path)
+    try:
+        app.studio_app(state)
+        told: list[str] = []
+        state.on_change(told.append)
+        panel, last = state.extras["panels"]["keyframes"], state.project.keyframes[-1]
+        assert state.selection.frame != last.representative
+        panel.strip.children[-1].children[1].click()  # the last card's "select"
+        assert (state.selection.frame, state.selection.keyframe) == (last.representative, last.id)
+        assert told.count("selection") == 1
+        told.clear()
+        state.select(frame=last.representative, keyframe=last.id)
+        assert told == []
+    finally:
+        for panel in state.extras.get("panels", {}).values():
+            getattr(panel, "close", lambda: None)()
+        state.close()

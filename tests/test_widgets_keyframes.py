@@ -38,7 +38,7 @@ def state(folder, tmp_path):
 
 
 def test_tau_counts_live_and_edits_only_when_applied(state):
-    assert "Keyframes" in keyframes_panel(state).children[0].value
+    assert "Keyframes" in keyframes_panel(state).widget.children[0].value
     panel = KeyframesPanel(state)
     p = state.project
     before, n_frames = state_doc(p.state), len(p.frames)

@@ -257,6 +257,6 @@ class KeyframesPanel:
         self.state.edit("set_keyframe_time", self.selected(), None if self.clock.value else float(self.time.value))
 
 
-def keyframes_panel(state: StudioState) -> w.Widget:
-    """The Keyframes panel's widget (module doc)."""
-    return KeyframesPanel(state).widget
+def keyframes_panel(state: StudioState) -> KeyframesPanel:
+    """The Keyframes panel over ``state`` (its ``.widget`` is what the notebook shows; the studio closes it)."""
+    return KeyframesPanel(state)

@@ -78,12 +78,15 @@ class StudioState:
         return result
 
     def select(self, frame: int | None = None, keyframe: int | None = None) -> None:
-        """Move the selection (clamped to the project's frames) and notify."""
+        """Move the selection (clamped to the project's frames) and notify; a selection that changes nothing notifies
+        no one (a panel's own slider, set to the frame selected, calls back with it)."""
+        before = (self.selection.frame, self.selection.keyframe)
         if frame is not None:
             n = len(self.project.frames)
             self.selection.frame = max(0, min(int(frame), n - 1)) if n else 0
         self.selection.keyframe = keyframe
-        self.changed("selection")
+        if (self.selection.frame, self.selection.keyframe) != before:
+            self.changed("selection")
 
     def undo(self) -> bool:
         """Undo the last edit if there is one; returns whether anything changed."""

@@ -99,7 +99,7 @@ class TargetsPanel(TargetsActions):
         self.add_sample.on_click(lambda _: self.messages.run(self._add, self._samples[self.sample.value]))
         self.add_path.on_click(lambda _: self.messages.run(self._add, Path(self.path.value.strip()).expanduser()))
         self.upload.observe(lambda ch: self.messages.run(self._uploaded, ch["new"]), names="value")
-        self.scrubber.observe(lambda ch: self.state.select(frame=ch["new"]), names="value")
+        self.scrubber.observe(self._scrubbed, names="value")
         self.apply_hz.on_click(lambda _: self.messages.run(self._apply_sampling))
         self.drawer = Throttle(lambda: self.messages.run(self.refresh_preview, clear=False), hz=15.0)
         self._throttled = self.drawer  # asks for a preview (drawn in the drawer's thread, the latest state last)
@@ -191,6 +191,10 @@ class TargetsPanel(TargetsActions):
         return self._polarity[source]
 
     # ---------------------------------------------------------------- drawing
+    def _scrubbed(self, change: dict) -> None:
+        if change["new"] != self.state.selection.frame:  # set by redraw() to the frame selected: nothing to select
+            self.state.select(frame=change["new"])
+
     def _changed(self, what: str) -> None:
         if what in ("project", "selection"):
             self.redraw()
