@@ -107,8 +107,8 @@ class OptimisePanel(OptimiseDrawing):
                                        layout=w.Layout(width="560px", display="none"))  # fmt: skip
         self.loss = w.HTML("")
         self.bar_box = w.VBox([])
-        self.target_image = w.Image(format="png", width=px, height=px)
-        self.shadow_image = w.Image(format="png", width=px, height=px)
+        self.target_image = w.Image(value=mask_picture(None, px), format="png", width=px, height=px)
+        self.shadow_image = w.Image(value=mask_picture(None, px), format="png", width=px, height=px)
         self.job_list = w.HTML("")
         pictures = w.HBox([w.VBox([w.HTML("target"), self.target_image]),
                            w.VBox([w.HTML("best shadow"), self.shadow_image])])  # fmt: skip

@@ -94,8 +94,10 @@ class ReviewPanel(ReviewRig):
         self.opened = threading.Event()  # set once the recording, its viewer and the scene are open (or could not be)
         self.viewer_box = w.VBox([w.HTML("<i>opening the Rerun viewer (the first time in a session takes a few "
                                          "seconds; the other tabs work meanwhile)</i>")])  # fmt: skip
-        self.target_image = w.Image(format="png", width=self.cfg.image_px, height=self.cfg.image_px)
-        self.shadow_image = w.Image(format="png", width=self.cfg.image_px, height=self.cfg.image_px)
+        side = self.cfg.image_px
+        blank = mask_picture(None, side)  # until the frame is drawn (an empty image: a broken-picture icon)
+        self.target_image = w.Image(value=blank, format="png", width=side, height=side)
+        self.shadow_image = w.Image(value=blank, format="png", width=side, height=side)
         self.caption = w.HTML("")
         self.scene_view = SceneSnapshot(height=self.cfg.scene_height)  # the meshcat snapshot on show
         self.shown_frame: int | None = None  # the frame whose target and shadow are shown

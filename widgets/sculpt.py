@@ -42,10 +42,11 @@ class SculptView:
         self.commanded_shadow: np.ndarray | None = None  # (S, S) uint8 shown under "commanded"
         self.measured_shadow: np.ndarray | None = None
         self.drawer = Throttle(lambda: self.messages.run(self._draw, clear=False), hz=MAX_HZ)  # draws, in its thread
-        self.target_image = W.Image(format="png", width=PX, height=PX)
-        self.commanded_image = W.Image(format="png", width=PX, height=PX)
-        self.measured_image = W.Image(format="png", width=PX, height=PX)
-        self.caption = W.HTML("")
+        blank = mask_picture(None, PX)  # until the first draw lands (an empty image is a broken-picture icon)
+        self.target_image = W.Image(value=blank, format="png", width=PX, height=PX)
+        self.commanded_image = W.Image(value=blank, format="png", width=PX, height=PX)
+        self.measured_image = W.Image(value=blank, format="png", width=PX, height=PX)
+        self.caption = W.HTML("<i>drawing the shadow of the sliders' pose…</i>")
         tip = "this pose becomes the result of the keyframe at the frame in view"
         self.save_button = W.Button(description="save as keyframe", icon="save", tooltip=tip)
         self.save_button.on_click(lambda _: self.messages.run(self.save))

@@ -30,7 +30,7 @@ from studio.project.state import ProjectError
 from studio.targets.pockets import POCKET_REACH
 from studio.targets.source import raw_frames
 from widgets.first_frame import FirstFrame
-from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, png, tint, title
+from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, mask_picture, png, tint, title
 from widgets.relink import RelinkControl
 from widgets.state import StudioState
 from widgets.target_preview import frame_preview, source_polarity
@@ -80,8 +80,9 @@ class TargetsPanel(TargetsActions):
         self.sources = w.HTML()
         self.scrubber = w.IntSlider(min=0, max=0, description="frame", continuous_update=True)
         self.frame_info = w.Label()
-        self.preview = w.Image(format="png", width=PREVIEW_PX, height=PREVIEW_PX)
-        self.stored = w.Image(format="png", width=PREVIEW_PX, height=PREVIEW_PX)  # after the project's cleanup
+        blank = mask_picture(None, PREVIEW_PX)  # until the first draw lands (an empty image: a broken-picture icon)
+        self.preview = w.Image(value=blank, format="png", width=PREVIEW_PX, height=PREVIEW_PX)
+        self.stored = w.Image(value=blank, format="png", width=PREVIEW_PX, height=PREVIEW_PX)  # after the cleanup
         self.stored_info = w.HTML()
         self.hz = w.BoundedFloatText(min=0.1, max=60.0, step=0.5, description="sampling Hz")
         self.apply_hz = w.Button(description="Apply sampling")
