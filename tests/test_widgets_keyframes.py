@@ -119,6 +119,17 @@ def test_a_refused_edit_is_a_message(state):
     assert panel.messages.text and "Traceback" not in panel.messages.text
 
 
+def test_the_slider_holds_the_default_tau_as_the_browser_will_snap_it(state):
+    """The browser snaps a slider's value to its step and sends it back: with a step of 0.005 the default τ 0.404
+    came back as 0.405, so the count shown and an "Apply τ" were at a τ the project never had."""
+    panel = KeyframesPanel(state)
+    try:
+        tau, step = KeyframeConfig().tau, panel.tau.step
+        assert abs(round((tau - panel.tau.min) / step) * step + panel.tau.min - tau) < 1e-9
+    finally:
+        panel.close()
+
+
 def test_tau_follows_the_project_after_undo_redo_and_another_panels_edit(state):
     panel = KeyframesPanel(state)
     p = state.project

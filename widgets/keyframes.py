@@ -51,8 +51,8 @@ class KeyframesPanel:
         self.live_count = 0  # keyframes at the slider's τ (computed; the project is not edited)
         self._tau_seen: float | None = None  # the project's τ the slider last followed
 
-        self.tau = w.FloatSlider(min=0.0, max=1.0, step=0.005, readout_format=".3f", description="τ",
-                                 continuous_update=True)  # fmt: skip
+        self.tau = w.FloatSlider(min=0.0, max=1.0, step=0.001, readout_format=".3f", description="τ",
+                                 continuous_update=True)  # fmt: skip  # the browser snaps τ to the step
         self.count = w.Label()
         self.apply_tau = w.Button(description="Apply τ", tooltip="re-cluster the frames (hand edits are replaced)")
         self.strip = w.HBox(layout=w.Layout(overflow="auto", width="100%"))
