@@ -39,7 +39,7 @@ import cv2
 import numpy as np
 import pytest
 from browser_pixels import drawn_recording, drawn_rig, over_the_shape, plotted, red, shadow_tile
-from test_show_preview import dark, give_results, horse, plan
+from preview_support import dark, give_results, horse, plan
 
 from studio.cli.lab import free_port
 from studio.review.series import series_colour
@@ -91,7 +91,7 @@ def playwright_api():
 def lab(tmp_path, hand):
     """``shadow-studio lab PROJECT`` on a free port, fresh Jupyter dirs → (url, process, project, start time); stopped
     with SIGINT. As root the verb passes JupyterLab ``--allow-root`` itself. PROJECT is the horse (five frames at 64²
-    masks, mounted rolled) with every keyframe posed differently and its show planned, as test_show_preview makes it
+    masks, mounted rolled) with every keyframe posed differently and its show planned, as preview_support makes it
     (a real optimisation would take minutes here; the shadows are the poses' own, rendered)."""
     playwright_api()  # skip before starting anything
     project = horse(tmp_path)

@@ -209,7 +209,7 @@ def test_a_frame_image_is_logged_again_only_when_it_changed(tmp_path):
 
 
 def test_a_project_logged_again_unchanged_adds_no_images_and_no_show(tmp_path):
-    from test_show_preview import give_results, horse, plan
+    from preview_support import give_results, horse, plan
 
     hand = load_hand()
     project = horse(tmp_path)

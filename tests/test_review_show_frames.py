@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_show_preview import give_results, horse, plan
+from preview_support import give_results, horse, plan
 
 from studio.project.preview import preview_inputs
 from studio.project.preview_clock import preview_clock
