@@ -66,8 +66,7 @@ def cluster(
     by_content = {(tuple(old_frames[m].key for m in kf.members), old_frames[kf.representative].key): kf for kf in old}
     used = {kf.id for kf in old}
     found: list[Keyframe] = []
-    for s in sorted({f.source for f in frames}):
-        idx = np.array([i for i, f in enumerate(frames) if f.source == s])
+    for idx in per_source(frames):
         c = cluster_keyframes(masks[idx], cfg, None if shadows is None else np.asarray(shadows)[idx])
         for group, rep in zip(c.members, c.representatives, strict=True):
             members = tuple(int(idx[m]) for m in group)
@@ -88,11 +87,13 @@ def merge_orders(
 ) -> list[MergeOrder]:
     """Per source, in :func:`cluster`'s order, the :class:`~studio.targets.keyframes.MergeOrder` of its frames: the
     keyframe count :func:`cluster` makes at any τ is ``sum(o.count(tau) for o in merge_orders(...))``."""
-    out = []
-    for s in sorted({f.source for f in frames}):
-        idx = np.array([i for i, f in enumerate(frames) if f.source == s])
-        out.append(merge_order(masks[idx], cfg, None if shadows is None else np.asarray(shadows)[idx]))
-    return out
+    return [merge_order(masks[idx], cfg, None if shadows is None else np.asarray(shadows)[idx])
+            for idx in per_source(frames)]  # fmt: skip
+
+
+def per_source(frames: Sequence[Frame]) -> list[np.ndarray]:
+    """The frame indices of each source, ``(n_s,)`` int each, sources in ascending order (how frames are clustered)."""
+    return [np.array([i for i, f in enumerate(frames) if f.source == s]) for s in sorted({f.source for f in frames})]
 
 
 def _owner(keyframes: Sequence[Keyframe], frame: int) -> Keyframe:
