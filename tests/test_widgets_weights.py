@@ -108,7 +108,7 @@ def test_clip_weights_load_aside_and_a_missing_file_is_answered_at_once(state, t
     panel = weights_panel(state)
     panel.clip_path.value = str(tmp_path / "absent.safetensors")
     panel.clip_use.click()
-    assert panel.loading is None and "no CLIP weights file at" in panel.messages.text
+    assert panel.loading is None and "absent.safetensors does not exist" in panel.messages.text
     bad = tmp_path / "bad.safetensors"
     bad.write_bytes(b"not a checkpoint")
     release, real = threading.Event(), clip_loss.find_clip

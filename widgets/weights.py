@@ -72,14 +72,19 @@ def clip_encoder(state: StudioState) -> Any:
     return state.extras.get("clip")
 
 
+def missing_weights(given: str | Path) -> str | None:
+    """Why the CLIP weights file ``given`` cannot be used before it is read (None: it is a file)."""
+    path = Path(given).expanduser()
+    return None if path.is_file() else f"the CLIP weights file {path} does not exist: give another in the box below"
+
+
 def clip_unavailable(state: StudioState) -> str | None:
     """Why the CLIP terms cannot be used in this studio (None: local CLIP weights are configured)."""
     if state.extras.get("clip") is not None:
         return None
     given = state.extras.get("clip_weights")
     if given:
-        path = Path(given).expanduser()
-        return None if path.is_file() else f"the CLIP weights file {path} does not exist: give another in the box below"
+        return missing_weights(given)
     try:
         from studio.imitate.clip_files import cache_candidates
 
@@ -189,8 +194,8 @@ class WeightsPanel:
         if not path:
             self.messages.say("type the path of a CLIP weights file first", error=True)
             return False
-        if not Path(path).expanduser().is_file():
-            self.messages.say(f"no CLIP weights file at {Path(path).expanduser()}: check the path", error=True)
+        if (missing := missing_weights(path)) is not None:
+            self.messages.say(missing, error=True)
             return False
         try:
             clip, line = find_clip(Path(path).expanduser())
