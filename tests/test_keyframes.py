@@ -349,10 +349,24 @@ def test_a_single_frame_clusters_without_importing_scikit_learn():
     assert done.stdout.split() == ["[0]", "[0]", "False"], done.stdout
 
 
-def test_merge_order_counts_what_clustering_makes_at_every_tau():
-    """``merge_order(...).count(tau)`` (the Keyframes panel's live count) is ``cluster_keyframes``' count at every
-    τ: on the boundaries 1 − d of each merge and between them, for shapes that change (the two-keyframe rule holds)
-    and random frames."""
+def direct_clusters(masks: np.ndarray, cfg: KeyframeConfig) -> tuple[list[list[int]], list[int]]:
+    """Reference for the clusters cut from a merge order: merge until the pair is less similar than τ
+    (:func:`merge_clusters` stopping there), two clusters kept when the shape changes; each cluster's member nearest
+    its mean embedding → (members, representatives)."""
+    from studio.targets.keyframes import most_different_iou
+
+    e = embed(masks, cfg)
+    members = merge_clusters(e, cfg.tau)
+    if len(members) == 1 and len(e) > 1 and most_different_iou(masks, cfg) < cfg.one_iou:
+        members = merge_clusters(e, cfg.tau, keep=2)
+    reps = [g[int(np.argmin(np.linalg.norm(e[g] - e[g].mean(axis=0), axis=1)))] for g in members]
+    return members, reps
+
+
+def test_clusters_cut_from_the_merge_order_are_the_direct_merge_at_every_tau():
+    """``merge_order(...)`` at any τ (the Keyframes panel's live count, "Apply τ", ``cluster_keyframes``) makes the
+    clusters that merging until τ makes (:func:`direct_clusters`): on the boundaries 1 − d of each merge and between
+    them, for shapes that change (the two-keyframe rule holds), steady shapes, random frames and a single frame."""
     from studio.targets.keyframes import merge_order
 
     rng = np.random.default_rng(5)
@@ -361,14 +375,16 @@ def test_merge_order_counts_what_clustering_makes_at_every_tau():
     noisy = (rng.random((15, 16, 16)) < 0.4).astype(np.uint8)
     checked = 0
     for masks in (changing, steady, noisy, changing[:1]):
-        cfg = KeyframeConfig()
-        order = merge_order(masks, cfg)
-        assert len(order.d) == len(masks) - 1
+        order = merge_order(masks, KeyframeConfig())
+        assert len(order.d) == len(masks) - 1 and order.pairs.shape == (len(masks) - 1, 2)
         edges = 1.0 - order.d
         taus = np.unique(np.clip(np.concatenate([edges, edges + 1e-9, edges - 1e-9, np.linspace(0, 1, 21)]), 0, 1))
         for tau in taus:
-            want = cluster_keyframes(masks, KeyframeConfig(tau=float(tau))).count
-            assert order.count(float(tau)) == want, (len(masks), tau)
+            cfg = KeyframeConfig(tau=float(tau))
+            members, reps = direct_clusters(masks, cfg)
+            cut = order.clusters(float(tau))
+            assert (cut.members, cut.representatives.tolist()) == (members, reps), (len(masks), tau)
+            assert order.count(float(tau)) == len(members) == cluster_keyframes(masks, cfg).count
             checked += 1
     assert checked > 60
     assert merge_order(changing).changes_shape and not merge_order(steady).changes_shape
@@ -387,3 +403,5 @@ def test_most_different_iou_is_the_all_pairs_minimum():
         hi = np.maximum(c[:, None, :], c[None, :, :]).sum(axis=-1)
         reference = float(np.where(hi > 0, lo / np.maximum(hi, 1e-12), 1.0).min())
         assert most_different_iou(masks, cfg) == pytest.approx(reference, abs=1e-12)
+        for below in (reference - 0.01, reference + 0.01):  # stopping early answers "is it under below?" the same
+            assert (most_different_iou(masks, cfg, below=below) < below) == (reference < below)

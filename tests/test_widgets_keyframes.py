@@ -192,10 +192,11 @@ def test_cards_show_each_keyframes_status_and_loss_counts_and_times_in_words(sta
 
 def test_the_count_is_worked_out_aside_and_only_when_what_it_reads_changes(state, monkeypatch):
     """Edits that leave the clustering's inputs alone (hold, weights) cost no recount; a paint stroke recounts in the
-    panel's thread: the edit returns at once, the count says "counting…" and lands when done."""
+    panel's thread: the edit returns at once, the count says "counting…" and lands when done. "Apply τ" then cuts
+    the counted merge orders (no merging again) into the keyframes clustering makes at that τ."""
     import threading
 
-    import widgets.keyframes as module
+    import studio.project.edits as module
 
     calls, release = [], threading.Event()
     release.set()
@@ -223,6 +224,16 @@ def test_the_count_is_worked_out_aside_and_only_when_what_it_reads_changes(state
         assert "counting keyframes at τ 0.990" in panel.count.value
         release.set()
         assert panel.counter.settle() and len(calls) == 2 and panel.count.value.startswith(f"{panel.live_count} ")
+        for tau in (0.3, 0.42):
+            panel.tau.value = tau
+            panel.apply_tau.click()
+            assert len(calls) == 2, "Apply τ merged the frames again"
+            want = cluster_keyframes(p.combined_masks(), KeyframeConfig(tau=tau), p.state.targets)
+            assert [kf.members for kf in p.keyframes] == [tuple(m) for m in want.members]
+            assert [kf.representative for kf in p.keyframes] == want.representatives.tolist()
+            assert len(p.keyframes) == panel.live_count and f"(project: {panel.live_count})" in panel.count.value
+        state.undo()  # back to the painted state at τ 0.3: its merge orders are still kept
+        assert panel.counter.settle() and len(calls) == 2 and p.state.clustering.tau == 0.3
     finally:
         release.set()
         panel.close()

@@ -1,7 +1,8 @@
 """The Keyframes panel: a τ slider whose cluster count updates live (computed, the project untouched until "Apply τ"
-re-clusters it; it follows the project after an undo, a redo or another panel's edit; the count at any τ comes at
-once from the clustering's merge order, :func:`studio.project.edits.merge_orders`, worked out again in the panel's
-own thread only when what the clustering reads changes: targets, expressive masks, paint), a strip of the clusters
+re-clusters it; it follows the project after an undo, a redo or another panel's edit; the count at any τ, and the
+keyframes "Apply τ" makes, come at once from the clustering's merge orders that the project keeps,
+:meth:`~studio.project.project.Project.merge_orders`, worked out again in the panel's own thread only when what the
+clustering reads changes: targets, expressive masks, paint), a strip of the clusters
 (representative framed in the colour of its result's status, member count, time range, status and loss), and the
 keyframe edits: add
 one at the scrubber's frame, remove one, move the frame to another cluster, a keyframe's show time and hold flag,
@@ -14,15 +15,13 @@ from __future__ import annotations
 
 import logging
 import threading
-from dataclasses import replace
 
 import ipywidgets as w
 import numpy as np
 
-from studio.project.edits import combined_masks, merge_orders
+from studio.project.edits import combined_masks
 from studio.project.state import Keyframe
 from studio.project.status import ProjectStatus
-from studio.targets.keyframes import MergeOrder
 from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, png, tint, title, upscale
 from widgets.state import StudioState
 from widgets.words import count, loss, seconds, span
@@ -43,8 +42,6 @@ class KeyframesPanel:
         self.messages = Messages()
         self._masks_of: object = None  # the project state the cached masks were combined from
         self._masks: np.ndarray | None = None  # (N, S, S) the expressive masks the artist sees
-        self._orders_of: tuple | None = None  # what the clustering read when the merge orders were worked out
-        self._orders: list[MergeOrder] = []  # per source: the keyframe count at any τ
         self._count_lock = threading.Lock()  # the count is shown by the kernel's thread and the counting thread
         self.counter = Throttle(lambda: self.messages.run(self._recount, clear=False), hz=5.0)  # merge orders, aside
         self._drawing = False  # True while redraw() sets values (their observers must not edit)
@@ -110,16 +107,6 @@ class KeyframesPanel:
             self._masks, self._masks_of = combined_masks(s), s
         return self._masks
 
-    def _clustering_reads(self, s=None) -> tuple:
-        """What the keyframe count depends on in project state ``s`` (None: now), besides τ (edits replace these
-        objects, never change them)."""
-        s = self.state.project.state if s is None else s
-        return s.frames, s.targets, s.auto, s.additions, s.erasures, replace(s.clustering, tau=0.0)
-
-    def _orders_current(self) -> bool:
-        was, now = self._orders_of, self._clustering_reads()
-        return was is not None and all(a is b for a, b in zip(was[:-1], now[:-1])) and was[-1] == now[-1]
-
     def selected(self) -> int:
         """The keyframe id in view: the selection's, else the one the scrubber's frame plays."""
         p, sel = self.state.project, self.state.selection
@@ -143,32 +130,27 @@ class KeyframesPanel:
             self.redraw()
 
     def update_count(self) -> None:
-        """The live count at the slider's τ (the project is not edited): at once from the merge orders, or, after an
-        edit of what the clustering reads, "counting…" until the panel's thread has worked them out again."""
+        """The live count at the slider's τ (the project is not edited): at once from the project's merge orders, or,
+        after an edit of what the clustering reads, "counting…" until the panel's thread has worked them out again."""
         with self._count_lock:
-            if self._orders_current():
-                self._show_count()
+            orders = self.state.project.merge_orders(wait=False)
+            if orders is not None:
+                self._show_count(orders)
                 return
             self.count.value = f"counting keyframes at τ {self.tau.value:.3f}…"
         self.counter()
 
     def _recount(self) -> None:
-        """The merge orders of the project as it is now (the counting thread: seconds for a long video)."""
+        """The project's merge orders as it is now (the counting thread: seconds for a long video)."""
+        self.state.project.merge_orders()
         with self._count_lock:
-            if self._orders_current():  # asked twice for one edit (a redraw and a selection): counted already
-                self._show_count()
-                return
-        s = self.state.project.state
-        reads = self._clustering_reads(s)
-        orders = merge_orders(s.frames, combined_masks(s), s.clustering, s.targets)
-        with self._count_lock:
-            self._orders_of, self._orders = reads, orders
-            if self._orders_current():  # else an edit meanwhile has asked for another count
-                self._show_count()
+            orders = self.state.project.merge_orders(wait=False)
+            if orders is not None:  # else an edit meanwhile has asked for another count
+                self._show_count(orders)
 
-    def _show_count(self) -> None:
+    def _show_count(self, orders: list) -> None:
         tau = float(self.tau.value)
-        self.live_count = sum(o.count(tau) for o in self._orders)
+        self.live_count = sum(o.count(tau) for o in orders)
         now = len(self.state.project.keyframes)
         self.count.value = f"{count(self.live_count, 'keyframe')} at τ {tau:.3f} (project: {now})"
 

@@ -26,11 +26,13 @@ from studio.project.state import Mount, ProjectError, ProjectState, frozen
 from studio.project.status import SourceMissing
 from studio.sim.roll import roll_deg
 from studio.targets.images import read_grey
+from studio.targets.keyframes import MergeOrder
 from studio.targets.pockets import POCKET_REACH
 
 log = logging.getLogger(__name__)
 
 KEEP: Any = type("Keep", (), {"__repr__": lambda self: "KEEP"})()  # "leave this setting as it is"
+ORDERS_KEPT = 4  # clusterings' merge orders a project keeps (the state now and a few an undo or redo returns to)
 
 
 def mask_arg(mask: Any, shape: tuple[int, ...] | None, what: str) -> np.ndarray:
@@ -44,8 +46,8 @@ def mask_arg(mask: Any, shape: tuple[int, ...] | None, what: str) -> np.ndarray:
 
 
 class Editing:
-    """Source and setting edits of ``Project`` (it provides ``path``, ``_state``, ``_lock``, ``_commit``,
-    ``_check_sources`` and ``combined_masks``)."""
+    """Source and setting edits of ``Project`` (it provides ``path``, ``_state``, ``_lock``, ``_orders``,
+    ``_commit``, ``_check_sources`` and ``combined_masks``)."""
 
     def _paths(self) -> list[Path]:
         paths = []
@@ -76,6 +78,7 @@ class Editing:
             state.frames,
             state.next_id,
             shadows=new.targets,
+            orders=self._merge_orders_of(new),
         )
         ids = {kf.id for kf in keyframes}
         results = {k: r for k, r in state.results.items() if k in ids}
@@ -173,11 +176,31 @@ class Editing:
             s = self._state
             cfg = s.clustering if tau is None else replace(s.clustering, tau=float(tau))
             keyframes, next_id = edits.cluster(s.frames, self.combined_masks(), cfg, s.keyframes, s.frames, s.next_id,
-                                               shadows=s.targets)  # fmt: skip
+                                               shadows=s.targets, orders=self._merge_orders_of(s))  # fmt: skip
             ids = {kf.id for kf in keyframes}
             results = {k: r for k, r in s.results.items() if k in ids}
             self._commit(f"recluster at tau {cfg.tau:g}", replace(s, clustering=cfg, keyframes=keyframes,
                                                                   next_id=next_id, results=results))  # fmt: skip
+
+    def merge_orders(self, wait: bool = True) -> list[MergeOrder] | None:
+        """Per source, the clustering's :class:`~studio.targets.keyframes.MergeOrder` of the project as it is now
+        (:func:`edits.merge_orders`): the keyframe count at any τ, and the keyframes :meth:`recluster` makes at it,
+        without clustering again. Worked out once for what the clustering reads (seconds on a long video; any thread
+        may ask); with ``wait`` False, None when they are not worked out yet."""
+        return self._merge_orders_of(self._state, wait)
+
+    def _merge_orders_of(self, s: ProjectState, wait: bool = True) -> list[MergeOrder] | None:
+        reads = edits.clustering_reads(s)
+        kept = self._orders  # replaced whole, never changed in place: safe to read from any thread
+        for was, orders in kept:
+            if edits.same_reads(was, reads):
+                return orders
+        if not wait:
+            return None
+        orders = edits.merge_orders(s.frames, edits.combined_masks(s), s.clustering, s.targets)
+        others = [e for e in self._orders if not edits.same_reads(e[0], reads)]
+        self._orders = [(reads, orders), *others][:ORDERS_KEPT]
+        return orders
 
     def set_weights(self, weights: LossConfig | None = None, **fields: float) -> None:
         """The loss weights: a whole ``LossConfig`` and/or some of its fields (``w_iou=0.5``)."""

@@ -2,8 +2,11 @@
 
 Frames are clustered per source (:func:`~studio.targets.keyframes.cluster_keyframes` on the expressive masks the
 artist sees: automatic ∪ additions minus erasures), keyframes numbered in order of first appearance across the
-sources. A keyframe keeps its id while it exists; a re-clustering gives a cluster with the same frames (by frame
-key) and the same representative as before that keyframe's old id (and its time and hold), so its result is kept.
+sources. The clusters at a τ are cut from each source's merge order (:func:`merge_orders`), which a project keeps for
+what the clustering reads (:func:`clustering_reads`): a count or a recluster at another τ merges nothing again.
+
+A keyframe keeps its id while it exists; a re-clustering gives a cluster with the same frames (by frame key) and the
+same representative as before that keyframe's old id (and its time and hold), so its result is kept.
 
 The artist's edits keep every frame in exactly one keyframe of its own source. When a keyframe's members change,
 its representative stays if it is still a member; otherwise the member nearest the members' mean expressive mask
@@ -19,7 +22,7 @@ import numpy as np
 
 from studio.project.state import Frame, Keyframe, ProjectError, ProjectState
 from studio.targets.expressive import combine
-from studio.targets.keyframes import KeyframeConfig, MergeOrder, cluster_keyframes, merge_order
+from studio.targets.keyframes import KeyframeConfig, MergeOrder, merge_order
 
 
 def combined_masks(state: ProjectState) -> np.ndarray:
@@ -56,18 +59,24 @@ def cluster(
     old_frames: Sequence[Frame] = (),
     next_id: int = 0,
     shadows: np.ndarray | None = None,
+    orders: Sequence[MergeOrder] | None = None,
 ) -> tuple[tuple[Keyframe, ...], int]:
     """Keyframes of ``frames`` from their expressive ``masks (N, S, S)``, clustered per source (by shape: each
     cropped by its frame's shadow box in ``shadows (N, S, S)``, the frames' targets), and the next free id.
 
-    ``old`` keyframes (over ``old_frames``) lend their id, time and hold to a cluster with the same frame keys and
-    representative; every other cluster gets a new id from ``next_id`` on."""
+    ``orders``: the :func:`merge_orders` of these frames, masks and shadows (any τ), when the caller has them; else
+    they are worked out here. ``old`` keyframes (over ``old_frames``) lend their id, time and hold to a cluster with
+    the same frame keys and representative; every other cluster gets a new id from ``next_id`` on."""
     keys = [f.key for f in frames]
     by_content = {(tuple(old_frames[m].key for m in kf.members), old_frames[kf.representative].key): kf for kf in old}
     used = {kf.id for kf in old}
     found: list[Keyframe] = []
-    for idx in per_source(frames):
-        c = cluster_keyframes(masks[idx], cfg, None if shadows is None else np.asarray(shadows)[idx])
+    sources = per_source(frames)
+    orders = merge_orders(frames, masks, cfg, shadows) if orders is None else orders
+    if [len(o.embeddings) for o in orders] != [len(idx) for idx in sources]:
+        raise ValueError("the merge orders given are not of these frames (another state of the project)")
+    for idx, order in zip(sources, orders, strict=True):
+        c = order.clusters(cfg.tau)
         for group, rep in zip(c.members, c.representatives, strict=True):
             members = tuple(int(idx[m]) for m in group)
             rep = int(idx[rep])
@@ -89,6 +98,18 @@ def merge_orders(
     keyframe count :func:`cluster` makes at any τ is ``sum(o.count(tau) for o in merge_orders(...))``."""
     return [merge_order(masks[idx], cfg, None if shadows is None else np.asarray(shadows)[idx])
             for idx in per_source(frames)]  # fmt: skip
+
+
+def clustering_reads(state: ProjectState) -> tuple:
+    """What :func:`merge_orders` reads in project state ``state`` (frames, targets, automatic masks, paint, the
+    clustering's settings but τ), to compare with :func:`same_reads`: edits replace these objects, never change
+    them."""
+    return state.frames, state.targets, state.auto, state.additions, state.erasures, replace(state.clustering, tau=0.0)
+
+
+def same_reads(a: tuple, b: tuple) -> bool:
+    """Whether two :func:`clustering_reads` are of the same clustering inputs (the same objects, equal settings)."""
+    return all(x is y for x, y in zip(a[:-1], b[:-1], strict=True)) and a[-1] == b[-1]
 
 
 def per_source(frames: Sequence[Frame]) -> list[np.ndarray]:

@@ -87,6 +87,7 @@ class Project(Editing, KeyframeEditing, Running, History):
         self._stamp = stamp(self.path)  # project.json as this object last read or wrote it
         self.missing_sources: list[MissingSource] = []
         self.changed_sources: list[int] = []
+        self._orders: list[tuple[tuple, list]] = []  # (clustering_reads, merge orders), newest first (merge_orders)
         self._check_sources()
 
     # ---------------------------------------------------------------- opening

@@ -122,17 +122,22 @@ def _crops(masks: np.ndarray, cfg: KeyframeConfig, shadows: np.ndarray | None) -
     return [aligned_crop(m, cfg.size, box_of=b) for m, b in zip(masks, boxes, strict=True)]
 
 
-def most_different_iou(expressive: np.ndarray, cfg: KeyframeConfig, shadows: np.ndarray | None = None) -> float:
+def most_different_iou(
+    expressive: np.ndarray, cfg: KeyframeConfig, shadows: np.ndarray | None = None, below: float = 0.0
+) -> float:
     """The soft IoU (Σ min / Σ max) of the aligned crops of the two frames least alike, 1 when all are alike: how
     much the subject's shape changes through the clip, in the crops' own terms (not relative to the clip). One frame
     against the later ones at a time: memory O(N·size²), not the (N, N, size²) of every pair at once (1.9 GB for
-    240 frames)."""
+    240 frames). With ``below`` > 0 it stops at the first pair whose IoU is under ``below`` and returns that IoU
+    (enough to know the shape changes)."""
     c = np.stack(_crops(np.asarray(expressive), cfg, shadows)).reshape(len(expressive), -1)
     worst = 1.0
     for i in range(len(c) - 1):
         lo = np.minimum(c[i], c[i + 1 :]).sum(axis=-1)
         hi = np.maximum(c[i], c[i + 1 :]).sum(axis=-1)
         worst = min(worst, float(np.where(hi > 0, lo / np.maximum(hi, 1e-12), 1.0).min()))
+        if worst < below:
+            break
     return worst
 
 
@@ -162,16 +167,21 @@ def embed(
 
 
 def merge_clusters(
-    embeddings: np.ndarray, tau: float, keep: int = 1, distances: list[float] | None = None
+    embeddings: np.ndarray,
+    tau: float,
+    keep: int = 1,
+    distances: list[float] | None = None,
+    pairs: list[tuple[int, int]] | None = None,
 ) -> list[list[int]]:
     """Centroid merging of ``embeddings (N, C)`` until the closest pair's similarity ``1 − d`` falls below ``tau``
     (or only ``keep`` clusters are left).
 
     ``d`` is the L2 distance between the clusters' mean embeddings over the largest distance between two frames.
-    Returns the clusters as ascending member lists, ordered by first member; ``distances``, when given, gets the ``d``
-    of each merge made, in order. O(N²·C) time: after a merge only the merged cluster's row of the distance matrix is
-    recomputed.
-    """
+    Returns the clusters as ascending member lists, ordered by first member; ``distances`` and ``pairs``, when given,
+    get the ``d`` of each merge made and the clusters it merged ``(i, j)``, ``i < j``, each named by the slot it
+    started in (cluster ``j`` joins cluster ``i``), in order. O(N²·C) time: after a merge only the merged cluster's
+    row of the distance matrix is recomputed.
+    """  # fmt: skip
     e = np.asarray(embeddings, np.float64)
     n = len(e)
     diff = e[:, None, :] - e[None, :, :]
@@ -192,6 +202,8 @@ def merge_clusters(
         if distances is not None:
             distances.append(float(d[i, j]))
         i, j = min(i, j), max(i, j)
+        if pairs is not None:
+            pairs.append((i, j))
         centroids[i] = (sizes[i] * centroids[i] + sizes[j] * centroids[j]) / (sizes[i] + sizes[j])
         sizes[i] += sizes[j]
         members[i] = sorted(members[i] + members[j])
@@ -210,34 +222,50 @@ def cluster_keyframes(
     """Expressive masks ``(N, S, S)`` → :class:`Clusters` (module doc): keyframes in order of first appearance.
     ``shadows (N, S, S)``: the frames' shadow masks, whose boxes crop the expressive masks (:func:`embed`). A clip
     whose two least alike frames' crops overlap less than ``cfg.one_iou`` keeps at least two keyframes, whatever
-    ``tau`` (merging is relative to the clip's own largest change, so a steady change could otherwise merge whole)."""
-    e = embed(expressive, cfg, shadows)
-    members = merge_clusters(e, cfg.tau)
-    if len(members) == 1 and len(e) > 1 and most_different_iou(expressive, cfg, shadows) < cfg.one_iou:
-        members = merge_clusters(e, cfg.tau, keep=2)  # the shape changes through the clip: never one held pose
-    assignment = np.empty(len(e), np.int64)
-    reps = np.empty(len(members), np.int64)
-    for k, group in enumerate(members):
-        assignment[group] = k
-        centre = e[group].mean(axis=0)
-        reps[k] = group[int(np.argmin(np.linalg.norm(e[group] - centre, axis=1)))]
-    log.debug("%d frames → %d keyframes (tau %.3f)", len(e), len(members), cfg.tau)
-    return Clusters(assignment=assignment, representatives=reps, members=members)
+    ``tau`` (merging is relative to the clip's own largest change, so a steady change could otherwise merge whole).
+    The clusters at another τ of the same frames: ``merge_order(...).clusters(tau)``, without merging again."""
+    return merge_order(expressive, cfg, shadows).clusters(cfg.tau)
 
 
 @dataclass(frozen=True)
 class MergeOrder:
     """Every merge :func:`cluster_keyframes` would make, in its order (which does not depend on ``tau``): the
-    keyframe count at any ``tau`` at once, e.g. under a slider, without clustering again."""
+    keyframes at any ``tau`` at once (their count under a slider, the clusters of "Apply τ"), without embedding or
+    merging again. The merging stops where ``tau`` says: the clusters are those :func:`merge_clusters` makes at it."""
 
     d: np.ndarray  # (N − 1,) the normalised distance of each merge, in order (N frames)
+    pairs: np.ndarray  # (N − 1, 2) int64: the clusters (i < j, named by their first slot) each merge joins, in order
+    embeddings: np.ndarray  # (N, C) float64 the frames' embeddings: a keyframe is the member nearest its mean
     changes_shape: bool  # the two least alike frames' crops overlap less than one_iou: never one keyframe
+
+    def merges(self, tau: float) -> int:
+        """How many of the merges are made at ``tau``: up to the first pair less similar than ``tau``, and never the
+        last one when the shape changes through the clip (two keyframes are kept)."""
+        stop = np.flatnonzero(1.0 - self.d < tau)
+        made = int(stop[0]) if len(stop) else len(self.d)
+        return made - 1 if made == len(self.d) and made and self.changes_shape else made
 
     def count(self, tau: float) -> int:
         """How many keyframes :func:`cluster_keyframes` makes at ``tau`` (the same comparison, the same merges)."""
-        stop = np.flatnonzero(1.0 - self.d < tau)
-        k = len(self.d) + 1 - (int(stop[0]) if len(stop) else len(self.d))
-        return 2 if k == 1 and len(self.d) and self.changes_shape else k
+        return len(self.d) + 1 - self.merges(tau)
+
+    def clusters(self, tau: float) -> Clusters:
+        """The :class:`Clusters` at ``tau``: the first :meth:`merges` merges replayed, a representative per cluster."""
+        e = self.embeddings
+        members: list[list[int]] = [[i] for i in range(len(e))]
+        alive = np.ones(len(e), bool)
+        for i, j in self.pairs[: self.merges(tau)].tolist():
+            members[i] = sorted(members[i] + members[j])
+            alive[j] = False
+        groups = sorted((members[i] for i in np.flatnonzero(alive)), key=lambda m: m[0])
+        assignment = np.empty(len(e), np.int64)
+        reps = np.empty(len(groups), np.int64)
+        for k, group in enumerate(groups):
+            assignment[group] = k
+            centre = e[group].mean(axis=0)
+            reps[k] = group[int(np.argmin(np.linalg.norm(e[group] - centre, axis=1)))]
+        log.debug("%d frames → %d keyframes (tau %.3f)", len(e), len(groups), tau)
+        return Clusters(assignment=assignment, representatives=reps, members=groups)
 
 
 def merge_order(
@@ -245,10 +273,12 @@ def merge_order(
 ) -> MergeOrder:
     """The :class:`MergeOrder` of expressive masks ``(N, S, S)`` (``cfg.tau`` is not used; ``shadows`` as in
     :func:`cluster_keyframes`)."""
+    e = embed(expressive, cfg, shadows)
     distances: list[float] = []
-    merge_clusters(embed(expressive, cfg, shadows), -np.inf, distances=distances)
-    changes = len(distances) > 0 and most_different_iou(expressive, cfg, shadows) < cfg.one_iou
-    return MergeOrder(np.array(distances, np.float64), bool(changes))
+    pairs: list[tuple[int, int]] = []
+    merge_clusters(e, -np.inf, distances=distances, pairs=pairs)
+    changes = len(distances) > 0 and most_different_iou(expressive, cfg, shadows, below=cfg.one_iou) < cfg.one_iou
+    return MergeOrder(np.array(distances, np.float64), np.array(pairs, np.int64).reshape(-1, 2), e, bool(changes))
 
 
 def keyframe_targets(
