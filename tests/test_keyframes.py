@@ -349,16 +349,13 @@ def test_a_single_frame_clusters_without_importing_scikit_learn():
     assert done.stdout.split() == ["[0]", "[0]", "False"], done.stdout
 
 
-def direct_clusters(masks: np.ndarray, cfg: KeyframeConfig) -> tuple[list[list[int]], list[int]]:
-    """Reference for the clusters cut from a merge order: merge until the pair is less similar than τ
-    (:func:`merge_clusters` stopping there), two clusters kept when the shape changes; each cluster's member nearest
-    its mean embedding → (members, representatives)."""
-    from studio.targets.keyframes import most_different_iou
-
-    e = embed(masks, cfg)
-    members = merge_clusters(e, cfg.tau)
-    if len(members) == 1 and len(e) > 1 and most_different_iou(masks, cfg) < cfg.one_iou:
-        members = merge_clusters(e, cfg.tau, keep=2)
+def direct_clusters(e: np.ndarray, tau: float, changes: bool) -> tuple[list[list[int]], list[int]]:
+    """Reference for the clusters cut from a merge order: embeddings ``e (N, C)`` merged until the pair is less
+    similar than ``tau`` (:func:`merge_clusters` stopping there), two clusters kept when the shape ``changes``; each
+    cluster's member nearest its mean embedding → (members, representatives)."""
+    members = merge_clusters(e, tau)
+    if len(members) == 1 and len(e) > 1 and changes:
+        members = merge_clusters(e, tau, keep=2)
     reps = [g[int(np.argmin(np.linalg.norm(e[g] - e[g].mean(axis=0), axis=1)))] for g in members]
     return members, reps
 
@@ -367,7 +364,7 @@ def test_clusters_cut_from_the_merge_order_are_the_direct_merge_at_every_tau():
     """``merge_order(...)`` at any τ (the Keyframes panel's live count, "Apply τ", ``cluster_keyframes``) makes the
     clusters that merging until τ makes (:func:`direct_clusters`): on the boundaries 1 − d of each merge and between
     them, for shapes that change (the two-keyframe rule holds), steady shapes, random frames and a single frame."""
-    from studio.targets.keyframes import merge_order
+    from studio.targets.keyframes import merge_order, most_different_iou
 
     rng = np.random.default_rng(5)
     changing = ellipses(np.geomspace(0.25, 4.0, 12))
@@ -375,17 +372,20 @@ def test_clusters_cut_from_the_merge_order_are_the_direct_merge_at_every_tau():
     noisy = (rng.random((15, 16, 16)) < 0.4).astype(np.uint8)
     checked = 0
     for masks in (changing, steady, noisy, changing[:1]):
-        order = merge_order(masks, KeyframeConfig())
+        cfg = KeyframeConfig()
+        order = merge_order(masks, cfg)
+        e, changes = embed(masks, cfg), most_different_iou(masks, cfg) < cfg.one_iou
+        assert np.array_equal(order.embeddings, e) and order.changes_shape == (changes and len(masks) > 1)
         assert len(order.d) == len(masks) - 1 and order.pairs.shape == (len(masks) - 1, 2)
         edges = 1.0 - order.d
         taus = np.unique(np.clip(np.concatenate([edges, edges + 1e-9, edges - 1e-9, np.linspace(0, 1, 21)]), 0, 1))
         for tau in taus:
-            cfg = KeyframeConfig(tau=float(tau))
-            members, reps = direct_clusters(masks, cfg)
+            members, reps = direct_clusters(e, float(tau), changes)
             cut = order.clusters(float(tau))
             assert (cut.members, cut.representatives.tolist()) == (members, reps), (len(masks), tau)
-            assert order.count(float(tau)) == len(members) == cluster_keyframes(masks, cfg).count
+            assert order.count(float(tau)) == len(members)
             checked += 1
+        assert cluster_keyframes(masks, KeyframeConfig(tau=0.5)).members == order.clusters(0.5).members
     assert checked > 60
     assert merge_order(changing).changes_shape and not merge_order(steady).changes_shape
     assert merge_order(changing).count(0.0) == 2 and merge_order(steady).count(0.0) == 1

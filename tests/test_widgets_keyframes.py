@@ -197,8 +197,10 @@ def test_the_count_is_worked_out_aside_and_only_when_what_it_reads_changes(state
     import threading
 
     import studio.project.edits as module
+    import studio.targets.keyframes as keyframes
 
     calls, release = [], threading.Event()
+    real_embed = keyframes.embed
     release.set()
     real = module.merge_orders
 
@@ -224,11 +226,14 @@ def test_the_count_is_worked_out_aside_and_only_when_what_it_reads_changes(state
         assert "counting keyframes at τ 0.990" in panel.count.value
         release.set()
         assert panel.counter.settle() and len(calls) == 2 and panel.count.value.startswith(f"{panel.live_count} ")
+        embedded = []
+        monkeypatch.setattr(keyframes, "embed", lambda *a, **k: embedded.append(1) or real_embed(*a, **k))
         for tau in (0.3, 0.42):
             panel.tau.value = tau
             panel.apply_tau.click()
-            assert len(calls) == 2, "Apply τ merged the frames again"
+            assert len(calls) == 2 and not embedded, "Apply τ clustered the frames again"
             want = cluster_keyframes(p.combined_masks(), KeyframeConfig(tau=tau), p.state.targets)
+            embedded.clear()
             assert [kf.members for kf in p.keyframes] == [tuple(m) for m in want.members]
             assert [kf.representative for kf in p.keyframes] == want.representatives.tolist()
             assert len(p.keyframes) == panel.live_count and f"(project: {panel.live_count})" in panel.count.value
