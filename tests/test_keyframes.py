@@ -335,18 +335,39 @@ def test_a_steady_change_of_shape_keeps_two_keyframes_at_any_tau():
     assert most_different_iou(still, cfg) == 1.0 and cluster_keyframes(still, cfg).count == 1
 
 
-def test_a_single_frame_clusters_without_importing_scikit_learn():
-    """A still is one frame: nothing to project, so its clustering does not pay scikit-learn's import (~1 s)."""
+def test_clustering_imports_no_scikit_learn_and_a_still_no_svd():
+    """The PCA is the studio's own: a clip clusters without scikit-learn's import (1.2 s), and a still (one frame,
+    nothing to project) without even SciPy's linear algebra."""
     code = (
         "import sys, numpy as np\n"
         "from studio.targets.keyframes import cluster_keyframes\n"
         "m = np.zeros((1, 32, 32), np.uint8); m[0, 8:20, 10:24] = 1\n"
         "c = cluster_keyframes(m)\n"
-        "print(c.assignment.tolist(), c.representatives.tolist(), 'sklearn' in sys.modules)"
+        "print(c.assignment.tolist(), c.representatives.tolist(), 'scipy.linalg' in sys.modules)\n"
+        "clip = np.stack([np.roll(m[0], 3 * i, axis=1) * (i % 3 + 1 > 1) for i in range(6)])\n"
+        "print(cluster_keyframes(clip).count, 'scipy.linalg' in sys.modules, 'sklearn' in sys.modules)"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert done.stdout.split() == ["[0]", "[0]", "False"], done.stdout
+    assert done.stdout.split() == ["[0]", "[0]", "False", "2", "True", "False"], done.stdout
+
+
+def test_the_pca_is_scikit_learns_bit_for_bit():
+    """:func:`pca` against scikit-learn's ``PCA(svd_solver="full")`` (the reference, installed with the tests): the
+    same embeddings to the last bit, so clustering made with either merges the same pairs, near ties included."""
+    from sklearn.decomposition import PCA
+
+    from studio.targets.keyframes import pca
+
+    rng = np.random.default_rng(7)
+    for n_frames, side, n in ((2, 8, 2), (9, 16, 9), (30, 24, 30), (70, 24, 50), (12, 64, 5)):
+        x = (rng.random((n_frames, side * side)) < rng.uniform(0.1, 0.6)).astype(np.float64)
+        x = np.round(x * rng.random(x.shape[1]), 9)  # blurred-crop-like values
+        y = x[rng.permutation(n_frames)[: max(1, n_frames // 2)]]
+        want = PCA(n_components=n, svd_solver="full").fit(x).transform(y)
+        assert np.array_equal(pca(x, y, n), want), (n_frames, side, n)
+    masks = ellipses(np.geomspace(0.25, 4.0, 12))
+    assert embed(masks).shape == (12, 12)
 
 
 def direct_clusters(e: np.ndarray, tau: float, changes: bool) -> tuple[list[list[int]], list[int]]:

@@ -110,6 +110,7 @@ def test_expressive_terms_only_over_targets_with_holes(table):
     assert "| n/a | n/a |" in to_markdown(no_holes)
 
 
+@pytest.mark.slow  # builds the table (11 s), as the other slow tests here do
 def test_nearest_neighbour_finds_a_training_image(table, setup):
     nn = {r["target"]: r for r in table.records if r["method"] == "Nearest Neighbour"}
     assert nn["pose0"]["total"] == pytest.approx(0, abs=1e-6) and nn["pose1"]["base"] == pytest.approx(0, abs=1e-6)

@@ -160,6 +160,7 @@ def test_a_missing_camera_no_markers_and_a_latched_estop_are_one_line_each(panel
     assert not panel.calibrate_button.disabled and panel.cancel_button.disabled and panel.result is None
 
 
+@pytest.mark.slow  # a whole calibration on the virtual camera (10 s)
 def test_calibrate_to_the_end_then_save_on_the_artists_click(panel, state, hand):
     assert rig_panel(state, SMALL).save() is None  # nothing to save yet: a message
     assert panel.save_button.disabled and panel.poses.value == 3
