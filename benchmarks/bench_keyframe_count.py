@@ -1,6 +1,7 @@
 """The Keyframes panel's live count: keyframes at many τ from one merge order (``studio.targets.keyframes.
-merge_order``) against clustering again at each τ (``cluster_keyframes``, what the panel did before), measured in
-the same run on the shared DAVIS mask sequences at every frame (24 fps) and on a long synthetic clip.
+merge_order``) against clustering again at each τ (:func:`recluster`: embedding, then merging until τ, what the panel
+did before), measured in the same run on the shared DAVIS mask sequences at every frame (24 fps) and on a long
+synthetic clip.
 
     python benchmarks/bench_keyframe_count.py [--davis ../shared/targets/davis] [--taus 50] [--frames 240]
 
@@ -22,7 +23,7 @@ import cv2
 import numpy as np
 
 from studio.targets.expressive import expressive_masks
-from studio.targets.keyframes import KeyframeConfig, cluster_keyframes, merge_order
+from studio.targets.keyframes import KeyframeConfig, embed, merge_clusters, merge_order, most_different_iou
 from studio.targets.video import VideoConfig, load_video
 
 DAVIS = Path(__file__).resolve().parents[2] / "shared" / "targets" / "davis"
@@ -40,11 +41,20 @@ def synthetic(frames: int, side: int = 256) -> np.ndarray:
     return out
 
 
+def recluster(expressive: np.ndarray, tau: float, masks: np.ndarray) -> int:
+    """The reference: the keyframes at ``tau`` by clustering again (embed, merge until the closest pair is less
+    similar than ``tau``, two kept when the shape changes through the clip), as the panel counted before."""
+    cfg = KeyframeConfig(tau=tau)
+    e = embed(expressive, cfg, masks)
+    k = len(merge_clusters(e, tau))
+    return 2 if k == 1 and len(e) > 1 and most_different_iou(expressive, cfg, masks) < cfg.one_iou else k
+
+
 def measure(masks: np.ndarray, taus: np.ndarray) -> dict:
     """Both ways of counting keyframes at every τ of ``taus`` on the expressive masks of ``masks (N, S, S)``."""
     expressive = expressive_masks(masks)
     start = time.perf_counter()
-    reference = [cluster_keyframes(expressive, KeyframeConfig(tau=float(t)), masks).count for t in taus]
+    reference = [recluster(expressive, float(t), masks) for t in taus]
     reference_s = time.perf_counter() - start
     start = time.perf_counter()
     order = merge_order(expressive, KeyframeConfig(), masks)
