@@ -7,6 +7,8 @@ written as it is taken into ``$SHADOW_STUDIO_SCREENSHOT``, a folder, when set, e
 
 - every panel shows its label, none is "unavailable", none shows the browser's broken-picture icon (an empty image)
   or cuts a button's or a field's label short (an ellipsis where its words should be);
+- **Keyframes**: the live count at the project's τ lands and agrees with the project's keyframes (worked out in the
+  tab's own thread as the studio opens);
 - **Targets**: the preview tints the horse, not the backdrop nor the black bars: its tinted pixels match the mask
   the project stored;
 - **Review**: the embedded Rerun viewer fills the output area's width and its canvas draws the recording (the target
@@ -216,6 +218,11 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
             assert not cut, f"the {name} tab cuts these labels short: {cut}"
             if name in ("Keyframes", "Masks", "Weights", "Rig", "Live", "Export"):
                 shots.append(shoot_tab(page, name, folder))
+
+        # Keyframes: the count at the project's τ lands (the tab works it out in its own thread as the studio opens)
+        open_tab(page, "Keyframes")
+        tau, n = project.state.clustering.tau, len(project.keyframes)
+        page.locator(f"{TAB} .widget-label:has-text('at τ {tau:.3f} (project: {n})')").first.wait_for(timeout=30_000)
 
         # Targets: the preview tints the shape the project stored, not the backdrop nor the black bars around it
         open_tab(page, "Targets")
