@@ -193,7 +193,7 @@ def merge_clusters(
     get the ``d`` of each merge made and the clusters it merged ``(i, j)``, ``i < j``, each named by the slot it
     started in (cluster ``j`` joins cluster ``i``), in order. O(N²·C) time: after a merge only the merged cluster's
     row of the distance matrix is recomputed.
-    """  # fmt: skip
+    """
     e = np.asarray(embeddings, np.float64)
     n = len(e)
     diff = e[:, None, :] - e[None, :, :]
