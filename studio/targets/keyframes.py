@@ -167,8 +167,8 @@ def embed(
 def pca(x: np.ndarray, y: np.ndarray, n: int) -> np.ndarray:
     """Rows ``y (M, F)`` projected on the first ``n`` principal components of ``x (N, F)`` float64 → ``(M, n)``: the
     full SVD of the centred ``x``, each component's sign set so that its largest entry is positive. The arithmetic is
-    scikit-learn's ``PCA(n, svd_solver="full").fit(x).transform(y)`` (1.5 and later), bit for bit (a test holds
-    them equal), without its 1.2 s import."""
+    scikit-learn's ``PCA(n, svd_solver="full").fit(x).transform(y)`` (1.9, read to match it), bit for bit (a test
+    holds them equal), without its 1.2 s import."""
     import scipy.linalg  # here: a still (one frame) has nothing to project
 
     mean = np.mean(x, axis=0)
