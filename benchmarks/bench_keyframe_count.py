@@ -23,7 +23,8 @@ import cv2
 import numpy as np
 
 from studio.targets.expressive import expressive_masks
-from studio.targets.keyframes import KeyframeConfig, embed, merge_clusters, merge_order, most_different_iou
+from studio.targets.keyframes import KeyframeConfig, embed, merge_order, most_different_iou
+from studio.targets.merging import merge_clusters
 from studio.targets.video import VideoConfig, load_video
 
 DAVIS = Path(__file__).resolve().parents[2] / "shared" / "targets" / "davis"

@@ -16,7 +16,8 @@ from hypothesis import strategies as st
 from keyframes_support import ellipses  # this folder's helper
 
 from studio.targets.expressive import expressive_masks
-from studio.targets.keyframes import KeyframeConfig, cluster_keyframes, embed, merge_clusters
+from studio.targets.keyframes import KeyframeConfig, cluster_keyframes, embed
+from studio.targets.merging import merge_clusters
 
 S = 32
 

@@ -26,7 +26,7 @@ from studio.project.state import Mount, ProjectError, ProjectState, frozen
 from studio.project.status import SourceMissing
 from studio.sim.roll import roll_deg
 from studio.targets.images import read_grey
-from studio.targets.keyframes import MergeOrder
+from studio.targets.merging import MergeOrder
 from studio.targets.pockets import POCKET_REACH
 
 log = logging.getLogger(__name__)

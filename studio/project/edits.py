@@ -22,7 +22,8 @@ import numpy as np
 
 from studio.project.state import Frame, Keyframe, ProjectError, ProjectState
 from studio.targets.expressive import combine
-from studio.targets.keyframes import KeyframeConfig, MergeOrder, merge_order
+from studio.targets.keyframes import KeyframeConfig, merge_order
+from studio.targets.merging import MergeOrder
 
 
 def combined_masks(state: ProjectState) -> np.ndarray:

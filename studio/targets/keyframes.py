@@ -17,18 +17,18 @@ Clustering starts with one cluster per frame and repeatedly merges the two close
 is the mean of its members' embeddings) while their similarity ``1 − d`` is at least ``tau``. The first pair that is
 not similar enough ends the merging, so the merge order does not depend on ``tau`` and a higher ``tau`` never gives
 fewer clusters. A cluster's representative (its keyframe) is the member nearest the cluster's mean; keyframes are
-numbered in order of first appearance, and every frame plays its cluster's keyframe pose.
+numbered in order of first appearance, and every frame plays its cluster's keyframe pose. The merging, on the
+embeddings alone, is :mod:`studio.targets.merging`.
 """
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-log = logging.getLogger(__name__)
+from studio.targets.merging import Clusters, MergeOrder, merge_clusters
 
 PAD = 5.0  # the losses' crop pad (LossConfig.pad; a test holds them equal), pixels of a 256-pixel image
 
@@ -66,29 +66,6 @@ class KeyframeConfig:
             raise ValueError(f"blur must be a fraction of the crop side ≥ 0, not {self.blur}")
 
 
-@dataclass
-class Clusters:
-    """Frames grouped into keyframes, numbered in order of first appearance.
-
-    ``assignment (N,)`` int: keyframe number of each frame; ``representatives (K,)`` int: frame index of each
-    keyframe; ``members``: K ascending lists of frame indices (``members[k][0]`` is keyframe k's first frame).
-    """
-
-    assignment: np.ndarray
-    representatives: np.ndarray
-    members: list[list[int]]
-
-    @property
-    def count(self) -> int:
-        """Number of keyframes K."""
-        return len(self.members)
-
-    @property
-    def reduction(self) -> float:
-        """Share of frames that need no optimisation of their own: 1 − K / N."""
-        return 1.0 - self.count / len(self.assignment)
-
-
 def aligned_crop(mask: np.ndarray, size: int, pad: float = PAD, box_of: np.ndarray | None = None) -> np.ndarray:
     """Mask ``(H, W)`` → its aligned crop ``(size, size)`` float64 in [0, 1], as the losses crop (DESIGN §4).
 
@@ -118,6 +95,12 @@ def aligned_crop(mask: np.ndarray, size: int, pad: float = PAD, box_of: np.ndarr
 
 
 def _crops(masks: np.ndarray, cfg: KeyframeConfig, shadows: np.ndarray | None) -> list[np.ndarray]:
+    """Each of ``masks (N, S, S)`` cut to its :func:`aligned_crop` (``(size, size)`` float64), boxed by its shadow."""
+    masks = np.asarray(masks)
+    if masks.ndim != 3 or masks.shape[0] == 0:
+        raise ValueError(f"expressive masks must be (N, S, S) with N ≥ 1, not an array of shape {masks.shape}")
+    if shadows is not None and np.shape(shadows) != masks.shape:
+        raise ValueError(f"shadows must have the expressive masks' shape {masks.shape}, not {np.shape(shadows)}")
     boxes = [None] * len(masks) if shadows is None else list(np.asarray(shadows))
     return [aligned_crop(m, cfg.size, box_of=b) for m, b in zip(masks, boxes, strict=True)]
 
@@ -130,7 +113,11 @@ def most_different_iou(
     against the later ones at a time: memory O(N·size²), not the (N, N, size²) of every pair at once (1.9 GB for
     240 frames). With ``below`` > 0 it stops at the first pair whose IoU is under ``below`` and returns that IoU
     (enough to know the shape changes)."""
-    c = np.stack(_crops(np.asarray(expressive), cfg, shadows)).reshape(len(expressive), -1)
+    return _least_alike(_crops(expressive, cfg, shadows), below)
+
+
+def _least_alike(crops: list[np.ndarray], below: float) -> float:
+    c = np.stack(crops).reshape(len(crops), -1)
     worst = 1.0
     for i in range(len(c) - 1):
         lo = np.minimum(c[i], c[i + 1 :]).sum(axis=-1)
@@ -148,15 +135,13 @@ def embed(
     every frame is alike). Each mask is first cut to its :func:`aligned_crop` of side ``cfg.size``: the box of its
     frame's shadow in ``shadows (N, S, S)``, as the losses crop the expressive region with the target's box (the
     expressive part is then seen where it is on the shadow: an arm raised or lowered), or with None its own box."""
-    masks = np.asarray(expressive)
-    if masks.ndim != 3 or masks.shape[0] == 0:
-        raise ValueError(f"expressive masks must be (N, S, S) with N ≥ 1, not an array of shape {masks.shape}")
-    if shadows is not None and np.shape(shadows) != masks.shape:
-        raise ValueError(f"shadows must have the expressive masks' shape {masks.shape}, not {np.shape(shadows)}")
-    crops = _crops(masks, cfg, shadows)
+    return _embed(_crops(expressive, cfg, shadows), cfg)
+
+
+def _embed(crops: list[np.ndarray], cfg: KeyframeConfig) -> np.ndarray:
     if cfg.blur > 0:  # outside the crop is backdrop (0), as in the crop itself
         crops = [cv2.GaussianBlur(c, (0, 0), cfg.blur * cfg.size, borderType=cv2.BORDER_CONSTANT) for c in crops]
-    small = np.round(np.stack(crops).reshape(len(masks), -1), 9)  # shifted copies: bit-identical crops
+    small = np.round(np.stack(crops).reshape(len(crops), -1), 9)  # shifted copies: bit-identical crops
     unique, inverse = np.unique(small, axis=0, return_inverse=True)
     if len(unique) == 1:  # every frame alike: no variance to project, every distance is 0
         return np.zeros((len(small), 1))
@@ -178,56 +163,6 @@ def pca(x: np.ndarray, y: np.ndarray, n: int) -> np.ndarray:
     return y @ components.T - mean.reshape(1, -1) @ components.T
 
 
-def merge_clusters(
-    embeddings: np.ndarray,
-    tau: float,
-    keep: int = 1,
-    distances: list[float] | None = None,
-    pairs: list[tuple[int, int]] | None = None,
-) -> list[list[int]]:
-    """Centroid merging of ``embeddings (N, C)`` until the closest pair's similarity ``1 − d`` falls below ``tau``
-    (or only ``keep`` clusters are left).
-
-    ``d`` is the L2 distance between the clusters' mean embeddings over the largest distance between two frames.
-    Returns the clusters as ascending member lists, ordered by first member; ``distances`` and ``pairs``, when given,
-    get the ``d`` of each merge made and the clusters it merged ``(i, j)``, ``i < j``, each named by the slot it
-    started in (cluster ``j`` joins cluster ``i``), in order. O(N²·C) time: after a merge only the merged cluster's
-    row of the distance matrix is recomputed.
-    """
-    e = np.asarray(embeddings, np.float64)
-    n = len(e)
-    diff = e[:, None, :] - e[None, :, :]
-    dist = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
-    scale = dist.max()
-    scale = scale if scale > 0 else 1.0  # all frames identical: every distance is 0, everything merges
-    d = dist / scale
-    np.fill_diagonal(d, np.inf)
-    centroids = e.copy()
-    sizes = np.ones(n)
-    members: list[list[int]] = [[i] for i in range(n)]
-    alive = np.ones(n, bool)
-    for _ in range(n - max(keep, 1)):
-        flat = int(np.argmin(d))  # row-major: ties go to the lowest pair, so the merge order is reproducible
-        i, j = divmod(flat, n)
-        if not np.isfinite(d[i, j]) or 1.0 - d[i, j] < tau:
-            break
-        if distances is not None:
-            distances.append(float(d[i, j]))
-        i, j = min(i, j), max(i, j)
-        if pairs is not None:
-            pairs.append((i, j))
-        centroids[i] = (sizes[i] * centroids[i] + sizes[j] * centroids[j]) / (sizes[i] + sizes[j])
-        sizes[i] += sizes[j]
-        members[i] = sorted(members[i] + members[j])
-        alive[j] = False
-        d[j, :] = d[:, j] = np.inf
-        row = np.linalg.norm(centroids - centroids[i], axis=1) / scale
-        row[~alive] = np.inf
-        row[i] = np.inf
-        d[i, :] = d[:, i] = row
-    return sorted((members[i] for i in np.flatnonzero(alive)), key=lambda m: m[0])
-
-
 def cluster_keyframes(
     expressive: np.ndarray, cfg: KeyframeConfig = KeyframeConfig(), shadows: np.ndarray | None = None
 ) -> Clusters:
@@ -239,57 +174,17 @@ def cluster_keyframes(
     return merge_order(expressive, cfg, shadows).clusters(cfg.tau)
 
 
-@dataclass(frozen=True)
-class MergeOrder:
-    """Every merge :func:`cluster_keyframes` would make, in its order (which does not depend on ``tau``): the
-    keyframes at any ``tau`` at once (their count under a slider, the clusters of "Apply τ"), without embedding or
-    merging again. The merging stops where ``tau`` says: the clusters are those :func:`merge_clusters` makes at it."""
-
-    d: np.ndarray  # (N − 1,) the normalised distance of each merge, in order (N frames)
-    pairs: np.ndarray  # (N − 1, 2) int64: the clusters (i < j, named by their first slot) each merge joins, in order
-    embeddings: np.ndarray  # (N, C) float64 the frames' embeddings: a keyframe is the member nearest its mean
-    changes_shape: bool  # the two least alike frames' crops overlap less than one_iou: never one keyframe
-
-    def merges(self, tau: float) -> int:
-        """How many of the merges are made at ``tau``: up to the first pair less similar than ``tau``, and never the
-        last one when the shape changes through the clip (two keyframes are kept)."""
-        stop = np.flatnonzero(1.0 - self.d < tau)
-        made = int(stop[0]) if len(stop) else len(self.d)
-        return made - 1 if made == len(self.d) and made and self.changes_shape else made
-
-    def count(self, tau: float) -> int:
-        """How many keyframes :func:`cluster_keyframes` makes at ``tau`` (the same comparison, the same merges)."""
-        return len(self.d) + 1 - self.merges(tau)
-
-    def clusters(self, tau: float) -> Clusters:
-        """The :class:`Clusters` at ``tau``: the first :meth:`merges` merges replayed, a representative per cluster."""
-        e = self.embeddings
-        members: list[list[int]] = [[i] for i in range(len(e))]
-        alive = np.ones(len(e), bool)
-        for i, j in self.pairs[: self.merges(tau)].tolist():
-            members[i] = sorted(members[i] + members[j])
-            alive[j] = False
-        groups = sorted((members[i] for i in np.flatnonzero(alive)), key=lambda m: m[0])
-        assignment = np.empty(len(e), np.int64)
-        reps = np.empty(len(groups), np.int64)
-        for k, group in enumerate(groups):
-            assignment[group] = k
-            centre = e[group].mean(axis=0)
-            reps[k] = group[int(np.argmin(np.linalg.norm(e[group] - centre, axis=1)))]
-        log.debug("%d frames → %d keyframes (tau %.3f)", len(e), len(groups), tau)
-        return Clusters(assignment=assignment, representatives=reps, members=groups)
-
-
 def merge_order(
     expressive: np.ndarray, cfg: KeyframeConfig = KeyframeConfig(), shadows: np.ndarray | None = None
 ) -> MergeOrder:
     """The :class:`MergeOrder` of expressive masks ``(N, S, S)`` (``cfg.tau`` is not used; ``shadows`` as in
     :func:`cluster_keyframes`)."""
-    e = embed(expressive, cfg, shadows)
+    crops = _crops(expressive, cfg, shadows)  # cut once: the embedding and the change of shape both read them
+    e = _embed(crops, cfg)
     distances: list[float] = []
     pairs: list[tuple[int, int]] = []
     merge_clusters(e, -np.inf, distances=distances, pairs=pairs)
-    changes = len(distances) > 0 and most_different_iou(expressive, cfg, shadows, below=cfg.one_iou) < cfg.one_iou
+    changes = len(distances) > 0 and _least_alike(crops, cfg.one_iou) < cfg.one_iou
     return MergeOrder(np.array(distances, np.float64), np.array(pairs, np.int64).reshape(-1, 2), e, bool(changes))
 
 
