@@ -19,7 +19,7 @@ import numpy as np
 
 from hardware.bus import ServoBus
 from hardware.calibration import Calibration
-from hardware.safety import SafetyConfig, clip_command, move_time
+from hardware.safety import clip_command, move_time
 
 HELP = """commands:
   j NAME|INDEX     select a joint              + / -          step the joint by the step size
@@ -59,12 +59,11 @@ class Jog:
         self,
         bus: ServoBus,
         calibration: Calibration,
-        safety: SafetyConfig | None = None,
+        *,
         config: JogConfig | None = None,
         home_pose: np.ndarray | None = None,
     ):
         self.bus, self.cal = bus, calibration
-        self.safety = safety or SafetyConfig()
         self.cfg = config or JogConfig()
         self.home_pose = np.zeros(len(calibration.ids)) if home_pose is None else np.asarray(home_pose, float)
         self.index = 0

@@ -15,6 +15,7 @@ from studio.cli.main import main
 from studio.learn.captures import load_captures
 from studio.learn.checkpoint import model_rig
 from studio.learn.config import CollectConfig, TrainerConfig
+from studio.project.capture import CaptureConfig
 from studio.review.real_vs_sim import ONLY_REAL, ONLY_SIM
 from studio.sim.hand import load_hand
 from studio.sim.rig_file import RigFileError, measured_rig
@@ -53,6 +54,10 @@ def test_calibrate_rig_on_the_virtual_camera_writes_a_measured_rig(calibrated, c
     assert cal.rig().foam == pytest.approx(summary["foam_mm"] / 1000, abs=1e-6)
     captures = load_captures(out / "captures", hand.hash)
     assert len(captures) == 4 and captures.masks.any(axis=(1, 2)).all()
+    # each move between two photographs took its time at the capture's joint speed (2.5 rad/s), not the jog's 0.8
+    moved = np.abs(np.diff(captures.theta, axis=0)).max(axis=1).sum() / CaptureConfig().speed_rad_s
+    settled = 3 * CaptureConfig().settle_s
+    assert moved + settled <= np.diff(captures.t).sum() <= moved + settled + 1.5, (moved, np.diff(captures.t))
     sheet = cv2.cvtColor(cv2.imread(str(out / "compare.png")), cv2.COLOR_BGR2RGB)
     assert sheet.shape[0] >= 4 * 160  # a row per pose
     seen = {c: int(np.all(np.abs(sheet.astype(int) - c) <= 2, axis=-1).sum()) for c in (ONLY_REAL, ONLY_SIM)}

@@ -103,7 +103,7 @@ def capture_poses(
     cfg = cfg or CaptureConfig()
     layout = layout or BackdropLayout()
     poses = np.atleast_2d(np.asarray(poses, dtype=np.float64))
-    jog = Jog(bus, calibration, JogConfig(speed_rad_s=cfg.speed_rad_s))
+    jog = Jog(bus, calibration, config=JogConfig(speed_rad_s=cfg.speed_rad_s))
     jog.target = np.clip(jog.read_array(strict=False), calibration.lower, calibration.upper)  # paced from here
     n, res = len(poses), cfg.resolution
     out = Captures(np.zeros((n, poses.shape[1])), np.zeros((n, poses.shape[1])), np.zeros((n, res, res), np.float32),
