@@ -116,11 +116,24 @@ def coverage(renderer: ShadowRenderer, theta: np.ndarray, supersample: int) -> n
     """Shadows of ``theta (N, 21)`` as coverage fractions ``(N, R, R)`` float32, where the renderer draws at
     ``R * supersample`` and each block of pixels is averaged."""
     img = renderer.render(theta, check=False).astype(np.float32)
-    if supersample == 1:
-        return img
+    return img if supersample == 1 else block_mean(img, supersample)
+
+
+def block_mean(img: np.ndarray, k: int) -> np.ndarray:
+    """``img (N, k R, k R)`` float32 averaged over each ``k × k`` block → ``(N, R, R)``: the block's rows added, then
+    its columns, as ``k`` strided additions each (``reshape(N, R, k, R, k).mean(axis=(2, 4))`` gives the same numbers,
+    exactly for sums of 0s and 1s, but 20-30× slower: numpy reduces the two inner axes element by element)."""
     n, big = img.shape[0], img.shape[1]
-    r = big // supersample
-    return img.reshape(n, r, supersample, r, supersample).mean(axis=(2, 4))
+    r = big // k
+    rows = img.reshape(n, r, k, big)
+    acc = rows[:, :, 0].copy()
+    for i in range(1, k):
+        acc += rows[:, :, i]
+    cols = acc.reshape(n, r, r, k)
+    out = cols[..., 0].copy()
+    for j in range(1, k):
+        out += cols[..., j]
+    return out / np.float32(k * k)
 
 
 def calibration_poses(hand: Hand, n: int = 12, seed: int = 0, pool: int = 3000) -> np.ndarray:
@@ -236,7 +249,7 @@ def fit_rig(
 
     # Coarse to fine: the first search on the coverage averaged over 2×2 blocks (a quarter of the pixels to draw),
     # the second restarts the simplex around its answer at the captures' own resolution.
-    half = soft.reshape(len(soft), res // 2, 2, res // 2, 2).mean(axis=(2, 4)) if res % 2 == 0 and res >= 64 else soft
+    half = block_mean(soft, 2) if res % 2 == 0 and res >= 64 else soft
     x = np.zeros(len(names))
     if "roll" in names:  # a mount rolled far from where the calibration had it: start from the best of a scan
         k = names.index("roll")
