@@ -162,8 +162,9 @@ def main() -> int:
     if "roll-auto" in rows:
         r = rows["roll-auto"]
         print(
-            f"\nroll auto on {args.count} rolled targets: roll error mean {r['roll_error_mean_deg']:.2f}°, worst "
-            f"{r['roll_error_max_deg']:.2f}°, {r['roll_found_pct']:.0f} % within {ROLL_FOUND_DEG:g}°"
+            f"\nroll auto on {args.count} rolled target{'s' * (args.count != 1)}: roll error mean "
+            f"{r['roll_error_mean_deg']:.2f}°, worst {r['roll_error_max_deg']:.2f}°, {r['roll_found_pct']:.0f} %"
+            f" within {ROLL_FOUND_DEG:g}°"
         )
     holes = sum(still_expressive(t) is not None for t in targets)  # targets whose frame has holes (the term's)
     summary = {"targets": args.count, "targets_with_holes": int(holes), "seed": args.seed,
