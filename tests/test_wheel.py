@@ -15,10 +15,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_every_package_of_the_tree_is_listed():
-    """pyproject's explicit package list (needed for the assets mapping) matches the folders that hold code."""
+    """pyproject's explicit package list (needed for the assets mapping) matches the folders that hold code, and the
+    assets' data folders (each a package of data alone)."""
     tomllib = pytest.importorskip("tomllib")  # Python ≥ 3.11
     listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
-    found = {"studio.assets"}
+    found = {"studio.assets"} | {f"studio.assets.{d.name}" for d in (ROOT / "assets").iterdir() if d.is_dir()
+                                 and d.name != "__pycache__"}  # fmt: skip
     for top in ("studio", "hardware", "widgets"):
         for init in (ROOT / top).rglob("__init__.py"):
             found.add(".".join(init.parent.relative_to(ROOT).parts))
