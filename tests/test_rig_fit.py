@@ -7,7 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from studio.learn.rig_fit import RigFitConfig, RigFitError, calibration_poses, coverage, fit_rig, window_iou_loss
+from studio.learn.rig_fit import (
+    RigFitConfig,
+    RigFitError,
+    block_mean,
+    calibration_poses,
+    coverage,
+    fit_rig,
+    window_iou_loss,
+)
 from studio.sim.hand import load_hand
 from studio.sim.physics import CollisionWorld
 from studio.sim.rig_file import RigFileError, read_rig_file, rig_from_mapping, rig_to_mapping
@@ -30,6 +38,19 @@ def test_calibration_poses_are_collision_free_distinct_and_repeatable(hand, pose
     assert np.array_equal(poses, calibration_poses(hand, 8))
     gaps = np.linalg.norm(poses[:, None] - poses[None], axis=-1)[np.triu_indices(8, 1)]
     assert gaps.min() > 0.5  # rad: no two alike
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 4])
+def test_block_mean_is_the_mean_of_each_block(k):
+    """The strided additions against numpy's mean over the blocks' axes: the same numbers, exactly for shadows (sums
+    of 0s and 1s), to float32 rounding for coverage."""
+    rng = np.random.default_rng(k)
+    binary = (rng.random((3, 40 * k, 40 * k)) < 0.4).astype(np.float32)
+    assert np.array_equal(block_mean(binary, k), binary.reshape(3, 40, k, 40, k).mean(axis=(2, 4)))
+    soft = rng.random((2, 24 * k, 24 * k)).astype(np.float32)
+    got = block_mean(soft, k)
+    assert got.shape == (2, 24, 24) and got.dtype == np.float32
+    np.testing.assert_allclose(got, soft.reshape(2, 24, k, 24, k).mean(axis=(2, 4)), rtol=0, atol=1e-6)
 
 
 def _captured(hand, rig, theta, noise=0.08, seed=1):
