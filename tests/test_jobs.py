@@ -129,6 +129,23 @@ def test_events_carry_stage_step_total_in_order():
     assert all(rec.events.index(e) > end for e in rec.events if e.job_id == 2 and e.state != JobState.QUEUED)
 
 
+def test_follow_returns_once_every_subscriber_was_told_the_end():
+    """A run that follows its jobs (studio.project.run) reports after the panels drew their final events: ``follow``
+    returns only once the last subscriber has the job's final event, however long it takes over it."""
+    told: list[JobState] = []
+
+    def slow_subscriber(e) -> None:
+        if e.final:
+            time.sleep(0.3)  # longer than follow's 0.1 s look: the state is DONE meanwhile
+            told.append(e.state)
+
+    with JobQueue() as queue:
+        queue.subscribe(slow_subscriber)
+        job = queue.submit(Job("custom", staged([("s", 2)])))
+        assert job.follow(None) == JobState.DONE
+        assert told == [JobState.DONE]
+
+
 @pytest.mark.slow
 def test_engine_events_feed_tqdm_and_a_poller_alike():
     out, rec = io.StringIO(), Recorder()

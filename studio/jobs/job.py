@@ -88,9 +88,10 @@ class Job:
         return self.state
 
     def follow(self, cancel: threading.Event | None) -> JobState:
-        """Wait until the job finished, cancelling it once ``cancel`` is set (looked at every 0.1 s; then up to 2 s
-        for it to stop); returns its state."""
-        while not self.finished:
+        """Wait until the job finished and every subscriber was told so (its final event delivered: a run that
+        follows its jobs reports after the panels drew them), cancelling it once ``cancel`` is set (looked at every
+        0.1 s; then up to 2 s for it to stop); returns its state."""
+        while not self._done.is_set():
             if cancel is not None and cancel.is_set():
                 self.cancel()
                 return self.wait(2.0)
