@@ -192,7 +192,7 @@ class LiveRunner:
         finally:
             self.view.end()
             self.live_session = None
-            files = recorder.finish(result, cal) if recorder is not None else []
+            files = recorder.finish(result) if recorder is not None else []
         self.result, self.files = result, [log_path, *files]
         left = self._left(stack)
         error = bool(result.error) or not (result.playback.ok or self._stop_pressed)

@@ -99,7 +99,7 @@ def cmd_live(args: argparse.Namespace) -> int:
         imitator.close()
     said = []
     if recorder is not None:
-        said = [str(p) for p in recorder.finish(result, cal)]
+        said = [str(p) for p in recorder.finish(result)]
         print(f"recorded: {', '.join(said)}")
     playback = result.playback
     line = f"{playback.reason.value}: {playback.message}; torque {playback.torque}"

@@ -92,7 +92,7 @@ class LiveRecorder:
             rec.log(LIVE_LOG, rr.TextLog(u.status or "following the camera again"))
             self._held = u.status
 
-    def finish(self, result: Any, calibration: Any = None) -> list[Path]:
+    def finish(self, result: Any) -> list[Path]:
         """Log the servo angles, close the recording and write the keyframes → the files written."""
         out = [self.rrd]
         try:
