@@ -20,8 +20,8 @@ from hardware.playback_log import PlaybackResult
 from hardware.player import Player, PlayerConfig, SampleHook
 from hardware.session import ServoSession
 from hardware.show_checks import check_mount, check_show_hand
+from studio.errors import ProgressFn
 from studio.motion.show import Show
-from studio.progress import ProgressFn
 from studio.sim.hand import Hand, load_hand
 
 

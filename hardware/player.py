@@ -43,7 +43,7 @@ from hardware.playback_log import PlaybackResult, Recording, StopReason
 from hardware.player_reads import PlayerReads, StopPlayback
 from hardware.safety import SafetyConfig, clip_command
 from hardware.tick_source import ShowTicks, TickSource
-from studio.progress import Progress, ProgressFn
+from studio.errors import Progress, ProgressFn
 
 __all__ = ["PlaybackResult", "Player", "PlayerConfig", "SampleHook", "StopReason"]
 

@@ -86,7 +86,7 @@ _API: dict[str, str] = {
     "VideoResult": "studio.project.pipeline",
     "imitate_video": "studio.project.pipeline",
     # progress
-    "Progress": "studio.progress",
+    "Progress": "studio.errors",
     # the typed errors a user can meet
     "StudioError": "studio.errors",
     "TargetError": "studio.errors",

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 import torch
 
+from studio.errors import Progress
 from studio.imitate.config import CPU_SEARCH, ImitateConfig, LossConfig, RefineConfig, SearchConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
 from studio.imitate.search import gradient_search, initial_poses
 from studio.imitate.still import DEFAULT_MODEL, Imitator
 from studio.learn.selfmodel import SelfModel, SelfModelConfig, load_selfmodel
-from studio.progress import Progress
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import sample_poses
 from studio.sim.shadow import Rig, ShadowRenderer, iou

@@ -24,15 +24,12 @@ ALLOWED = {
     "cli": {"sim", "targets", "learn", "imitate", "motion", "evaluate", "review", "jobs", "project"},
 }
 FOUNDATION = {
-    "studio.errors",
-    "studio.atomic",
+    "studio.errors",  # typed errors, and the progress and cancel protocol of every long call
+    "studio.atomic",  # the one atomic writer, and the one bounded JSON reader
     "studio.assets",
     "studio.home",
-    "studio.progress",
-    "studio.jsonfile",
-    "studio.path_checks",
-}  # path_checks: outputs never over inputs; jsonfile: the one bounded JSON reader (learn.fanout + learn.ray_cluster,
-# many items through one task in this process, on local processes or on Ray, are learn's: no stage below it uses them)
+}  # DESIGN §3's foundation (learn.fanout + learn.ray_cluster, many items through one task in this process, on local
+# processes or on Ray, are learn's: no stage below it uses them; targets.path_checks is the footage stage's)
 
 
 def modules() -> dict[str, Path]:

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from studio.errors import Progress
 from studio.imitate.config import ImitateConfig, LossConfig, RefineConfig, SearchConfig, SequenceConfig, SweepConfig
 from studio.imitate.live_best import LiveBest
 from studio.imitate.losses import ImageLoss
@@ -15,7 +16,6 @@ from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex
 from studio.imitate.sequence import SequenceImitator
 from studio.imitate.still import Imitator
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
-from studio.progress import Progress
 from studio.sim.shadow import Rig, ShadowRenderer
 
 LOSS = LossConfig(use_clip=False, crop_size=32)

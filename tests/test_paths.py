@@ -18,7 +18,7 @@ from studio.atomic import write_text
 
 @pytest.mark.parametrize("depth", [70, 100_000])
 def test_nested_json_is_one_line_everywhere(in_process, tmp_path, show_file, depth):
-    from studio.jsonfile import MAX_DEPTH, JsonFileError, parse_json
+    from studio.atomic import MAX_DEPTH, JsonFileError, parse_json
 
     nested = "[" * depth + "]" * depth
     deep = tmp_path / "deep.json"
@@ -95,8 +95,8 @@ def test_a_name_that_is_not_utf8_is_refused_at_once(in_process, tmp_path):
 
 
 def test_gathered_targets_with_names_that_are_not_utf8_are_refused(tmp_path):
-    from studio.path_checks import NameNotText
     from studio.targets.image_sets import gather_targets
+    from studio.targets.path_checks import NameNotText
 
     (tmp_path / os.fsdecode(b"caf\xe9.png")).write_bytes(b"")
     with pytest.raises(NameNotText, match=r"caf\\xe9.png"):
@@ -106,8 +106,8 @@ def test_gathered_targets_with_names_that_are_not_utf8_are_refused(tmp_path):
 def test_sources_that_are_not_there_are_named_in_one_message_form(tmp_path):
     from studio.errors import TargetError
     from studio.evaluate.sequences import gather_sequences
-    from studio.path_checks import existing_paths
     from studio.targets.image_sets import gather_targets
+    from studio.targets.path_checks import existing_paths
 
     (tmp_path / "here.png").write_bytes(b"")
     assert existing_paths([str(tmp_path / "here.png"), tmp_path], "x") == [tmp_path / "here.png", tmp_path]

@@ -26,7 +26,7 @@ from plan_support import (  # the planning tests' own helpers, beside this file
 from scipy.interpolate import CubicSpline
 
 from studio.cli.main import main
-from studio.errors import Cancelled
+from studio.errors import Cancelled, Progress
 from studio.motion.errors import KeyframeCollisionError, PlanCancelled, PlanError, SegmentTooFastError
 from studio.motion.limits import JointLimits, LimitsConfig
 from studio.motion.path import PathConfig, build_path
@@ -34,7 +34,6 @@ from studio.motion.plan import Keyframes, PlanConfig, keyframe_velocities, parse
 from studio.motion.show import load_show
 from studio.motion.spline import keyframe_spline, spline_path
 from studio.motion.timing import TimingConfig
-from studio.progress import Progress
 from studio.sim.hand import DEFAULT_URDF, parse_urdf
 from studio.sim.physics import CollisionWorld
 

@@ -1,4 +1,4 @@
-"""The one progress protocol (studio.progress): every long engine call reports typed Progress events (a strict
+"""The one progress protocol (studio.errors): every long engine call reports typed Progress events (a strict
 ProgressFn fails on any other call shape), TqdmBars draws a bare Progress stream and job events alike (none with
 --quiet), and Ctrl-C → cancel (the first sets the event, the second stops at once), driven by real signals."""
 
@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from studio.cli.progress import ctrl_c_cancels
+from studio.errors import Progress, report, staged, stopped
 from studio.jobs.bars import TqdmBars
 from studio.jobs.events import JobEvent, JobState
-from studio.progress import Progress, report, staged, stopped
 
 
 def _ctrl_c() -> None:

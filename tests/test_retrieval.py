@@ -8,13 +8,13 @@ import threading
 import numpy as np
 import pytest
 
+from studio.errors import Progress
 from studio.imitate.config import ImitateConfig, LossConfig, RefineConfig, SearchConfig, SweepConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import RenderedLoss, crop_batch
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, cached_index, index_key, pack_crops
 from studio.imitate.still import Imitator
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
-from studio.progress import Progress
 from studio.sim.crop import pad_pixels
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import Rig, ShadowRenderer

@@ -9,6 +9,7 @@ import threading
 import numpy as np
 import pytest
 
+from studio.errors import Progress
 from studio.imitate.candidates import distinct_best, refine_best, rendered_pool
 from studio.imitate.clip_loss import tiny_clip
 from studio.imitate.config import ImitateConfig, LossConfig, RefineConfig, SearchConfig, SequenceConfig, SweepConfig
@@ -18,7 +19,6 @@ from studio.imitate.seeding import seed_poses
 from studio.imitate.sequence import SequenceImitator
 from studio.imitate.still import Imitator
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
-from studio.progress import Progress
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import sample_poses
 from studio.sim.shadow import Rig, ShadowRenderer

@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from studio.errors import TargetError
-from studio.progress import Progress
+from studio.errors import Progress, TargetError
 from studio.targets import segment_sam
 from studio.targets.segment import segment_video
 from studio.targets.segment_config import SegmentConfig

@@ -15,14 +15,13 @@ from studio.assets import asset
 
 from studio.cli.main import main
 from studio.cli.runs import advice
-from studio.errors import StudioError
+from studio.errors import Progress, StudioError
 from studio.learn.checkpoint import CheckpointError, read_checkpoint, save_model
 from studio.learn.config import TrainConfig
 from studio.learn.pairs import BatchesAhead, Pairs
 from studio.learn.selfmodel import SelfModel, SelfModelConfig, load_selfmodel
 from studio.learn.train import train
 from studio.learn.trainer import lr_at
-from studio.progress import Progress
 
 TINY = dict(resolution=32, hidden=64, channels=16, min_channels=8, res_blocks=1)
 

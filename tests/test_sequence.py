@@ -12,14 +12,13 @@ import numpy as np
 import pytest
 import torch
 
-from studio.errors import ClosedError
+from studio.errors import ClosedError, Progress
 from studio.imitate.config import CPU_SEQUENCE, PAPER_SEQUENCE, LossConfig, RefineConfig, SearchConfig, SequenceConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.sequence import SequenceImitator
 from studio.imitate.still import DEFAULT_MODEL
 from studio.imitate.transitions import TransitionConfig, transition_success
 from studio.learn.selfmodel import load_selfmodel
-from studio.progress import Progress
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import sample_poses
 from studio.targets.expressive import expressive_masks

@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from studio.errors import TargetError
-from studio.progress import Progress
+from studio.errors import Progress, TargetError
 from studio.targets.images import DEFAULT_TARGET, load_target
 from studio.targets.source import open_source, raw_frames, read_first_mask, source_kind
 from studio.targets.video import DEFAULT_VIDEO, SegmentationNeeded, VideoConfig

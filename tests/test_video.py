@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from studio.errors import TargetError
-from studio.progress import Progress
+from studio.errors import Progress, TargetError
 from studio.targets.images import detect_polarity
 from studio.targets.source import raw_frames
 from studio.targets.video import (

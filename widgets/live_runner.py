@@ -35,8 +35,7 @@ from hardware.errors import EStopLatched
 from hardware.estop import check_not_latched
 from hardware.serial_bus import BusConfig
 from hardware.session import CloseReport, ServoSession
-from studio.errors import Cancelled, StudioError
-from studio.progress import Progress
+from studio.errors import Cancelled, Progress, StudioError
 from studio.project.capture import open_camera_source
 from widgets.images import Messages
 from widgets.live_view import LiveView, check_roll, ended_line

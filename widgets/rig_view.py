@@ -18,7 +18,7 @@ import cv2
 import ipywidgets as w
 import numpy as np
 
-from studio.progress import Progress
+from studio.errors import Progress
 from studio.review.sheets import shadow_tile
 from studio.sim.backdrop import window_corners_m
 from studio.targets.backdrop import BackdropNotFound, backdrop_from_corners, binarise, find_backdrop, rectify

@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import Any
 
 from studio.atomic import write_bytes
+from studio.errors import Progress, ProgressFn
 from studio.jobs import Job, JobState
-from studio.progress import Progress, ProgressFn
 from studio.project.containment import check_subfolders
 from studio.project.state import ProjectError
 from studio.targets.source import source_kind

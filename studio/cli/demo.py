@@ -64,10 +64,10 @@ def _play(show, queue, cancel, **_):
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from studio.path_checks import check_outputs
     from studio.project.outputs import self_model_predictor
     from studio.project.project import ProjectError
     from studio.review.recording import ProjectRecording
+    from studio.targets.path_checks import check_outputs
 
     t0 = time.perf_counter()
     out = Path(args.out)

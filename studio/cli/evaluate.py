@@ -103,7 +103,7 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
 
 def _check_table_folder(out: str, files: tuple[str, ...], inputs: list) -> None:
     """Refuse a table folder whose files would overwrite an input or land inside a folder of targets."""
-    from studio.path_checks import check_outputs
+    from studio.targets.path_checks import check_outputs
 
     check_outputs([Path(out) / f for f in files], inputs=inputs, folders=[p for p in inputs if p and Path(p).is_dir()])
 
@@ -135,8 +135,8 @@ def _run_video_evaluation(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     sources = gather_sequences(args.sources)
+    from studio.errors import report
     from studio.jobs import TqdmBars
-    from studio.progress import report
 
     cfg = sequence_from_args(args)
     transition = config_from_args(args, TransitionConfig, prefix="transition-")

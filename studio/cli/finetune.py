@@ -22,7 +22,7 @@ def _finetune(args: argparse.Namespace) -> int:
     from studio.cli.flags import config_from_args
     from studio.cli.train import run_training
     from studio.learn.finetune import FinetuneConfig, finetune
-    from studio.path_checks import check_outputs
+    from studio.targets.path_checks import check_outputs
 
     cfg = config_from_args(args, FinetuneConfig)
     inputs = [cfg.captures, cfg.start_model(), *([cfg.held_out] if cfg.held_out else [])]

@@ -10,13 +10,13 @@ import numpy as np
 
 from studio.cli.flags import SEED_RANGE, add_config_flags, config_from_args, ranged
 from studio.errors import StudioError
-from studio.path_checks import check_outputs
 from studio.sim.shadow import Rig
+from studio.targets.path_checks import check_outputs
 
 
 def read_pose_json(path: Path, hand) -> np.ndarray:
     """A pose file: ``{joint_name: rad, ...}`` or ``{"pose": {...}}`` or a list of 21 angles (rad)."""
-    from studio.jsonfile import JsonFileError, read_json
+    from studio.atomic import JsonFileError, read_json
 
     if not Path(path).is_file():
         raise StudioError(f"{path}: pose file not found (give 'rest', 'random' or a JSON file of joint angles)")

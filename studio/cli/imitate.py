@@ -35,8 +35,8 @@ def _imitate(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"source not found: {src}")
     if args.verb == "imitate" and source_kind(src) in ("video", "folder"):
         raise ValueError(f"{src} is a video: imitate it with shadow-studio imitate-video {src} --out ...")
-    from studio.path_checks import check_outputs
     from studio.project.outputs import FILES
+    from studio.targets.path_checks import check_outputs
 
     inputs = [src, args.model, getattr(args, "first_mask", None), args.clip_weights]
     check_outputs([Path(args.out) / f for f in FILES], inputs=inputs, folders=[src] if src.is_dir() else [])

@@ -21,7 +21,7 @@ from studio.cli.os_errors import os_error_line
 from studio.cli.runs import advice
 from studio.cli.signals import hold_after_stop
 from studio.errors import StudioError
-from studio.path_checks import check_text
+from studio.targets.path_checks import check_text
 
 # Modules that contribute verbs, in --help order.
 VERB_MODULES = (

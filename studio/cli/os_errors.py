@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import errno
 
-from studio.path_checks import shown
+from studio.targets.path_checks import shown
 
 HINTS = {  # errno → what to do about it
     errno.ENOSPC: "free some space or write elsewhere",

@@ -8,15 +8,15 @@ from pathlib import Path
 
 from studio.cli.flags import add_config_flags, config_from_args
 from studio.cli.progress import add_quiet_flag
+from studio.errors import report
 from studio.motion.limits import LimitsConfig
 from studio.motion.path import PathConfig
 from studio.motion.plan import PlanConfig, load_keyframes, plan_show
 from studio.motion.show import export_csv, load_show, save_show
 from studio.motion.show_info import show_info_lines
 from studio.motion.timing import TimingConfig
-from studio.path_checks import check_outputs
-from studio.progress import report
 from studio.sim.hand import load_hand
+from studio.targets.path_checks import check_outputs
 
 
 def _plan(args: argparse.Namespace) -> int:

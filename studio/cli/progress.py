@@ -2,7 +2,7 @@
 callback and a cancel event; this is the command line's side of both).
 
 - The bars: :class:`studio.jobs.bars.TqdmBars`, the one tqdm face of the engine's
-  :class:`~studio.progress.Progress` events and of job events; :func:`add_quiet_flag` adds ``--quiet``
+  :class:`~studio.errors.Progress` events and of job events; :func:`add_quiet_flag` adds ``--quiet``
   (``TqdmBars(disable=args.quiet)`` then draws nothing).
 - :func:`ctrl_c_cancels`: the first Ctrl-C sets the cancel event (the engine returns what it finished, the verb
   writes it and exits 130); a second one raises ``KeyboardInterrupt`` and stops at once.

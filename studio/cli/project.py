@@ -95,9 +95,9 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from studio.path_checks import check_outputs
     from studio.project.outputs import FILES
     from studio.project.project import Project
+    from studio.targets.path_checks import check_outputs
 
     check_outputs([args.out], folders=[args.name])  # nothing is written inside the project being exported
     check_outputs([Path(args.files) / f for f in FILES] if args.files is not None else [], folders=[args.name])

@@ -47,9 +47,9 @@ def run_training(args: argparse.Namespace, desc: str, steps: int, out: str, trai
     last. The first Ctrl-C sets ``cancel``: the trainer stops within the step and leaves a checkpoint that
     ``--resume`` continues exactly, the summary says ``"cancelled": true`` and the exit status is 130."""
     from studio.cli.progress import ctrl_c_cancels
+    from studio.errors import Progress
     from studio.jobs import TqdmBars
-    from studio.path_checks import check_outputs
-    from studio.progress import Progress
+    from studio.targets.path_checks import check_outputs
 
     check_outputs([out], inputs=[args.data])  # the checkpoint never replaces a shard it trains on
     with TqdmBars(disable=args.quiet, leave=True) as bars, ctrl_c_cancels() as cancel:

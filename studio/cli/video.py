@@ -15,10 +15,10 @@ from studio.cli.flags import add_config_flags, config_from_args
 
 
 def _keyframes(args: argparse.Namespace) -> int:
-    from studio.path_checks import check_outputs
     from studio.review.sheets import keyframe_sheet, write_png
     from studio.targets.expressive import expressive_masks
     from studio.targets.keyframes import KeyframeConfig, cluster_keyframes
+    from studio.targets.path_checks import check_outputs
     from studio.targets.video import VideoConfig, load_video
 
     src = Path(args.src)

@@ -15,11 +15,11 @@ import numpy as np
 
 from studio.errors import TargetError
 from studio.motion.video_timing import video_end
-from studio.path_checks import check_text, existing_paths
 from studio.targets.expressive import expressive_masks
 from studio.targets.footage import VIDEO_SUFFIXES
 from studio.targets.images import IMAGE_SUFFIXES
 from studio.targets.keyframes import KeyframeConfig, cluster_keyframes, keyframe_targets
+from studio.targets.path_checks import check_text, existing_paths
 from studio.targets.video import VideoConfig, load_video
 
 

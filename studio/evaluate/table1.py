@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from studio.errors import ClosedError
+from studio.errors import ClosedError, ProgressFn, report, staged, stopped
 from studio.evaluate.baselines import BaselineOutput, InverseBaseline, NearestNeighbour, RandomImage, TrainingSet
 from studio.evaluate.config import EvalConfig
 from studio.evaluate.report import csv_text, markdown_table, write_report
@@ -28,7 +28,6 @@ from studio.evaluate.table1_notes import table_notes
 from studio.imitate.losses import ImageLoss
 from studio.imitate.still import Imitator
 from studio.learn.inverse import InverseCNN
-from studio.progress import ProgressFn, report, staged, stopped
 from studio.sim.roll import file_deg
 from studio.sim.shadow import ShadowRenderer
 from studio.targets.expressive import still_expressive

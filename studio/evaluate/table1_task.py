@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from studio.errors import ProgressFn
 from studio.evaluate.config import EvalConfig
 from studio.evaluate.table1 import EvalResult, summarise
 from studio.evaluate.table1_notes import table_notes
@@ -24,7 +25,6 @@ from studio.evaluate.worker_models import ModelRecipe
 from studio.imitate.config import ImitateConfig, RefineConfig, SearchConfig, SweepConfig
 from studio.imitate.retrieval import RetrievalConfig
 from studio.learn.fanout import FanoutConfig, fan_out
-from studio.progress import ProgressFn
 
 __all__ = ["Table1Task", "evaluate_spread"]
 

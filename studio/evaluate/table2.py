@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from studio.errors import ProgressFn, report, staged, stopped
 from studio.evaluate.report import csv_text, markdown_table, nan_to_none, write_report
 from studio.evaluate.sequences import PreparedSequence
 from studio.evaluate.table1 import LOSS_COLUMNS
@@ -39,7 +40,6 @@ from studio.imitate.transitions import TransitionConfig
 from studio.motion.limits import JointLimits, LimitsConfig
 from studio.motion.reach import clock_boxes, reach_pairs
 from studio.motion.video_timing import transition_times, video_keyframes
-from studio.progress import ProgressFn, report, staged, stopped
 from studio.sim.roll import roll_deg
 
 log = logging.getLogger(__name__)

@@ -13,13 +13,13 @@ import threading
 from dataclasses import dataclass, field
 from typing import Any
 
+from studio.errors import ProgressFn
 from studio.evaluate.sequences import PreparedSequence
 from studio.evaluate.table2 import ROWS, Row, Table2Result, VideoEvaluator, summarise
 from studio.evaluate.worker_models import ModelRecipe
 from studio.imitate.config import SequenceConfig
 from studio.imitate.transitions import TransitionConfig
 from studio.learn.fanout import FanoutConfig, fan_out
-from studio.progress import ProgressFn
 
 __all__ = ["Table2Task", "evaluate_video_spread"]
 

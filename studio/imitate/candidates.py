@@ -20,11 +20,11 @@ from collections.abc import Callable
 
 import numpy as np
 
+from studio.errors import ProgressFn, stopped
 from studio.imitate.config import RefineConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner, RefineResult
 from studio.imitate.retrieval import Retrieved
-from studio.progress import ProgressFn, stopped
 
 
 def rendered_pool(

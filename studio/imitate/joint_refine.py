@@ -34,9 +34,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from studio.errors import ProgressFn, report, stopped
 from studio.imitate.cmaes import CMAES
 from studio.imitate.config import JointConfig
-from studio.progress import ProgressFn, report, stopped
 from studio.sim.joint_box import box_near
 
 Scorer = Callable[[np.ndarray], np.ndarray]  # poses (B, 21) rad → (B,) image losses (no temporal term)

@@ -20,12 +20,12 @@ from dataclasses import replace
 
 import numpy as np
 
+from studio.errors import ProgressFn, report
 from studio.imitate.config import LossConfig
 from studio.imitate.index_chunks import pack_crops
 from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import PARALLEL_FROM, RenderedLoss
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex
-from studio.progress import ProgressFn, report
 from studio.sim.raster import SERIAL_BELOW
 from studio.sim.shadow import ShadowRenderer
 

@@ -1,7 +1,7 @@
 """The live answer of one target: the best collision-free pose shown so far, by its rendered-shadow loss.
 
 Each stage of a still or a keyframe reports its own best through ``best_pose(θ)`` followed by a
-:class:`~studio.progress.Progress` event, and those are not one measure: the gradient search's best is the
+:class:`~studio.errors.Progress` event, and those are not one measure: the gradient search's best is the
 *self-model's* loss of a pose that may collide, a refinement run of the second candidate starts again above the first's
 result, and with CLIP on the sweep reports no loss (NaN) until its poses are re-scored. :class:`LiveBest` sits between
 the stages and the caller (the CLI's bars, the studio's preview): a pose is passed on only when it is collision-free and
@@ -21,15 +21,15 @@ from collections.abc import Callable
 
 import numpy as np
 
+from studio.errors import Progress, ProgressFn
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
-from studio.progress import Progress, ProgressFn
 
 
 class LiveBest:
     """Filters one target's stream of reported poses (module doc) into an only-improving one.
 
-    ``progress`` (the caller's :data:`~studio.progress.ProgressFn`) and ``best_pose(θ (21,) rad)`` are the caller's
+    ``progress`` (the caller's :data:`~studio.errors.ProgressFn`) and ``best_pose(θ (21,) rad)`` are the caller's
     callbacks; :meth:`report` is the stages' ``progress`` and :meth:`pose` their ``best_pose``. ``rescore`` names the
     stages whose reported loss is not the rendered one (their poses are scored here)."""
 
@@ -54,7 +54,7 @@ class LiveBest:
         self._pending = np.array(theta, dtype=np.float64)
 
     def report(self, p: Progress) -> None:
-        """A stage's ``progress`` (a :data:`~studio.progress.ProgressFn`): judge the held pose (at ``p.best`` when
+        """A stage's ``progress`` (a :data:`~studio.errors.ProgressFn`): judge the held pose (at ``p.best`` when
         the stage's loss is the rendered one), then pass ``p`` on with the loss of the pose on show as its best (NaN
         before the first)."""
         if self._pending is not None:

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
+from studio.errors import ProgressFn
 from studio.imitate.config import RefineConfig, SearchConfig
 from studio.imitate.still import Imitator
 from studio.imitate.still_result import ImitationResult
 from studio.learn.threads import DEFAULT_THREADS, torch_threads
-from studio.progress import ProgressFn
 from studio.sim.roll import parse_roll
 from studio.targets.expressive import still_expressive
 from studio.targets.images import TargetConfig

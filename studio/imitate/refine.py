@@ -23,12 +23,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from studio.errors import ClosedError
+from studio.errors import ClosedError, ProgressFn, report, stopped
 from studio.imitate.cmaes import CMAES
 from studio.imitate.config import RefineConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import RenderedLoss, fast_loss
-from studio.progress import ProgressFn, report, stopped
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import ShadowRenderer
 

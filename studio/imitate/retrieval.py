@@ -29,11 +29,11 @@ import numpy as np
 from numba import njit, prange
 
 from studio.atomic import write_with
+from studio.errors import ProgressFn, report, stopped
 from studio.home import cache_dir
 from studio.imitate.config import LossConfig
 from studio.imitate.index_chunks import IndexChunkTask, pack_crops
 from studio.learn.fanout import FanoutConfig, fan_out
-from studio.progress import ProgressFn, report, stopped
 from studio.sim.hand import Hand
 from studio.sim.physics import CollisionWorld
 from studio.sim.sampling import sample_poses

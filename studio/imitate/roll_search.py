@@ -45,13 +45,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from studio.errors import ProgressFn, report, stopped
 from studio.imitate.config import SweepConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
 from studio.imitate.rendered_loss import fast_loss
 from studio.imitate.retrieval import RetrievalIndex
 from studio.imitate.seeding import sweep
-from studio.progress import ProgressFn, report, stopped
 from studio.sim.roll import into_hand_frame, wrap_deg
 from studio.sim.shadow import ShadowRenderer
 

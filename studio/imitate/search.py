@@ -15,10 +15,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from studio.errors import ProgressFn, report, stopped
 from studio.imitate.config import SearchConfig
 from studio.imitate.losses import ImageLoss
 from studio.learn.selfmodel import SelfModel
-from studio.progress import ProgressFn, report, stopped
 from studio.sim.hand import Hand
 from studio.sim.sampling import sample_poses
 

@@ -19,12 +19,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from studio.errors import ProgressFn, report, stopped
 from studio.imitate.config import SweepConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
 from studio.imitate.retrieval import RetrievalIndex, Retrieved
 from studio.imitate.sweep import block_sweep, joint_blocks
-from studio.progress import ProgressFn, report, stopped
 
 
 @dataclass

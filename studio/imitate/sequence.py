@@ -33,7 +33,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from studio.errors import ClosedError
+from studio.errors import ClosedError, ProgressFn, staged, stopped
 from studio.imitate.candidates import refine_best, rendered_pool
 from studio.imitate.config import CPU_SEQUENCE, LossConfig, SequenceConfig
 from studio.imitate.live_best import LiveBest
@@ -42,7 +42,6 @@ from studio.imitate.sequence_result import KeyframeResult, SequenceResult
 from studio.imitate.still import Imitator
 from studio.imitate.together import Stretch, eval_loss, refine_show, score_keyframe
 from studio.learn.selfmodel import SelfModel
-from studio.progress import ProgressFn, staged, stopped
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +98,7 @@ class SequenceImitator:
         """Keyframe targets ``masks (K, S, S)`` uint8 (1 = shadow) in first-appearance order (all N frames work too:
         each is then its own keyframe), their expressive masks ``(K, S, S)`` or None → :class:`SequenceResult`.
 
-        Reports :class:`~studio.progress.Progress` with stages "keyframe k/K: search" and "keyframe k/K: refine" (one
+        Reports :class:`~studio.errors.Progress` with stages "keyframe k/K: search" and "keyframe k/K: refine" (one
         keyframe: plain "search", "refine", ...), and
         for a keyframe seeded from scratch (``cfg.retrieve``) first "keyframe k/K: retrieve" and ".. : sweep" (and
         ".. : index" while the retrieval index is built, once per machine; see ``Imitator.imitate``).

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from studio.assets import asset
-from studio.errors import ClosedError
+from studio.errors import ClosedError, ProgressFn, report, stopped
 from studio.imitate.candidates import refine_best, rendered_pool
 from studio.imitate.config import (
     CPU_REFINE,
@@ -39,7 +39,6 @@ from studio.imitate.still_result import ImitationResult
 from studio.learn.checkpoint import model_rig
 from studio.learn.fanout import FanoutConfig
 from studio.learn.selfmodel import SelfModel, load_selfmodel
-from studio.progress import ProgressFn, report, stopped
 from studio.sim.shadow import ShadowRenderer
 from studio.targets.images import TargetConfig, load_target
 
@@ -141,7 +140,7 @@ class Imitator:
     ) -> ImitationResult:
         """Retrieve, search, then (optionally) refine ``target (R, R)`` as the audience sees it, on a mount rolled
         by ``roll`` rad (:class:`Framed`: the shadows and losses are the rolled mount's, against the target as it
-        is). Reports :class:`~studio.progress.Progress` with stages
+        is). Reports :class:`~studio.errors.Progress` with stages
         "index" (building the retrieval index, once per machine), "retrieve" (the first answer), "sweep" (the block
         sweep of the best retrieved poses), "search" and "refine"; ``best_pose(θ (21,) rad)`` gets each pose that is
         collision-free and better than every one before it (the first answer, then the sweep's, the search's and the

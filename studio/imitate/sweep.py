@@ -18,8 +18,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from studio.errors import ProgressFn, report, stopped
 from studio.imitate.config import SweepConfig
-from studio.progress import ProgressFn, report, stopped
 from studio.sim.hand import Hand
 from studio.sim.sampling import finger_joint_indices
 

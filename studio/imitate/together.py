@@ -26,12 +26,12 @@ from typing import Any
 
 import numpy as np
 
+from studio.errors import ProgressFn
 from studio.imitate.config import COMPONENTS, SequenceConfig
 from studio.imitate.joint_refine import JointResult, posed_box, refine_jointly
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
 from studio.imitate.still import Imitator
-from studio.progress import ProgressFn
 
 Box = tuple[np.ndarray, np.ndarray]  # (lower (21,), upper (21,)) rad
 

@@ -4,7 +4,7 @@
     with TqdmBars() as bars:             # an engine call on the command line: its Progress events, job 0
         collect(out, cfg, progress=bars)
 
-:class:`TqdmBars` takes a :class:`~studio.jobs.events.JobEvent` or a bare :class:`~studio.progress.Progress` (an
+:class:`TqdmBars` takes a :class:`~studio.jobs.events.JobEvent` or a bare :class:`~studio.errors.Progress` (an
 engine call run directly, drawn as job 0). Each job has one bar per stage: ``#id kind: stage`` (a bare stream: the
 stage alone), ``step/total``, then the best loss when finite and the item (a target's name) when set. A stage that
 starts while another is unfinished opens beneath it (a table's targets over the target's search), a finished one is
@@ -18,17 +18,17 @@ import math
 import threading
 from typing import IO, Any
 
+from studio.errors import Progress
 from studio.jobs.events import JobEvent, JobState
-from studio.progress import Progress
 
 QUIET_STAGES = ("start", "apply")  # job stages that open no bar of their own
 BARE = 0  # the job number of a bare Progress stream
 
 
 class TqdmBars:
-    """Draws job events and bare :class:`~studio.progress.Progress` events with tqdm on ``file`` (module doc).
+    """Draws job events and bare :class:`~studio.errors.Progress` events with tqdm on ``file`` (module doc).
 
-    A :data:`~studio.progress.ProgressFn` and a job queue subscriber alike; ``with`` closes every bar on the way out
+    A :data:`~studio.errors.ProgressFn` and a job queue subscriber alike; ``with`` closes every bar on the way out
     (close it before printing a line of your own)."""
 
     def __init__(

@@ -5,7 +5,7 @@ Each factory returns a :class:`~studio.jobs.job.Job` whose ``run`` is a ``functo
 module-level function (so it runs in a thread or a spawned process alike) and whose ``apply`` is the caller's
 callback (the Project's ``set_result``/``set_show``, or anything else), called only when the job completes. Every
 engine call gets the job's cancel event and :meth:`~studio.jobs.events.Reporter.engine_progress`
-as its ``progress``: each :class:`~studio.progress.Progress` becomes a job event as it is, with a ≤ 64² preview of the
+as its ``progress``: each :class:`~studio.errors.Progress` becomes a job event as it is, with a ≤ 64² preview of the
 current best pose's shadow (from the engine's ``best_pose`` hook) at most ~10 times a second. Engine modules are
 imported inside the workers, so importing this module stays light.
 """

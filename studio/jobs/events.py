@@ -7,8 +7,8 @@ Both faces consume the same events: the CLI through :class:`~studio.jobs.bars.Tq
 subscribing or polling (:class:`~studio.jobs.queue.JobQueue`).
 
 Inside the worker the engine call gets a :class:`Reporter` and a cancel event: the reporter is the engine call's
-:data:`~studio.progress.ProgressFn` (``report(Progress(...))``, or :meth:`Reporter.engine_progress` to add live
-previews), each :class:`~studio.progress.Progress` becoming one progress event; :class:`PosePreview` turns the
+:data:`~studio.errors.ProgressFn` (``report(Progress(...))``, or :meth:`Reporter.engine_progress` to add live
+previews), each :class:`~studio.errors.Progress` becoming one progress event; :class:`PosePreview` turns the
 engine's ``best_pose(θ)`` hook into a ≤ 64² shadow at most ~10 times a second.
 """
 
@@ -24,8 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from studio.errors import Cancelled, StudioError
-from studio.progress import Progress, ProgressFn
+from studio.errors import Cancelled, Progress, ProgressFn, StudioError
 
 
 class JobState(str, enum.Enum):
@@ -96,8 +95,8 @@ Send = Callable[[tuple], None]  # worker → dispatcher message sink
 
 
 class Reporter:
-    """The progress sink an engine call gets in its worker, a :data:`~studio.progress.ProgressFn`: ``report(p)``
-    with a :class:`~studio.progress.Progress` sends one progress event (``engine_progress(preview)`` adds the live
+    """The progress sink an engine call gets in its worker, a :data:`~studio.errors.ProgressFn`: ``report(p)``
+    with a :class:`~studio.errors.Progress` sends one progress event (``engine_progress(preview)`` adds the live
     shadow previews). Code that is not an engine call may still call ``report(stage, step, total, best, shadow)``.
 
     Calls are cheap (one tuple put on a queue). ``check()`` raises :class:`JobCancelled` once the job was cancelled:
@@ -123,7 +122,7 @@ class Reporter:
 
     def engine_progress(self, preview: PosePreview | None = None) -> ProgressFn:
         """The engine call's ``progress`` (any long call: search, refine, sequence, plan, collect...): each
-        :class:`~studio.progress.Progress` becomes a progress event, with ``preview``'s newest shadow when one is
+        :class:`~studio.errors.Progress` becomes a progress event, with ``preview``'s newest shadow when one is
         due."""
 
         def progress(p: Progress) -> None:

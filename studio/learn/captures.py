@@ -25,9 +25,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from studio.atomic import write_json, write_with
+from studio.atomic import JsonFileError, read_json, write_json, write_with
 from studio.errors import StudioError
-from studio.jsonfile import JsonFileError, read_json
 
 if TYPE_CHECKING:
     from studio.sim.hand import Hand

@@ -22,11 +22,10 @@ import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from studio.atomic import write_json
-from studio.errors import ShardError
+from studio.errors import ProgressFn, ShardError, report
 from studio.learn.config import CollectConfig
 from studio.learn.fanout import FanoutConfig, fan_out
 from studio.learn.shards import SHARD_FORMAT, Shard, list_shards, pack_masks, read_shard, shard_path, write_shard
-from studio.progress import ProgressFn, report
 from studio.sim.hand import Hand, load_hand
 from studio.sim.sampling import SamplerConfig, sample_poses
 from studio.sim.shadow import Rig, ShadowRenderer

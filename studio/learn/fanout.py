@@ -29,8 +29,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
-from studio.errors import StudioError
-from studio.progress import ProgressFn, report, stopped
+from studio.errors import ProgressFn, StudioError, report, stopped
 
 __all__ = ["FanoutConfig", "FanoutError", "Task", "fan_out"]
 

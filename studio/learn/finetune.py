@@ -24,9 +24,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from studio.errors import ProgressFn
 from studio.learn.captures import CaptureSet, CapturesMismatch, load_captures, split
 from studio.learn.config import TrainerConfig
-from studio.progress import ProgressFn
 
 if TYPE_CHECKING:
     import torch

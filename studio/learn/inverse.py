@@ -17,11 +17,11 @@ import numpy as np
 import torch
 from torch import nn
 
+from studio.errors import ProgressFn
 from studio.learn.checkpoint import Checkpoint, load_model
 from studio.learn.config import InverseConfig, InverseTrainConfig
 from studio.learn.pairs import Batch, Pairs
 from studio.learn.trainer import Task, fit
-from studio.progress import ProgressFn
 from studio.sim.crop import align
 from studio.sim.hand import Hand, load_hand
 

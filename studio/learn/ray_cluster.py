@@ -24,8 +24,7 @@ from typing import Any
 
 import ray
 
-from studio.errors import StudioError
-from studio.progress import stopped
+from studio.errors import StudioError, stopped
 
 __all__ = ["RayUnavailable", "ray_for", "run_on_ray"]
 

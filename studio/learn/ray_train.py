@@ -27,12 +27,11 @@ import ray
 from ray.train import RunConfig, ScalingConfig
 from ray.train.torch import TorchTrainer
 
-from studio.errors import StudioError
+from studio.errors import Progress, ProgressFn, StudioError, stopped
 from studio.learn.checkpoint import read_checkpoint
 from studio.learn.fanout import FanoutConfig
 from studio.learn.ray_cluster import ray_for
 from studio.learn.trainer import Replica
-from studio.progress import Progress, ProgressFn, stopped
 
 __all__ = ["fit_on_ray"]
 

@@ -35,8 +35,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from studio.errors import Cancelled, StudioError
-from studio.progress import ProgressFn, report
+from studio.errors import Cancelled, ProgressFn, StudioError, report
 from studio.sim.hand import Hand, load_hand
 from studio.sim.shadow import Rig, ShadowRenderer
 

@@ -9,11 +9,11 @@ import threading
 
 import torch
 
+from studio.errors import ProgressFn
 from studio.learn.config import TrainConfig
 from studio.learn.pairs import Batch, Pairs
 from studio.learn.selfmodel import SelfModel
 from studio.learn.trainer import Replica, Task, fit
-from studio.progress import ProgressFn
 from studio.sim.hand import Hand, load_hand
 
 

@@ -4,7 +4,7 @@ AdamW with a linear warm-up and a cosine decay to lr/50 (:func:`lr_at`), batches
 shadows (B, 1, R, R))`` pairs from shards (0.7/0.2/0.1 split) or rendered on the fly (batch ``k`` drawn from the seed
 ``(seed, k)``, fixed held-out validation and test sets), validation and an atomic, resumable checkpoint
 (``studio.learn.checkpoint``) every ``eval_every`` steps, CUDA when present. Long runs report
-:class:`~studio.progress.Progress` (stages "train", "val", "test": step of the total steps, the loss as best) and stop
+:class:`~studio.errors.Progress` (stages "train", "val", "test": step of the total steps, the loss as best) and stop
 within a step when ``cancel`` is set (DESIGN §5.11), leaving a checkpoint that ``resume`` continues exactly.
 """
 
@@ -21,12 +21,11 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from studio.errors import StudioError
+from studio.errors import ProgressFn, StudioError, report, stopped
 from studio.learn.checkpoint import CheckpointError, read_checkpoint, same_config, save_model
 from studio.learn.config import TrainerConfig
 from studio.learn.pairs import Batch, BatchesAhead, Pairs
 from studio.learn.threads import set_torch_threads
-from studio.progress import ProgressFn, report, stopped
 
 log = logging.getLogger(__name__)
 

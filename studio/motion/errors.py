@@ -5,8 +5,7 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 
-from studio.errors import Cancelled, StudioError
-from studio.progress import stopped
+from studio.errors import Cancelled, StudioError, stopped
 
 
 class PlanError(StudioError):

@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from studio.errors import ProgressFn, report
 from studio.motion.detour import DetourConfig, rrt_connect
 from studio.motion.errors import PathError, check_cancel
 from studio.motion.spline import spline_path
-from studio.progress import ProgressFn, report
 from studio.sim.hand import Hand
 from studio.sim.physics import CollisionWorld
 

@@ -33,7 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from studio.jsonfile import JsonFileError, read_json
+from studio.atomic import JsonFileError, read_json
+from studio.errors import ProgressFn, report
 from studio.motion.bounds import MAX_KEYFRAMES, MAX_SHOW_S, MAX_SOURCE_FRAME, fmt, is_number, number_problem
 from studio.motion.errors import KeyframeCollisionError, PlanError, check_cancel
 from studio.motion.limits import JointLimits, LimitsConfig
@@ -41,7 +42,6 @@ from studio.motion.path import Path, PathConfig, build_path
 from studio.motion.show import KeyframeMarker, Show
 from studio.motion.spline import keyframe_spline
 from studio.motion.timing import TimedTrajectory, TimingConfig, time_path
-from studio.progress import ProgressFn, report
 from studio.sim.hand import Hand
 from studio.sim.physics import CollisionWorld
 from studio.sim.roll import file_deg

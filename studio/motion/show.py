@@ -30,9 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from studio.atomic import write_text
+from studio.atomic import JsonFileError, read_json, write_text
 from studio.errors import StudioError
-from studio.jsonfile import JsonFileError, read_json
 from studio.motion.bounds import MAX_SHOW_BYTES
 from studio.motion.limits import JointLimits
 from studio.motion.show_checks import FORMAT_NAME, show_problems

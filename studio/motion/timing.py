@@ -34,13 +34,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from studio.errors import ProgressFn, report
 from studio.motion.errors import PathError, SegmentTiming, SegmentTooFastError, check_cancel
 from studio.motion.limits import JointLimits
 from studio.motion.path import Path
 from studio.motion.segment_timer import Piece, RuckigSolver, SegmentTimer, colliding, evaluate, overshoots
 from studio.motion.sidestep import SidestepConfig, insert_point, sidestep
 from studio.motion.via_search import ViaSearch, via_detour
-from studio.progress import ProgressFn, report
 from studio.sim.physics import CollisionWorld
 
 

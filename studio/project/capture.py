@@ -24,9 +24,8 @@ import numpy as np
 from hardware.calibration import Calibration
 from hardware.camera import Camera
 from hardware.jog import Jog, JogConfig
-from studio.errors import Cancelled
+from studio.errors import Cancelled, ProgressFn, report
 from studio.learn.captures import CaptureRecorder, CaptureSet
-from studio.progress import ProgressFn, report
 from studio.sim.backdrop import BackdropLayout
 from studio.sim.hand import load_hand
 from studio.sim.physics import CollisionWorld

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from studio.errors import ProgressFn
 from studio.imitate.config import LossConfig
-from studio.progress import ProgressFn
 from studio.project import edits
 from studio.project.sources import load_sources, locate, make_source
 from studio.project.state import Mount, ProjectError, ProjectState, frozen

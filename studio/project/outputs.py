@@ -27,8 +27,8 @@ from typing import Any
 import numpy as np
 
 from studio.atomic import write_json
+from studio.errors import ProgressFn
 from studio.motion.show import save_show
-from studio.progress import ProgressFn
 from studio.project.sources import framed_frames
 from studio.project.status import ProjectHandle
 from studio.sim.roll import file_deg, mount_text

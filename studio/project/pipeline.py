@@ -28,11 +28,11 @@ from typing import Any
 
 import numpy as np
 
+from studio.errors import ProgressFn
 from studio.imitate.config import LossConfig
 from studio.jobs.job import Job
 from studio.jobs.queue import JobQueue
 from studio.motion.show import Show
-from studio.progress import ProgressFn
 from studio.project.outputs import self_model_predictor, write_outputs
 from studio.project.project import Project
 from studio.project.project_format import DOC, SUFFIX

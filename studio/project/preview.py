@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
+from studio.errors import ProgressFn, report
 from studio.jobs.job import Job
-from studio.progress import ProgressFn, report
 from studio.project.inputs import show_inputs
 from studio.project.preview_clock import PreviewInputs, preview_clock, preview_inputs
 from studio.project.state import mask_hash, text_hash

@@ -34,10 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
+from studio.errors import ProgressFn
 from studio.imitate.config import LossConfig
 from studio.motion.show import Show, save_show
 from studio.motion.video_timing import VideoTiming
-from studio.progress import ProgressFn
 from studio.project import edits
 from studio.project.containment import check_new_folder
 from studio.project.editing import KEEP, Editing, mask_arg

@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from studio.atomic import JsonFileError, read_json
 from studio.imitate.config import LossConfig
-from studio.jsonfile import JsonFileError, read_json
 from studio.motion.bounds import MAX_SHOW_S, number_problem
 from studio.motion.show import load_show
 from studio.project.containment import check_name, check_subfolders, regular_file

@@ -26,9 +26,9 @@ import numpy as np
 from hardware.calibration import Calibration, save_calibration
 from hardware.camera import Camera
 from studio.atomic import write_bytes, write_json
+from studio.errors import ProgressFn
 from studio.learn.captures import CaptureSet, save_captures
 from studio.learn.rig_fit import RigFit, RigFitConfig, calibration_poses, fit_rig
-from studio.progress import ProgressFn
 from studio.project.capture import CaptureConfig, Captures, capture_poses
 from studio.review.real_vs_sim import compare_sheet
 from studio.sim.backdrop import BackdropLayout

@@ -28,6 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
+from studio.errors import ProgressFn
 from studio.evaluate.worker_models import ModelRecipe
 from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
 from studio.imitate.transitions import TransitionConfig
@@ -37,7 +38,6 @@ from studio.jobs.job import Job
 from studio.jobs.queue import JobQueue
 from studio.learn.fanout import FanoutConfig
 from studio.motion.plan import PlanConfig
-from studio.progress import ProgressFn
 from studio.project.jobs import queue_for, roll_job, video_job
 from studio.project.run_report import RunReport, TooFast, counted, late_transitions, plural
 from studio.project.run_spread import keyframe_config, place_in_source, run_spread, source_keyframes

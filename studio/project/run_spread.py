@@ -27,11 +27,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from studio.errors import ProgressFn, stopped
 from studio.evaluate.worker_models import ModelRecipe
 from studio.imitate.config import LossConfig, SequenceConfig
 from studio.learn.fanout import FanoutConfig, fan_out
 from studio.motion.limits import LimitsConfig
-from studio.progress import ProgressFn, stopped
 
 if TYPE_CHECKING:
     from studio.project.run_report import RunReport

@@ -35,9 +35,8 @@ from hardware.camera import Camera, Frame
 from hardware.errors import CameraAbsent, CameraError, HardwareError
 from hardware.playback_log import PlaybackResult, StopReason
 from hardware.player import Player, SampleHook
-from studio.errors import ClosedError
+from studio.errors import ClosedError, ProgressFn
 from studio.motion.show import Show
-from studio.progress import ProgressFn
 from studio.project.show_capture_data import LOSSES, KeyframeCapture, ShowCaptureResult, aligned_iou_loss, place
 from studio.review.real_vs_sim import window_iou_loss
 from studio.sim.backdrop import BackdropLayout

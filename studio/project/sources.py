@@ -18,8 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from studio.errors import StudioError
-from studio.progress import ProgressFn
+from studio.errors import ProgressFn, StudioError
 from studio.project.containment import check_source_path, is_source_path
 from studio.project.state import Frame, Source
 from studio.targets.expressive import expressive_masks

@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from studio.errors import ProgressFn, report, stopped
 from studio.motion.show import Show
-from studio.progress import ProgressFn, report, stopped
 from studio.review.video_review import side_by_side_frame
 
 CHUNK = 32  # frames rendered between two progress reports / cancel checks

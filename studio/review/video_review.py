@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from studio.progress import ProgressFn, report
+from studio.errors import ProgressFn, report
 from studio.review.sheets import fit_tile, label, pair_sheet, shadow_tile, side_by_side, tint, write_png, write_video
 
 

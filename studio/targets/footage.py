@@ -31,8 +31,7 @@ import cv2
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
-from studio.errors import TargetError
-from studio.progress import ProgressFn, report, stopped
+from studio.errors import ProgressFn, TargetError, report, stopped
 from studio.targets.images import IMAGE_SUFFIXES
 from studio.targets.sampling import gif_sample, sample_times
 

@@ -10,8 +10,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from studio.errors import TargetError
-from studio.path_checks import check_text, existing_paths
 from studio.targets.images import IMAGE_SUFFIXES
+from studio.targets.path_checks import check_text, existing_paths
 
 
 def find_target_files(folder: str | Path) -> list[Path]:

@@ -39,8 +39,7 @@ import threading
 import cv2
 import numpy as np
 
-from studio.errors import TargetError
-from studio.progress import ProgressFn, report, stopped
+from studio.errors import ProgressFn, TargetError, report, stopped
 from studio.targets.segment_config import SegmentConfig
 from studio.targets.segment_track import Tracker, WorkFrames, first_from_box
 

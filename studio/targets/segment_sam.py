@@ -25,9 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from studio.errors import TargetError
+from studio.errors import ProgressFn, TargetError, report, stopped
 from studio.home import cache_dir
-from studio.progress import ProgressFn, report, stopped
 
 log = logging.getLogger(__name__)
 

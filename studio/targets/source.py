@@ -25,8 +25,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from studio.errors import TargetError
-from studio.progress import ProgressFn
+from studio.errors import ProgressFn, TargetError
 from studio.targets.footage import Footage, read_footage
 from studio.targets.images import IMAGE_SUFFIXES, TargetConfig, load_target, read_grey
 from studio.targets.video import SegmentationNeeded, Video, VideoConfig, load_video, video_from_masks

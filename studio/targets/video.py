@@ -32,8 +32,7 @@ import cv2
 import numpy as np
 
 from studio.assets import asset
-from studio.errors import TargetError
-from studio.progress import ProgressFn, report
+from studio.errors import ProgressFn, TargetError, report
 from studio.targets.cleanup import clean_shadow
 from studio.targets.footage import Footage, read_footage
 from studio.targets.images import (  # the framing helpers live with the stills' square_frame
