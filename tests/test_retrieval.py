@@ -15,7 +15,7 @@ from studio.imitate.rendered_loss import RenderedLoss, crop_batch
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, cached_index, index_key, pack_crops
 from studio.imitate.still import Imitator
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
-from studio.sim.crop import pad_pixels
+from studio.sim.crop_pad import pad_pixels
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import Rig, ShadowRenderer
 

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from studio.sim.crop_pad import PAD
+
 COMPONENTS = ("total", "base", "mae", "iou_loss", "clip", "expr", "exp_iou", "exp_clip", "temporal")
 
 
@@ -25,7 +27,7 @@ class LossConfig:
     w_temporal: float = 0.2  # temporal: weight of ‖θ_i − θ*_{i−1}‖² (rad²)
     use_clip: bool = True  # False: leave both CLIP terms out (reported as NaN); no CLIP model needed
     crop_size: int = 256  # side of the aligned crops, pixels (paper 256; e.g. 64-128 on CPU)
-    pad: float = 5.0  # padding around each shadow box, pixels of a 256-pixel image (scaled with the image side)
+    pad: float = PAD  # padding around each shadow box, pixels of a 256-pixel image (scaled with the image side)
     box_threshold: float = 0.5  # prediction pixels above this probability define its box
     eps: float = 1e-6  # keeps the soft IoU finite on empty images
 

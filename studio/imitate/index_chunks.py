@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from studio.imitate.rendered_loss import crop_batch
-from studio.sim.crop import pad_pixels
+from studio.sim.crop_pad import pad_pixels
 from studio.sim.hand import Hand
 from studio.sim.shadow import Rig, ShadowRenderer
 

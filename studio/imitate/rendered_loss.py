@@ -17,7 +17,7 @@ import torch
 from numba import njit, prange
 
 from studio.imitate.losses import ImageLoss
-from studio.sim.crop import REFERENCE_SIDE
+from studio.sim.crop_pad import pad_pixels
 from studio.sim.raster import serial_twin
 
 
@@ -174,7 +174,7 @@ class RenderedLoss:
         self.mask = np.ascontiguousarray(m.detach().cpu().numpy(), dtype=np.float32)
 
     def pad(self, height: int, width: int) -> float:
-        return self.cfg.pad * max(height, width) / REFERENCE_SIDE
+        return pad_pixels(self.cfg.pad, height, width)
 
     def __call__(
         self, shadows: np.ndarray, theta: np.ndarray | None = None, theta_prev: np.ndarray | None = None

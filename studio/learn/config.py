@@ -11,6 +11,8 @@ import math
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
+from studio.sim.crop_pad import PAD
+
 if TYPE_CHECKING:
     from studio.sim.shadow import Rig
 
@@ -116,7 +118,7 @@ class InverseConfig:
     input_size: int = 64  # side of the aligned shadow crop the CNN sees, pixels (a multiple of 16) [16, 512]
     channels: tuple[int, ...] = (16, 32, 64, 128)  # conv widths; each stage halves the side (stride 2)
     hidden: int = 256  # width of the fully connected layer before the 21 outputs
-    pad: float = 5.0  # crop padding, pixels of a 256-pixel image (as the losses' LossConfig.pad)
+    pad: float = PAD  # crop padding, pixels of a 256-pixel image (as the losses' LossConfig.pad)
 
     def __post_init__(self) -> None:
         if self.input_size < 1 or self.input_size % (2 ** len(self.channels)):

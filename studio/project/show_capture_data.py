@@ -35,14 +35,14 @@ def aligned_iou_loss(a: np.ndarray, b: np.ndarray, pad: float = LossConfig().pad
     (``pad`` px at 256, scaled with its side; resized to ``size``², default 256) as the project's losses see them:
     0 for two empty shadows, 1 when only one is empty."""
     from studio.imitate.rendered_loss import crop_batch  # numba kernels (and torch): loaded on first use
-    from studio.sim.crop import REFERENCE_SIDE
+    from studio.sim.crop_pad import REFERENCE_SIDE, pad_pixels
 
     size = size or REFERENCE_SIDE
 
     a, b = (np.ascontiguousarray(np.asarray(x) != 0, dtype=np.uint8) for x in (a, b))
     if not a.any() or not b.any():
         return 0.0 if a.any() == b.any() else 1.0
-    ca, cb = (crop_batch(x[None], pad * max(x.shape) / REFERENCE_SIDE, size)[0] for x in (a, b))
+    ca, cb = (crop_batch(x[None], pad_pixels(pad, *x.shape), size)[0] for x in (a, b))
     return float(1.0 - np.minimum(ca, cb).sum() / max(float(np.maximum(ca, cb).sum()), 1e-9))
 
 

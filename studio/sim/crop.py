@@ -15,7 +15,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-REFERENCE_SIDE = 256  # the pad is given in pixels of a 256-pixel image and scaled with the image side
+from studio.sim.crop_pad import PAD, pad_pixels
 
 
 def as_image_batch(images: torch.Tensor | np.ndarray) -> torch.Tensor:
@@ -34,13 +34,8 @@ def as_image_batch(images: torch.Tensor | np.ndarray) -> torch.Tensor:
     return x
 
 
-def pad_pixels(pad: float, height: int, width: int) -> float:
-    """The pad in pixels of an ``height × width`` image: ``pad`` pixels at 256, scaled with the longer side."""
-    return pad * max(height, width) / REFERENCE_SIDE
-
-
 @torch.no_grad()
-def square_boxes(images: torch.Tensor, threshold: float = 0.5, pad: float = 5.0) -> torch.Tensor:
+def square_boxes(images: torch.Tensor, threshold: float = 0.5, pad: float = PAD) -> torch.Tensor:
     """Square crop boxes of shadow images ``(B, H, W)`` → ``(B, 4)`` float ``(x0, y0, x1, y1)`` pixel edges.
 
     The box holds the pixels above ``threshold``, grown by :func:`pad_pixels` on each side and then to a square
@@ -91,7 +86,7 @@ def crop_boxes(images: torch.Tensor, boxes: torch.Tensor, size: int) -> torch.Te
 
 
 def align(
-    images: torch.Tensor | np.ndarray, size: int = 256, pad: float = 5.0, threshold: float = 0.5
+    images: torch.Tensor | np.ndarray, size: int = 256, pad: float = PAD, threshold: float = 0.5
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Crop-align shadow images: ``(B, [1,] H, W)`` → crops ``(B, size, size)`` and their boxes ``(B, 4)``."""
     x = as_image_batch(images)

@@ -28,9 +28,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from studio.sim.crop_pad import PAD, pad_pixels
 from studio.targets.merging import Clusters, MergeOrder, merge_clusters
-
-PAD = 5.0  # the losses' crop pad (LossConfig.pad; a test holds them equal), pixels of a 256-pixel image
 
 
 @dataclass(frozen=True)
@@ -81,7 +80,7 @@ def aligned_crop(mask: np.ndarray, size: int, pad: float = PAD, box_of: np.ndarr
     if b.shape != m.shape:
         raise ValueError(f"the box's mask has shape {b.shape}, not the mask's {m.shape}")
     rows, cols = np.flatnonzero(b.any(axis=1)), np.flatnonzero(b.any(axis=0))
-    p = pad * max(m.shape) / 256
+    p = pad_pixels(pad, *m.shape)
     half = max(rows[-1] + 1 - rows[0], cols[-1] + 1 - cols[0]) / 2 + p
     cy, cx = (rows[0] + rows[-1] + 1) / 2, (cols[0] + cols[-1] + 1) / 2
 
