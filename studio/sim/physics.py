@@ -137,9 +137,9 @@ class CollisionWorld(PyBulletClient):
             a, b = index[j.parent], index[j.child]
             self._adjacent |= {(a, b), (b, a)}
         self._joint_ids = list(range(self.hand.dof))
-        self._init_bounds(index)
+        self._init_bounds()
 
-    def _init_bounds(self, index: dict[str, int]) -> None:
+    def _init_bounds(self) -> None:
         """Bounding sphere of each link's collision pieces (link frame) for the pair prefilter."""
         from studio.sim.shadow import ShadowRenderer, piece_table
 

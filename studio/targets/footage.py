@@ -147,8 +147,9 @@ def read_folder(
     return _footage(folder, fps, hz, len(files) / fps, len(files), times[kept], idx[kept], frames, skipped, cancelled)
 
 
-def read_gif(path: Path, hz: float, max_bad_share: float, progress: ProgressFn | None, cancel) -> Footage:
-    """Sampled frames of a GIF by its real per-frame durations (Pillow composes each frame onto the last)."""
+def read_gif(path: Path, hz: float, progress: ProgressFn | None, cancel) -> Footage:
+    """Sampled frames of a GIF by its real per-frame durations (Pillow composes each frame onto the last). No frame
+    is skipped: each is composed onto the last, so a bad one is an error (there is no share of bad frames to allow)."""
     try:
         im = Image.open(path)
     except (UnidentifiedImageError, OSError) as e:
@@ -262,7 +263,7 @@ def read_footage(
         log.info("fps %g ignored: %s plays at its own rate", fps, path.name)
     suffix = path.suffix.lower()
     if suffix == ".gif":
-        return read_gif(path, hz, max_bad_share, progress, cancel)
+        return read_gif(path, hz, progress, cancel)
     if suffix in VIDEO_SUFFIXES:
         return read_video_file(path, hz, max_bad_share, progress, cancel)
     raise TargetError(
