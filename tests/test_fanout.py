@@ -241,7 +241,8 @@ def test_a_project_runs_its_sources_side_by_side_with_the_poses_of_one_process(t
 
 def test_a_cancelled_spread_run_keeps_every_keyframe_finished(tmp_path, hand, ray_cluster):
     """A spread run cancelled once its first keyframe came back: that keyframe is saved (the rest of its source's
-    chain is not lost with it), the others stay pending, and the report says so."""
+    chain is not lost with it) awaiting its refinement together with them, the others stay pending, and the report
+    says so."""
     from studio.cli.main import build_parser
     from studio.cli.run_flags import run_config_from_args
     from studio.evaluate.worker_models import ModelRecipe
@@ -277,3 +278,4 @@ def test_a_cancelled_spread_run_keeps_every_keyframe_finished(tmp_path, hand, ra
     again = Project.open(project.path)
     assert list(again.results) == [project.keyframes[0].id]
     assert again.pending_keyframes() == [kf.id for kf in project.keyframes[1:]]
+    assert again.results[project.keyframes[0].id].awaits_together  # the resumed run refines it with the others

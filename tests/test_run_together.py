@@ -88,23 +88,44 @@ def test_keyframes_the_run_did_not_optimise_never_move(horse, tmp_path):
                          on_job=lambda job, what: said.append(what))  # fmt: skip
     assert report.error is None and report.optimised == [ids[1]], report.message
     assert not any(w.startswith("refining") for w in said)  # a stretch of one: nothing to refine together
+    assert not project.results[ids[1]].awaits_together  # nor anything left to refine at the next run
     got = poses(project)
     assert all(np.array_equal(got[k], held[k]) for k in ids if k != ids[1])
 
 
-def test_a_cancel_while_refining_together_keeps_the_poses_posed_before_it(horse, tmp_path):
+def test_a_run_cancelled_while_refining_together_refines_them_when_resumed(horse, tmp_path):
+    """Cancelled while refining together: every keyframe posed one after another is saved, current, and awaits its
+    refinement together (``project info`` says so). The next run, naming no keyframe, refines them together and
+    plans the show, with the poses of the run that was not cancelled: the same command resumes the same show."""
+    whole = tmp_path / "whole.shadow"
+    shutil.copytree(horse, whole)
+    reference = Project.open(whole)
+    ids = [kf.id for kf in reference.keyframes]
+    assert run_project(reference, RunConfig(sequence=TOGETHER), keyframes=ids).ok
+    assert not any(r.awaits_together for r in reference.results.values())
+
     path = tmp_path / "horse.shadow"
     shutil.copytree(horse, path)
     project = Project.open(path)
-    held = poses(project)
     cancel = threading.Event()
 
     def on_job(job, what):
         if what.startswith("refining"):
             cancel.set()
 
-    report = run_project(project, RunConfig(sequence=TOGETHER), keyframes=list(held), cancel=cancel, on_job=on_job)
+    report = run_project(project, RunConfig(sequence=TOGETHER), keyframes=ids, cancel=cancel, on_job=on_job)
     assert report.cancelled and report.show is None and "together cancelled" in report.message
+    assert "the next run refines them together" in report.message
     reopened = Project.open(path)
     assert reopened.pending_keyframes() == []  # every keyframe posed one after another is saved, current
-    assert set(poses(reopened)) == set(held)
+    assert all(r.awaits_together for r in reopened.results.values())
+    assert all(kf["awaits_together"] for kf in reopened.summary()["keyframes"])
+    said = []
+    resumed = run_project(reopened, RunConfig(sequence=TOGETHER), on_job=lambda job, what: said.append(what))
+    assert resumed.ok and resumed.optimised == [] and resumed.show == "planned", resumed.message
+    assert resumed.refined == ids and f"refined {len(ids)} keyframes together that a stopped run" in resumed.message
+    assert said[0].startswith(f"refining keyframes {ids[0]}–{ids[-1]} together")
+    assert not any(r.awaits_together for r in reopened.results.values())
+    got, want = poses(reopened), poses(reference)
+    assert all(np.array_equal(got[k], want[k]) for k in ids)
+    assert reopened.show.equals(replace(reference.show, created=reopened.show.created))  # the same show

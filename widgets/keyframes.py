@@ -165,6 +165,8 @@ class KeyframesPanel:
         extra = (" · hold" if kf.hold else "") + (f" · at {seconds(kf.time_s)}" if kf.time_s is not None else "")
         result = p.results.get(kf.id)
         scored = f" · loss {loss(result.loss.get('total'))}" if result is not None else ""
+        if state == "current" and result.awaits_together:  # a run stopped before refining it: "All stale" does
+            scored += "<br>to refine together with its neighbours"
         button = w.Button(description=f"k{kf.id}", button_style="info" if chosen else "",
                           layout=w.Layout(width=f"{CARD_PX}px"))  # fmt: skip
         button.on_click(lambda _, k=kf.id, r=rep: self.state.select(frame=r, keyframe=k))

@@ -59,9 +59,10 @@ def print_info(project) -> dict:
                          ", edited" * kf["edited"]])  # fmt: skip
         loss = f" (loss {kf['loss']:.4f})" if kf["loss"] is not None else ""
         collides = f"; COLLIDES with itself (project run {s['project']} --keyframe {kf['id']})" * kf["collides"]
+        together = "; to be refined together with its neighbours at the next run" * kf["awaits_together"]
         print(
             f"keyframe {kf['id']}: frame {kf['representative']} (source {f.source}, {f.time_s:.2f} s), "
-            f"{len(kf['members'])} frame(s){extra}; result {kf['result']}{loss}{collides}"
+            f"{len(kf['members'])} frame(s){extra}; result {kf['result']}{loss}{collides}{together}"
         )
     if s["show"] is None:
         print("show: none planned yet")

@@ -116,10 +116,13 @@ class KeyframeEditing:
         evaluation: Mapping[str, float] | None = None,
         collision_free: bool = True,
         seconds: float = 0.0,
+        awaits_together: bool = False,
     ) -> None:
         """Keyframe ``k``'s optimisation result: ``pose`` (joint name → rad, or ``(21,)`` rad in the hand's joint
         order), loss components, rendered ``shadow (R, R)``; ``inputs`` = :meth:`keyframe_inputs` captured when the
-        work began (default: now). A result from inputs that changed meanwhile is kept, marked stale."""
+        work began (default: now); ``awaits_together``: a run posed it alone and refines it with its neighbours
+        next (:mod:`studio.project.run_together`). A result from inputs that changed meanwhile is kept, marked
+        stale."""
         if not isinstance(pose, Mapping):
             from studio.sim.hand import load_hand
 
@@ -141,9 +144,18 @@ class KeyframeEditing:
                 pose={str(n): float(v) for n, v in pose.items()}, loss={n: float(v) for n, v in loss.items()},
                 shadow=frozen(shadow), inputs=inputs or now,
                 evaluation={n: float(v) for n, v in (evaluation or {}).items()},
-                collision_free=bool(collision_free), seconds=float(seconds),
+                collision_free=bool(collision_free), seconds=float(seconds), awaits_together=bool(awaits_together),
             )  # fmt: skip
             self._commit(f"result of keyframe {k}", replace(self._state, results={**self._state.results, k: result}))
+
+    def refined_together(self, ids: list[int]) -> None:
+        """The results of keyframes ``ids`` no longer await their refinement together (it ran: each pose kept or
+        replaced); ids without a result, or not awaiting it, are left as they are."""
+        with self._lock:
+            s = self._state
+            done = {k: replace(r, awaits_together=False) for k in ids if (r := s.results.get(k)) and r.awaits_together}
+            if done:
+                self._commit(f"keyframes {sorted(done)} refined together", replace(s, results={**s.results, **done}))
 
     def set_show(self, show: Show | None, inputs: str | None = None) -> None:
         """The planned show (None removes it); ``inputs`` = :meth:`show_inputs` captured when planning began."""

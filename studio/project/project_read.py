@@ -195,6 +195,7 @@ def _result(folder: Path, r: dict, ids: set[int]) -> tuple[int, PoseResult]:
         pose=pose, loss={n: _nan(v) for n, v in r["loss"].items()}, shadow=_mask(folder, r["shadow"]),
         inputs=str(r["inputs"]), evaluation={n: _nan(v) for n, v in r.get("evaluation", {}).items()},
         collision_free=bool(r.get("collision_free", True)), seconds=float(r.get("seconds", 0.0)),
+        awaits_together=r.get("awaits_together", False) is True,
     )  # fmt: skip
 
 

@@ -41,7 +41,7 @@ from studio.motion.plan import PlanConfig
 from studio.project.jobs import queue_for, roll_job, video_job
 from studio.project.run_report import RunReport, TooFast, counted, late_transitions, plural
 from studio.project.run_spread import keyframe_config, place_in_source, run_spread, source_keyframes
-from studio.project.run_together import refine_stretches
+from studio.project.run_together import refine_stretches, refines_together, to_refine_together
 from studio.project.show_timing import ShowLayout, keyframe_box, seams_out_of_reach
 from studio.project.state import ProjectError
 from studio.project.status import ProjectHandle, check_sources
@@ -163,24 +163,24 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
     report.skipped = [k for k in ids if k not in pending]
     status = project.status()
     settled = {k for k in ids if k in project.results and k not in status.stale and k not in pending}
+    together = to_refine_together(project, pending) if refines_together(cfg.sequence) else frozenset()
     if cfg.spread and pending:
         if not run_spread(project, pending, settled, cfg.sequence, cfg.layout, cfg.plan.limits, cfg.fanout, clip,
-                          models, progress, cancel, report):  # fmt: skip
+                          models, progress, cancel, report, together):  # fmt: skip
             return report.finish(project, cfg.transitions, t0)
-    elif not _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, settled, report):
+    elif not _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, settled, report, together):
         return report.finish(project, cfg.transitions, t0)
     # a move between two sources too fast for the servos: one of its keyframes again, within reach of its neighbours
     seq, seams = cfg.sequence, []
     if seq.keep_clock:  # the paper's way (no clock) leaves late moves to the planner, as within a source
         seams = seams_out_of_reach(project.state, report.optimised, cfg.layout, cfg.plan.limits, seq.clock_margin)
     if seams:
-        done = _optimise(project, cfg, clip, queue, cancel, model_path, on_job, seams, set(ids), report,
+        done = _optimise(project, cfg, clip, queue, cancel, model_path, on_job, seams, set(ids), report, together,
                          " again: its move to or from another source was too fast for the servos")  # fmt: skip
         report.optimised = list(dict.fromkeys(report.optimised))
         if not done:
             return report.finish(project, cfg.transitions, t0)
-    if seq.keep_clock and seq.joint.enabled and not refine_stretches(project, cfg, clip, queue, cancel,
-                                                                           model_path, on_job, report):  # fmt: skip
+    if refines_together(seq) and not refine_stretches(project, cfg, clip, queue, cancel, model_path, on_job, report):
         return report.finish(project, cfg.transitions, t0)
     if not plan:
         report.message = f"optimised {counted(len(report.optimised), 'keyframe')}"
@@ -225,14 +225,18 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
     report.late = late_transitions(timing, planned.show)
     report.show = "planned"
     stretched = f", {counted(len(report.late), 'late transition')} stretched" if report.late else ""
-    report.message = (f"optimised {counted(len(report.optimised), 'keyframe')}, skipped {len(report.skipped)} current; "
-                      f"planned a {planned.show.duration:.2f} s show{stretched}")  # fmt: skip
+    resumed = [k for k in report.refined if k not in report.optimised]  # a stopped run posed them, did not refine
+    again = f", refined {counted(len(resumed), 'keyframe')} together that a stopped run had posed" if resumed else ""
+    report.message = (f"optimised {counted(len(report.optimised), 'keyframe')}, skipped {len(report.skipped)} current"
+                      f"{again}; planned a {planned.show.duration:.2f} s show{stretched}")  # fmt: skip
     return report.finish(project, cfg.transitions, t0)
 
 
-def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, settled, report, why="") -> bool:
+def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, settled, report, together,
+              why="") -> bool:  # fmt: skip
     """The pending keyframes one job each on the queue, in order; False when one failed or was cancelled. A
-    keyframe's reach box counts ``settled`` and its own source's keyframes finished before it (run_spread's rule)."""
+    keyframe's reach box counts ``settled`` and its own source's keyframes finished before it (run_spread's rule);
+    those in ``together`` are saved as awaiting their refinement together."""
     seq = cfg.sequence
     for n, k in enumerate(pending):
         pos, before = place_in_source(project, k)
@@ -245,7 +249,7 @@ def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, se
             box = keyframe_box(project.state, project.status(), k, seq.clock_margin, cfg.layout, cfg.plan.limits,
                                posed=settled | same)  # fmt: skip
         job = video_job(project, [k], cfg=keyframe_config(seq, pos), clip=clip, previous=previous,
-                        model_path=model_path, device=cfg.device, box=box)  # fmt: skip
+                        model_path=model_path, device=cfg.device, box=box, awaits_together=k in together)  # fmt: skip
         job.meta["of"] = (n + 1, len(pending))
         queue.submit(job)
         if on_job is not None:

@@ -33,6 +33,7 @@ class RunReport:
     project: str  # the project folder
     optimised: list[int] = field(default_factory=list)  # keyframe ids computed and saved by this run, in order
     skipped: list[int] = field(default_factory=list)  # keyframe ids already current (not recomputed)
+    refined: list[int] = field(default_factory=list)  # keyframe ids refined together (studio.project.run_together)
     show: str | None = None  # "planned" (by this run), "current" (kept), or None (no show: see message)
     show_seconds: float | None = None  # the show's duration, s
     late: list[dict] = field(default_factory=list)  # transitions too fast for the servos (frames, needed vs given s)
@@ -55,6 +56,7 @@ class RunReport:
         rate = self.transitions.get("rate")
         return {
             "project": self.project, "keyframes_optimised": self.optimised, "keyframes_skipped": self.skipped,
+            "keyframes_refined_together": self.refined,
             "show": self.show, "show_seconds": self.show_seconds, "late_transitions": self.late,
             "transition_success": rate, "transitions_ok": self.transitions.get("success", 0),
             "transition_success_literal": self.transitions_literal.get("rate"),

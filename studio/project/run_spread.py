@@ -182,10 +182,12 @@ def optimise_spread(
     progress: ProgressFn | None = None,
     cancel: threading.Event | None = None,
     saved: list[int] | None = None,
+    together: frozenset[int] = frozenset(),
 ) -> list[int]:
     """Run ``chains`` on the workers ``fanout`` names, one keyframe at a time per chain, saving each keyframe as it
     comes back (its id appended to ``saved`` at once, so a worker's failure raised here leaves the list of what
-    was kept); the ids saved, in the project's order. Stage "keyframes" as each finishes (item: its source)."""
+    was kept; those in ``together`` saved as awaiting their refinement together); the ids saved, in the project's
+    order. Stage "keyframes" as each finishes (item: its source)."""
     saved = [] if saved is None else saved
     sequential = task.seq.mode == "sequential"
     chain_of = {k: i for i, c in enumerate(chains) for k in c.ids}
@@ -196,7 +198,7 @@ def optimise_spread(
         k, kr = done
         project.set_result(k, kr.theta, kr.loss, kr.shadow, inputs=project.keyframe_inputs(k),
                            evaluation=kr.evaluation, collision_free=kr.collision_free,
-                           seconds=kr.seconds)  # fmt: skip
+                           seconds=kr.seconds, awaits_together=k in together)  # fmt: skip
         saved.append(k)
         i = chain_of[k]
         poses[i][k] = kr.theta
@@ -213,12 +215,12 @@ def optimise_spread(
 def run_spread(
     project: ProjectHandle, pending: list[int], settled: set[int], seq: SequenceConfig, layout: Any,
     limits: LimitsConfig, fanout: FanoutConfig, clip: Any, models: ModelRecipe, progress: ProgressFn | None,
-    cancel: threading.Event | None, report: RunReport,
+    cancel: threading.Event | None, report: RunReport, together: frozenset[int] = frozenset(),
 ) -> bool:  # fmt: skip
     """A run's ``pending`` keyframes on workers (``fanout``), the sources side by side on the show's clock
     (``layout``, a :class:`~studio.project.show_timing.ShowLayout`), with the run's budgets ``seq`` and the servos'
     ``limits`` (module doc), into ``report``; False when a worker failed or the run was cancelled (the keyframes
-    finished before it are saved)."""
+    finished before it are saved; those in ``together`` as awaiting their refinement together)."""
     import traceback
 
     from studio.jobs.events import JobError
@@ -228,7 +230,7 @@ def run_spread(
     chains = chains_of(project, pending, settled, layout)
     task = KeyframeTask(models, project_loss(project, chains[0].masks.shape[-1], clip), seq, project.mount.roll, limits)
     try:
-        report.optimised = optimise_spread(project, chains, task, fanout, progress, cancel, report.optimised)
+        report.optimised = optimise_spread(project, chains, task, fanout, progress, cancel, report.optimised, together)
     except Exception as e:  # a worker's failure, or no Ray to run on: one line, what was saved stays
         report.error = JobError(type(e).__name__, str(e), traceback.format_exc())
         done = counted(len(report.optimised), "keyframe")

@@ -6,7 +6,10 @@ A run poses each keyframe within the servos' reach of those posed before it on t
 fixes where the next ones can go. With the clock kept (``SequenceConfig.keep_clock``) and ``SequenceConfig.joint``
 on, every stretch of two or more consecutive keyframes of one source that the run optimised is refined together
 within their reach of one another and of every other current keyframe (held), in one job each. Keyframes the run
-did not optimise (current, or the artist's) never move. With ``joint.both_orders`` a stretch is first posed again
+did not optimise (current, or the artist's) never move, except those a run before it posed and did not get to refine
+(it was cancelled or failed first): each such result is saved as awaiting its refinement together
+(``PoseResult.awaits_together``), so the next run refines it with its neighbours, as the first run would have, and
+a resumed run makes the show an uninterrupted one makes. With ``joint.both_orders`` a stretch is first posed again
 last to first, and refined from the order whose sum is lower (:func:`~studio.imitate.together.refine_show`). A
 stretch's results are replaced only where a pose moved, from the same inputs, so they stay current.
 """
@@ -21,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from studio.imitate.config import SequenceConfig
 from studio.jobs.engine import refine_together_job
 from studio.jobs.events import JobState
 from studio.jobs.job import Job
@@ -34,6 +38,23 @@ from studio.project.status import ProjectHandle
 from studio.sim.hand import load_hand
 
 log = logging.getLogger(__name__)
+
+
+def refines_together(seq: SequenceConfig) -> bool:
+    """Whether a run with budgets ``seq`` refines its keyframes together after posing them (module doc)."""
+    return seq.keep_clock and seq.joint.enabled
+
+
+def awaiting_together(project: ProjectHandle) -> set[int]:
+    """The keyframes whose current result awaits its refinement together (a run stopped before it)."""
+    status = project.status()
+    return {k for k, r in project.results.items() if r.awaits_together and k not in status.stale}
+
+
+def to_refine_together(project: ProjectHandle, pending: Collection[int]) -> frozenset[int]:
+    """The keyframes a run that poses ``pending`` then refines together: its stretches, with the results that
+    await it (:func:`awaiting_together`)."""
+    return frozenset(k for ids in together_stretches(project, {*pending, *awaiting_together(project)}) for k in ids)
 
 
 def together_stretches(project: ProjectHandle, optimised: Collection[int]) -> list[list[int]]:
@@ -91,6 +112,7 @@ def together_job(project: ProjectHandle, ids: list[int], cfg: Any, clip: Any = N
             if not np.array_equal(sc.theta, start[k].theta(names)):
                 project.set_result(k, sc.theta, sc.loss, sc.shadow, inputs=inputs[k], evaluation=sc.evaluation,
                                    collision_free=sc.collision_free, seconds=start[k].seconds + share)  # fmt: skip
+        project.refined_together(list(ids))  # the poses kept no longer await it
 
     job = refine_together_job(
         masks, expressive, np.stack([start[k].theta(names) for k in ids]), pairs=pairs, boxes=boxes, cfg=seq,
@@ -104,10 +126,11 @@ def together_job(project: ProjectHandle, ids: list[int], cfg: Any, clip: Any = N
 
 def refine_stretches(project: ProjectHandle, cfg: Any, clip: Any, queue: JobQueue, cancel: threading.Event | None,
                      model_path: Any, on_job: Callable[[Job, str], None] | None, report: Any) -> bool:  # fmt: skip
-    """Every stretch of ``report.optimised`` (:func:`together_stretches`) refined together, one job each on ``queue``
-    (``on_job`` told of each), in the run's ``report`` (a :class:`~studio.project.run_report.RunReport`); False
-    when one failed or was cancelled (``report`` says so; the stretches finished before it are kept)."""
-    for ids in together_stretches(project, report.optimised):
+    """Every stretch of ``report.optimised`` and of the results awaiting it (:func:`together_stretches`) refined
+    together, one job each on ``queue`` (``on_job`` told of each), in the run's ``report`` (a
+    :class:`~studio.project.run_report.RunReport`); False when one failed or was cancelled (``report`` says so;
+    the stretches finished before it are kept, the others still await it)."""
+    for ids in together_stretches(project, {*report.optimised, *awaiting_together(project)}):
         job = queue.submit(together_job(project, ids, cfg, clip, model_path))
         if on_job is not None:
             again = ", posed last to first too" if cfg.sequence.joint.both_orders else ""
@@ -118,6 +141,7 @@ def refine_stretches(project: ProjectHandle, cfg: Any, clip: Any, queue: JobQueu
             report.cancelled, report.error = state == JobState.CANCELLED, job.error
             what = "cancelled" if report.cancelled else f"failed ({job.error})"
             report.message = (f"refining keyframes {ids[0]}–{ids[-1]} together {what}; every keyframe optimised "
-                              "before it is saved")  # fmt: skip
+                              "before it is saved, and the next run refines them together")  # fmt: skip
             return False
+        report.refined.extend(ids)
     return True

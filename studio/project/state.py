@@ -100,6 +100,8 @@ class PoseResult:
     evaluation: dict[str, float] = field(default_factory=dict)  # components under the common measure, if any
     collision_free: bool = True  # the pose does not penetrate itself
     seconds: float = 0.0  # wall time it took
+    awaits_together: bool = False  # posed one after another by a run that then refines its keyframes together, and
+    # not refined yet (that run was cancelled or failed first): the next run refines it with its neighbours
 
     def theta(self, joint_names: list[str]) -> np.ndarray:
         """The pose as ``(J,)`` rad in ``joint_names``' order."""
