@@ -278,4 +278,4 @@ def test_a_cancelled_spread_run_keeps_every_keyframe_finished(tmp_path, hand, ra
     again = Project.open(project.path)
     assert list(again.results) == [project.keyframes[0].id]
     assert again.pending_keyframes() == [kf.id for kf in project.keyframes[1:]]
-    assert again.results[project.keyframes[0].id].awaits_together  # the resumed run refines it with the others
+    assert again.results[project.keyframes[0].id].awaits == "together"  # the resumed run refines it with the others

@@ -61,7 +61,7 @@ def test_round_trip_keeps_every_field_and_masks_bit_exact(tmp_path, sources, han
     shadow = (rng.random((64, 64)) > 0.5).astype(np.uint8)
     theta = rng.uniform(hand.lower, hand.upper)
     p.set_result(new, theta, {"total": 0.25, "clip": math.nan}, shadow, evaluation={"base": 0.2}, seconds=1.5,
-                 awaits_together=True)  # fmt: skip
+                 awaits="together")  # fmt: skip
     p.set_show(rest_show(hand))
     q = Project.open(p.path)
     assert state_doc(q.state) == state_doc(p.state)
@@ -73,7 +73,7 @@ def test_round_trip_keeps_every_field_and_masks_bit_exact(tmp_path, sources, han
         assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
     r = q.results[new]
     assert np.array_equal(r.shadow, shadow) and r.seconds == 1.5 and r.evaluation == {"base": 0.2}
-    assert r.awaits_together and q.summary()["keyframes"][[k.id for k in q.keyframes].index(new)]["awaits_together"]
+    assert r.awaits == "together" and q.summary()["keyframes"][[k.id for k in q.keyframes].index(new)]["awaits"]
     assert np.array_equal(r.theta(hand.joint_names), theta)  # every angle bit for bit
     assert r.loss["total"] == 0.25 and math.isnan(r.loss["clip"])
     assert q.keyframes == p.keyframes and q.frames == p.frames and q.weights == p.weights

@@ -19,6 +19,7 @@ from studio.motion.show import load_show
 from studio.project.project import Project, ProjectError
 from studio.project.run import RunConfig, run_project
 from studio.project.show_timing import ShowLayout, seams_out_of_reach
+from studio.sim.hand import load_hand
 from studio.targets.keyframes import KeyframeConfig
 from studio.targets.video import DEFAULT_VIDEO
 
@@ -203,13 +204,35 @@ def test_too_fast_without_allow_late_keeps_the_keyframes_and_lists_the_transitio
 def test_a_still_then_a_video_on_a_short_gap_plays_without_a_late_transition(tmp_path, capsys):
     """0.3 s from the still to the horse: each source's keyframes are kept within their own reach, and the move
     between them is checked after and mended (the still optimised again within reach of the horse's first pose),
-    so the show plans without --allow-late and lasts exactly as long as the clock."""
-    path = tmp_path / "two.shadow"
+    so the show plans without --allow-late and lasts exactly as long as the clock. A run stopped while it mends
+    leaves the still to optimise again, and resumed it makes the same poses and show."""
+    path, cut = tmp_path / "two.shadow", tmp_path / "cut.shadow"
     Project.create(path, sources=[STILL, DEFAULT_VIDEO]).set_roll(0.0)
-    rc, summary, text = run_cli(capsys, "project", "run", str(path), *TINY, "--gap-s", "0.3")
+    shutil.copytree(path, cut)
+    argv = ["project", "run", str(path), *TINY, "--gap-s", "0.3"]
+    rc, summary, text = run_cli(capsys, *argv)
     assert rc == 0 and summary["show"] == "planned" and summary["late_transitions"] == [], text
     assert "again: its move to or from another source was too fast for the servos" in text  # said, not silent
     assert summary["show_seconds"] == pytest.approx(Project.open(path).show_timing(ShowLayout(gap_s=0.3)).end_s)
+    # stopped while the still is optimised again: it stays stale (owed "again"), and the same command resumes the
+    # run to the same poses and show
+    from studio.cli.main import build_parser
+    from studio.cli.run_flags import run_config_from_args
+
+    cfg = run_config_from_args(build_parser().parse_args(argv))
+    cancel = threading.Event()
+    report = run_project(Project.open(cut), cfg, cancel=cancel,
+                         on_job=lambda job, what: " again: " in what and cancel.set())  # fmt: skip
+    assert report.cancelled, report.message
+    stopped = Project.open(cut)
+    still = stopped.keyframes[0].id
+    assert stopped.results[still].awaits == "again" and stopped.pending_keyframes() == [still]
+    rc, resumed, text = run_cli(capsys, *[str(cut) if a == str(path) else a for a in argv])
+    assert rc == 0 and resumed["late_transitions"] == [] and resumed["keyframes_optimised"] == [still], text
+    joints = load_hand().joint_names
+    done, want = Project.open(cut), Project.open(path)
+    assert all(np.array_equal(done.results[k].theta(joints), want.results[k].theta(joints)) for k in want.results)
+    assert not any(r.awaits for r in done.results.values()) and done.show.duration == want.show.duration
 
 
 def test_a_cancel_keeps_only_the_keyframes_finished_before_it(tmp_path):

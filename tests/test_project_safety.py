@@ -234,6 +234,16 @@ def test_a_damaged_entry_is_one_clear_line(tmp_path, sources, capsys, case):
         assert rc == 2 and said in text and "internal error" not in text and "Traceback" not in text, text
 
 
+def test_a_result_owed_something_unknown_is_one_clear_line(tmp_path, sources, capsys):
+    p = make(tmp_path, sources)
+    k = p.keyframes[0].id
+    p.set_result(k, np.zeros(21), {"total": 0.1}, np.ones((S, S), np.uint8), awaits="together")
+    assert Project.open(p.path).results[k].awaits == "together"
+    edit_doc(p.path, lambda d: d["results"][0].update(awaits="soon"))
+    rc, text = cli(capsys, "project", "info", p.path)
+    assert rc == 2 and f"keyframe {k}'s result awaits \"soon\", not one of ['again', 'together']" in text, text
+
+
 # ---------------------------------------------------------------- relink and colliding results from the CLI
 def test_relink_from_the_command_line_and_info_flags_colliding_results(tmp_path, sources, capsys):
     p = make(tmp_path, sources)

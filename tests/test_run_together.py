@@ -88,7 +88,7 @@ def test_keyframes_the_run_did_not_optimise_never_move(horse, tmp_path):
                          on_job=lambda job, what: said.append(what))  # fmt: skip
     assert report.error is None and report.optimised == [ids[1]], report.message
     assert not any(w.startswith("refining") for w in said)  # a stretch of one: nothing to refine together
-    assert not project.results[ids[1]].awaits_together  # nor anything left to refine at the next run
+    assert not project.results[ids[1]].awaits  # nor anything left to refine at the next run
     got = poses(project)
     assert all(np.array_equal(got[k], held[k]) for k in ids if k != ids[1])
 
@@ -102,7 +102,7 @@ def test_a_run_cancelled_while_refining_together_refines_them_when_resumed(horse
     reference = Project.open(whole)
     ids = [kf.id for kf in reference.keyframes]
     assert run_project(reference, RunConfig(sequence=TOGETHER), keyframes=ids).ok
-    assert not any(r.awaits_together for r in reference.results.values())
+    assert not any(r.awaits for r in reference.results.values())
 
     path = tmp_path / "horse.shadow"
     shutil.copytree(horse, path)
@@ -118,14 +118,14 @@ def test_a_run_cancelled_while_refining_together_refines_them_when_resumed(horse
     assert "the next run refines them together" in report.message
     reopened = Project.open(path)
     assert reopened.pending_keyframes() == []  # every keyframe posed one after another is saved, current
-    assert all(r.awaits_together for r in reopened.results.values())
-    assert all(kf["awaits_together"] for kf in reopened.summary()["keyframes"])
+    assert all(r.awaits == "together" for r in reopened.results.values())
+    assert all(kf["awaits"] == "together" for kf in reopened.summary()["keyframes"])
     said = []
     resumed = run_project(reopened, RunConfig(sequence=TOGETHER), on_job=lambda job, what: said.append(what))
     assert resumed.ok and resumed.optimised == [] and resumed.show == "planned", resumed.message
     assert resumed.refined == ids and f"refined {len(ids)} keyframes together that a stopped run" in resumed.message
     assert said[0].startswith(f"refining keyframes {ids[0]}–{ids[-1]} together")
-    assert not any(r.awaits_together for r in reopened.results.values())
+    assert not any(r.awaits for r in reopened.results.values())
     got, want = poses(reopened), poses(reference)
     assert all(np.array_equal(got[k], want[k]) for k in ids)
     assert reopened.show.equals(replace(reference.show, created=reopened.show.created))  # the same show

@@ -172,11 +172,15 @@ def test_cards_show_each_keyframes_status_and_loss_counts_and_times_in_words(sta
     assert "current" in cards[first.id].children[2].value and "loss 0.123" in cards[first.id].children[2].value
     assert "stale" in cards[second.id].children[2].value and "loss 0.500" in cards[second.id].children[2].value
     assert "missing" in cards[p.keyframes[-1].id].children[2].value
-    assert "refine together" not in cards[first.id].children[2].value
-    p.set_result(first.id, np.zeros(21), {"total": 0.1234}, shadow, awaits_together=True)  # a run stopped before it
+    assert "refined together" not in cards[first.id].children[2].value
+    p.set_result(first.id, np.zeros(21), {"total": 0.1234}, shadow, awaits="together")  # a run stopped before it
     panel.redraw()
     card = panel.strip.children[[kf.id for kf in p.keyframes].index(first.id)]
-    assert card_frame(card) == STATUS_RGB["current"] and "to refine together" in card.children[2].value
+    assert card_frame(card) == STATUS_RGB["current"] and "to be refined together" in card.children[2].value
+    p.optimise_again([first.id])  # a move to another source too fast, and the run stopped before mending it: stale
+    panel.redraw()
+    card = panel.strip.children[[kf.id for kf in p.keyframes].index(first.id)]
+    assert card_frame(card) == STATUS_RGB["stale"] and "to be optimised again" in card.children[2].value
     # plurals and times, everywhere in the panel
     text = " ".join([panel.count.value, *(c.children[2].value for c in panel.strip.children),
                      *(label for label, _ in panel.keyframe.options)])  # fmt: skip

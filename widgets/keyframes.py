@@ -13,6 +13,7 @@ undo and redo. Every edit goes through :meth:`StudioState.edit` (saved, undoable
 
 from __future__ import annotations
 
+import html
 import logging
 import threading
 
@@ -20,7 +21,7 @@ import ipywidgets as w
 import numpy as np
 
 from studio.project.edits import combined_masks
-from studio.project.state import Keyframe
+from studio.project.state import AWAITS, Keyframe
 from studio.project.status import ProjectStatus
 from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, png, tint, title, upscale
 from widgets.state import StudioState
@@ -165,8 +166,8 @@ class KeyframesPanel:
         extra = (" · hold" if kf.hold else "") + (f" · at {seconds(kf.time_s)}" if kf.time_s is not None else "")
         result = p.results.get(kf.id)
         scored = f" · loss {loss(result.loss.get('total'))}" if result is not None else ""
-        if state == "current" and result.awaits_together:  # a run stopped before refining it: "All stale" does
-            scored += "<br>to refine together with its neighbours"
+        if result is not None and result.awaits:  # a run stopped before it: "All stale" does it
+            scored += f"<br>{html.escape(AWAITS[result.awaits])}"
         button = w.Button(description=f"k{kf.id}", button_style="info" if chosen else "",
                           layout=w.Layout(width=f"{CARD_PX}px"))  # fmt: skip
         button.on_click(lambda _, k=kf.id, r=rep: self.state.select(frame=r, keyframe=k))

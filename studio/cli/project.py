@@ -42,6 +42,8 @@ from studio.learn.threads import torch_threads
 
 def print_info(project) -> dict:
     """Print ``project``'s human summary lines, then its JSON summary last; returns the summary."""
+    from studio.project.state import AWAITS
+
     s = project.summary()
     state = project.state
     print(
@@ -59,7 +61,7 @@ def print_info(project) -> dict:
                          ", edited" * kf["edited"]])  # fmt: skip
         loss = f" (loss {kf['loss']:.4f})" if kf["loss"] is not None else ""
         collides = f"; COLLIDES with itself (project run {s['project']} --keyframe {kf['id']})" * kf["collides"]
-        together = "; to be refined together with its neighbours at the next run" * kf["awaits_together"]
+        together = f"; {AWAITS[kf['awaits']]}" if kf["awaits"] else ""
         print(
             f"keyframe {kf['id']}: frame {kf['representative']} (source {f.source}, {f.time_s:.2f} s), "
             f"{len(kf['members'])} frame(s){extra}; result {kf['result']}{loss}{collides}{together}"

@@ -61,14 +61,14 @@ def video_job(
     previous: np.ndarray | None = None,
     device: str | None = None,
     box: tuple[np.ndarray, np.ndarray] | None = None,
-    awaits_together: bool = False,
+    awaits: str = "",
 ) -> Job:
     """Imitate the project's keyframes as one sequence, in first-appearance order (``keyframes``: ids, default
     all) → ``project.set_result`` for each on completion (:func:`.engine.imitate_video_job`). ``previous (21,)
     rad``: the pose of the keyframe before the first of them, when continuing a sequence; ``box``: the joint box
     ``(lower, upper) (21,)`` rad every one of them keeps (its reach on the show's clock,
-    :func:`~studio.project.show_timing.keyframe_box`); ``awaits_together``: the results are saved as awaiting their
-    refinement together (the run refines them with their neighbours next, :mod:`~studio.project.run_together`)."""
+    :func:`~studio.project.show_timing.keyframe_box`); ``awaits``: what the run still owes the results it saves
+    (``"together"``: it refines them with their neighbours next, :mod:`~studio.project.run_together`)."""
     project_ids = [kf.id for kf in project.keyframes]
     chosen = set(project_ids if keyframes is None else keyframes)
     unknown = chosen - set(project_ids)
@@ -85,7 +85,7 @@ def video_job(
         for k, kr in zip(ids, r.keyframes, strict=True):
             project.set_result(k, kr.theta, kr.loss, kr.shadow, inputs=inputs[k], evaluation=kr.evaluation,
                                collision_free=kr.collision_free, seconds=kr.seconds,
-                               awaits_together=awaits_together)  # fmt: skip
+                               awaits=awaits)  # fmt: skip
 
     job = imitate_video_job(
         masks, np.stack([np.array(e) for _, e in pairs]), cfg=cfg,

@@ -20,7 +20,7 @@ from studio.motion.bounds import MAX_SHOW_S
 from studio.motion.show import Show
 from studio.project import edits
 from studio.project.editing import mask_arg
-from studio.project.state import PoseResult, ProjectError, frozen
+from studio.project.state import AWAITS, PoseResult, ProjectError, frozen
 
 log = logging.getLogger(__name__)
 
@@ -116,13 +116,13 @@ class KeyframeEditing:
         evaluation: Mapping[str, float] | None = None,
         collision_free: bool = True,
         seconds: float = 0.0,
-        awaits_together: bool = False,
+        awaits: str = "",
     ) -> None:
         """Keyframe ``k``'s optimisation result: ``pose`` (joint name → rad, or ``(21,)`` rad in the hand's joint
         order), loss components, rendered ``shadow (R, R)``; ``inputs`` = :meth:`keyframe_inputs` captured when the
-        work began (default: now); ``awaits_together``: a run posed it alone and refines it with its neighbours
-        next (:mod:`studio.project.run_together`). A result from inputs that changed meanwhile is kept, marked
-        stale."""
+        work began (default: now); ``awaits``: what the run saving it still owes it (``AWAITS``; "together": it
+        refines it with its neighbours next, :mod:`studio.project.run_together`). A result from inputs that changed
+        meanwhile is kept, marked stale."""
         if not isinstance(pose, Mapping):
             from studio.sim.hand import load_hand
 
@@ -136,6 +136,8 @@ class KeyframeEditing:
         shadow = np.asarray(shadow)
         if shadow.ndim != 2:
             raise ProjectError(f"a shadow is an (R, R) image, not an array of shape {shadow.shape}")
+        if awaits != "" and awaits not in AWAITS:
+            raise ProjectError(f"a result awaits one of {sorted(AWAITS)} or nothing, not {awaits!r}")
         with self._lock:
             now = self.keyframe_inputs(k)
             if inputs is not None and inputs != now:
@@ -144,7 +146,7 @@ class KeyframeEditing:
                 pose={str(n): float(v) for n, v in pose.items()}, loss={n: float(v) for n, v in loss.items()},
                 shadow=frozen(shadow), inputs=inputs or now,
                 evaluation={n: float(v) for n, v in (evaluation or {}).items()},
-                collision_free=bool(collision_free), seconds=float(seconds), awaits_together=bool(awaits_together),
+                collision_free=bool(collision_free), seconds=float(seconds), awaits=awaits,
             )  # fmt: skip
             self._commit(f"result of keyframe {k}", replace(self._state, results={**self._state.results, k: result}))
 
@@ -153,9 +155,20 @@ class KeyframeEditing:
         replaced); ids without a result, or not awaiting it, are left as they are."""
         with self._lock:
             s = self._state
-            done = {k: replace(r, awaits_together=False) for k in ids if (r := s.results.get(k)) and r.awaits_together}
+            done = {k: replace(r, awaits="") for k in ids if (r := s.results.get(k)) and r.awaits == "together"}
             if done:
                 self._commit(f"keyframes {sorted(done)} refined together", replace(s, results={**s.results, **done}))
+
+    def optimise_again(self, ids: list[int]) -> None:
+        """The results of keyframes ``ids`` are to be optimised again (a run found a move between two sources too
+        fast for the servos, :func:`~studio.project.show_timing.seams_out_of_reach`): stale until they are, so a run
+        stopped before it leaves them for the next (its new result clears it); ids without a result are skipped."""
+        with self._lock:
+            s = self._state
+            again = {k: replace(r, awaits="again") for k in ids if (r := s.results.get(k)) is not None}
+            if again:
+                label = f"keyframes {sorted(again)} to optimise again: a move to another source too fast"
+                self._commit(label, replace(s, results={**s.results, **again}))
 
     def set_show(self, show: Show | None, inputs: str | None = None) -> None:
         """The planned show (None removes it); ``inputs`` = :meth:`show_inputs` captured when planning began."""

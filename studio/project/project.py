@@ -242,9 +242,10 @@ class Project(Editing, KeyframeEditing, Running, History):
         return self._state.frames[kf.representative].source in self.changed_sources
 
     def is_stale(self, k: int) -> bool:
-        """Whether keyframe ``k`` has a result computed from inputs that have changed since (False: none or current)."""
+        """Whether keyframe ``k`` has a result computed from inputs that have changed since, or that a run found it
+        must optimise again (``PoseResult.awaits``; False: none or current)."""
         r = self._state.results.get(k)
-        return r is not None and (self._changed(k) or r.inputs != self.keyframe_inputs(k))
+        return r is not None and (self._changed(k) or r.awaits == "again" or r.inputs != self.keyframe_inputs(k))
 
     def stale_keyframes(self) -> list[int]:
         """Ids of the keyframes whose result is stale, in first-appearance order."""

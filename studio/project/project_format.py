@@ -23,8 +23,8 @@ what loading found: fps, duration, footage kind, square frame; segmentation box 
 (``video``: VideoConfig, ``still``: TargetConfig, ``keyframes``: KeyframeConfig); ``weights`` (LossConfig);
 ``frames`` (source, source frame, source time, target and auto mask files); ``paint`` (additions and erasures by
 frame key ``"S:F"``); ``keyframes`` (id, representative frame, member frames, time override, hold, edited);
-``results`` (keyframe id, pose as joint name → rad, loss components, shadow file, the inputs' fingerprint, whether it
-still awaits its refinement together with its neighbours; absent: it does not); ``show``
+``results`` (keyframe id, pose as joint name → rad, loss components, shadow file, the inputs' fingerprint, what a
+stopped run still owes it: ``awaits`` "together" or "again", absent or "": nothing); ``show``
 (file and the inputs' fingerprint); ``mount`` (auto, roll_deg, chosen; the losses auto compared; absent: upright).
 """
 
@@ -106,7 +106,7 @@ def state_doc(s: ProjectState) -> dict[str, Any]:
             "evaluation": {n: _num(v) for n, v in r.evaluation.items()},
             "shadow": f"results/shadow-k{k}-{mask_hash(r.shadow)[:16]}.png", "inputs": r.inputs,
             "collision_free": bool(r.collision_free), "seconds": float(r.seconds),
-            "awaits_together": bool(r.awaits_together),
+            "awaits": r.awaits,
         })  # fmt: skip
     keys = {f.key: f for f in s.frames}
     owner = {k: _frame_owner(keys.get(k) or _key_frame(k)) for k in (*s.additions, *s.erasures)}

@@ -29,6 +29,7 @@ from studio.motion.show import load_show
 from studio.project.containment import check_name, check_subfolders, regular_file
 from studio.project.project_format import DOC, FORMAT_NAME, FORMAT_VERSION, show_hash
 from studio.project.state import (
+    AWAITS,
     Frame,
     Keyframe,
     Mount,
@@ -195,8 +196,14 @@ def _result(folder: Path, r: dict, ids: set[int]) -> tuple[int, PoseResult]:
         pose=pose, loss={n: _nan(v) for n, v in r["loss"].items()}, shadow=_mask(folder, r["shadow"]),
         inputs=str(r["inputs"]), evaluation={n: _nan(v) for n, v in r.get("evaluation", {}).items()},
         collision_free=bool(r.get("collision_free", True)), seconds=float(r.get("seconds", 0.0)),
-        awaits_together=r.get("awaits_together", False) is True,
+        awaits=_awaits(k, r.get("awaits", "")),
     )  # fmt: skip
+
+
+def _awaits(k: int, value: Any) -> str:
+    if value != "" and value not in AWAITS:
+        raise Damaged(f"{DOC}: keyframe {k}'s result awaits {json.dumps(value)[:40]}, not one of {sorted(AWAITS)}")
+    return value
 
 
 def _from_doc(folder: Path, doc: dict[str, Any]) -> ProjectState:

@@ -175,6 +175,7 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
     if seq.keep_clock:  # the paper's way (no clock) leaves late moves to the planner, as within a source
         seams = seams_out_of_reach(project.state, report.optimised, cfg.layout, cfg.plan.limits, seq.clock_margin)
     if seams:
+        project.optimise_again(seams)  # stale till done: a run stopped before it leaves them to the next
         done = _optimise(project, cfg, clip, queue, cancel, model_path, on_job, seams, set(ids), report, together,
                          " again: its move to or from another source was too fast for the servos")  # fmt: skip
         report.optimised = list(dict.fromkeys(report.optimised))
@@ -248,8 +249,9 @@ def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, se
             same = set(source_keyframes(project, k)) & set(report.optimised)
             box = keyframe_box(project.state, project.status(), k, seq.clock_margin, cfg.layout, cfg.plan.limits,
                                posed=settled | same)  # fmt: skip
+        owed = "together" if k in together else ""  # the run refines it with its neighbours after
         job = video_job(project, [k], cfg=keyframe_config(seq, pos), clip=clip, previous=previous,
-                        model_path=model_path, device=cfg.device, box=box, awaits_together=k in together)  # fmt: skip
+                        model_path=model_path, device=cfg.device, box=box, awaits=owed)  # fmt: skip
         job.meta["of"] = (n + 1, len(pending))
         queue.submit(job)
         if on_job is not None:

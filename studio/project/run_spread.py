@@ -198,7 +198,7 @@ def optimise_spread(
         k, kr = done
         project.set_result(k, kr.theta, kr.loss, kr.shadow, inputs=project.keyframe_inputs(k),
                            evaluation=kr.evaluation, collision_free=kr.collision_free,
-                           seconds=kr.seconds, awaits_together=k in together)  # fmt: skip
+                           seconds=kr.seconds, awaits="together" if k in together else "")  # fmt: skip
         saved.append(k)
         i = chain_of[k]
         poses[i][k] = kr.theta

@@ -8,7 +8,7 @@ on, every stretch of two or more consecutive keyframes of one source that the ru
 within their reach of one another and of every other current keyframe (held), in one job each. Keyframes the run
 did not optimise (current, or the artist's) never move, except those a run before it posed and did not get to refine
 (it was cancelled or failed first): each such result is saved as awaiting its refinement together
-(``PoseResult.awaits_together``), so the next run refines it with its neighbours, as the first run would have, and
+(``PoseResult.awaits``: "together"), so the next run refines it with its neighbours, as the first run would have, and
 a resumed run makes the show an uninterrupted one makes. With ``joint.both_orders`` a stretch is first posed again
 last to first, and refined from the order whose sum is lower (:func:`~studio.imitate.together.refine_show`). A
 stretch's results are replaced only where a pose moved, from the same inputs, so they stay current.
@@ -48,7 +48,7 @@ def refines_together(seq: SequenceConfig) -> bool:
 def awaiting_together(project: ProjectHandle) -> set[int]:
     """The keyframes whose current result awaits its refinement together (a run stopped before it)."""
     status = project.status()
-    return {k for k, r in project.results.items() if r.awaits_together and k not in status.stale}
+    return {k for k, r in project.results.items() if r.awaits == "together" and k not in status.stale}
 
 
 def to_refine_together(project: ProjectHandle, pending: Collection[int]) -> frozenset[int]:

@@ -89,6 +89,12 @@ class Keyframe:
             raise ValueError(f"keyframe {self.id}: representative {self.representative} is not one of its members")
 
 
+AWAITS = {  # what a run may still owe a result it saved, when it stops (cancelled, failed) before doing it
+    "together": "to be refined together with its neighbours at the next run",  # studio.project.run_together
+    "again": "to be optimised again at the next run: its move to or from another source is too fast",  # (stale)
+}
+
+
 @dataclass(frozen=True, eq=False)
 class PoseResult:
     """An optimisation result of one keyframe and the inputs it was computed from."""
@@ -100,8 +106,7 @@ class PoseResult:
     evaluation: dict[str, float] = field(default_factory=dict)  # components under the common measure, if any
     collision_free: bool = True  # the pose does not penetrate itself
     seconds: float = 0.0  # wall time it took
-    awaits_together: bool = False  # posed one after another by a run that then refines its keyframes together, and
-    # not refined yet (that run was cancelled or failed first): the next run refines it with its neighbours
+    awaits: str = ""  # what a run that stopped first still owes it (AWAITS: "together" or "again"); "": nothing
 
     def theta(self, joint_names: list[str]) -> np.ndarray:
         """The pose as ``(J,)`` rad in ``joint_names``' order."""

@@ -20,8 +20,8 @@ def _total(result: PoseResult | None) -> float | None:
 
 def summarise(s: ProjectState, status: ProjectStatus) -> dict:
     """Plain data for ``project info`` and the widgets: sources (missing? changed?), frames, keyframes with
-    their result's state ("current", "stale" or "missing"; a current one awaiting its refinement together with its
-    neighbours, which the next run does), counts, the show (stale?), undo/redo."""
+    their result's state ("current", "stale" or "missing"; what a stopped run still owes it, which the next run
+    does: ``AWAITS``), counts, the show (stale?), undo/redo."""
     missing = {m.index for m in status.missing_sources}
     keyframes = []
     for kf in s.keyframes:
@@ -31,7 +31,7 @@ def summarise(s: ProjectState, status: ProjectStatus) -> dict:
             "time_s": kf.time_s, "hold": kf.hold, "edited": kf.edited, "result": state,
             "loss": _total(s.results.get(kf.id)),
             "collides": kf.id in s.results and not s.results[kf.id].collision_free,
-            "awaits_together": state == "current" and s.results[kf.id].awaits_together,
+            "awaits": s.results[kf.id].awaits if kf.id in s.results else "",  # what a stopped run still owes it
         })  # fmt: skip
     counts = {c: sum(k["result"] == c for k in keyframes) for c in ("current", "stale", "missing")}
     show = None
