@@ -19,8 +19,9 @@ methods may be called from several threads (a lock serialises them). A project r
 Opening never fails for a moved or deleted source: it is listed in :attr:`Project.missing_sources` with its old
 path (and a warning); edits that must re-read it ask for :meth:`Project.relink_source`. A source whose content
 changed since it was read is listed in :attr:`Project.changed_sources`, and the results from it are stale until
-:meth:`Project.reload_sources`. Results (and the show) computed from inputs that differ from the current ones are
-stale (:meth:`Project.is_stale`, :meth:`Project.stale_keyframes`), never reported as current.
+:meth:`Project.reload_sources`. Results (and the show) computed from inputs that differ from the current ones, and
+results a run found it must optimise again, are stale (:meth:`Project.is_stale`, :meth:`Project.stale_keyframes`),
+never reported as current.
 """
 
 from __future__ import annotations
