@@ -66,7 +66,7 @@ def test_lab_refuses_a_folder_that_is_not_a_project(tmp_path):
     env = os.environ | {"SHADOW_STUDIO_HOME": str(tmp_path / "home")}
     cmd = [sys.executable, "-m", "studio.cli.main", "lab", str(tmp_path / "nothing.shadow"), "--no-browser"]
     done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=60)
-    assert done.returncode == 2 and "not a project" in done.stderr
+    assert done.returncode == 2 and "project not found" in done.stderr, done.stderr
     assert not (tmp_path / "home" / "lab").exists()  # nothing started, nothing copied
 
 

@@ -69,7 +69,10 @@ def test_project_verbs_report_bad_input_in_one_line(tmp_path, sources, in_proces
     assert r.returncode == 2 and "source not found" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     monkeypatch.chdir(tmp_path)  # the rest in this process (the start above proves the console script)
     r = in_process("project", "info", "nope.shadow")
-    assert r.returncode == 2 and "not a project" in r.stderr and "(shadow-studio project new makes one)" in r.stderr
+    assert r.returncode == 2 and "project not found: nope.shadow" in r.stderr, r.stderr
+    assert "(shadow-studio project new makes one)" in r.stderr
+    r = in_process("project", "info", ".")  # a folder, but no project's
+    assert r.returncode == 2 and "not a project (no project.json)" in r.stderr, r.stderr
     p = Project.create(tmp_path / "p.shadow", sources=[str(s) for s in sources], video=VIDEO)
     doc = json.loads((p.path / "project.json").read_text())
     (p.path / "project.json").write_text(json.dumps(doc | {"version": 2}))

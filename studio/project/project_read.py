@@ -55,6 +55,8 @@ class Damaged(ProjectError):
 def read_doc(folder: Path) -> dict[str, Any]:
     """``project.json`` of ``folder``, its format and version checked (a newer version is refused)."""
     path = Path(folder) / DOC
+    if not Path(folder).exists():
+        raise NotAProject(f"project not found: {folder}")
     if not path.is_file():
         raise NotAProject(f"not a project (no {DOC}): {folder}")
     check_subfolders(folder)
