@@ -48,6 +48,7 @@ from widgets.words import ALLOW_LATE
 log = logging.getLogger(__name__)
 
 KINDS = ("keyframe", "stale", "video")  # what start() optimises: the keyframe in view, missing/stale ones, a video
+STALE_TIP = "every missing or stale keyframe, what a stopped run still owes (run_together), then the show"
 
 
 @dataclass(frozen=True)
@@ -92,7 +93,7 @@ class OptimisePanel(OptimiseDrawing):
         px = self.cfg.image_px
         self.buttons = {
             "keyframe": w.Button(description="This keyframe", icon="play", tooltip="optimise the keyframe in view"),
-            "stale": w.Button(description="All stale", icon="forward", tooltip="every missing or stale keyframe"),
+            "stale": w.Button(description="All stale", icon="forward", tooltip=STALE_TIP),
             "video": w.Button(description="Whole video", icon="film", tooltip="the keyframes of this source"),
         }
         for kind, b in self.buttons.items():
