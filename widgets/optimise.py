@@ -48,7 +48,7 @@ from widgets.words import ALLOW_LATE
 log = logging.getLogger(__name__)
 
 KINDS = ("keyframe", "stale", "video")  # what start() optimises: the keyframe in view, missing/stale ones, a video
-STALE_TIP = "every missing or stale keyframe, what a stopped run still owes (run_together), then the show"
+STALE_TIP = "every missing or stale keyframe, what a stopped run still owes, then the show"
 
 
 @dataclass(frozen=True)
