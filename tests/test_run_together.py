@@ -67,6 +67,7 @@ def test_a_run_refines_its_keyframes_together_within_their_reach(horse, tmp_path
     assert report.ok and report.show == "planned" and report.late == [], report.message
     assert said[-2].startswith(f"refining keyframes {ids[0]}–{ids[-1]} together")  # then the show
     assert project.pending_keyframes() == [] and not project.is_show_stale()  # every result current
+    assert project.history[-2:] == [f"keyframes {ids[0]}–{ids[-1]} refined together", "planned show"]  # one undo
     got = poses(project)
     assert any(not np.array_equal(got[k], poses(before)[k]) for k in ids)  # it moved something
     limits = JointLimits.from_hand(load_hand(), RunConfig().plan.limits)

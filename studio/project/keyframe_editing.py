@@ -123,6 +123,28 @@ class KeyframeEditing:
         work began (default: now); ``awaits``: what the run saving it still owes it (``AWAITS``; "together": it
         refines it with its neighbours next, :mod:`studio.project.run_together`). A result from inputs that changed
         meanwhile is kept, marked stale."""
+        with self._lock:
+            result = self._result(k, pose, loss, shadow, inputs, evaluation, collision_free, seconds, awaits)
+            self._commit(f"result of keyframe {k}", replace(self._state, results={**self._state.results, k: result}))
+
+    def refined_together(self, ids: list[int], moved: Mapping[int, Mapping[str, Any]] | None = None) -> None:
+        """Keyframes ``ids`` refined together, in one edit (one undo): the results in ``moved`` (keyframe id →
+        :meth:`set_result`'s arguments after ``k``) replace theirs, and the other results of ``ids`` no longer await
+        it (their poses kept); nothing changes when nothing moved and nothing awaited it."""
+        with self._lock:
+            s = self._state
+            new = {k: self._result(k, **args) for k, args in (moved or {}).items()}
+            done = {k: replace(r, awaits="") for k in ids if (r := s.results.get(k)) and r.awaits == "together"}
+            if new or done:
+                label = f"keyframes {ids[0]}–{ids[-1]} refined together"
+                self._commit(label, replace(s, results={**s.results, **done, **new}))
+
+    def _result(
+        self, k: int, pose: Mapping[str, float] | np.ndarray, loss: Mapping[str, float], shadow: np.ndarray,
+        inputs: str | None = None, evaluation: Mapping[str, float] | None = None, collision_free: bool = True,
+        seconds: float = 0.0, awaits: str = "",
+    ) -> PoseResult:  # fmt: skip
+        """The :class:`PoseResult` :meth:`set_result` saves (arguments checked: a ProjectError says what is wrong)."""
         if not isinstance(pose, Mapping):
             from studio.sim.hand import load_hand
 
@@ -138,26 +160,15 @@ class KeyframeEditing:
             raise ProjectError(f"a shadow is an (R, R) image, not an array of shape {shadow.shape}")
         if awaits != "" and awaits not in AWAITS:
             raise ProjectError(f"a result awaits one of {sorted(AWAITS)} or nothing, not {awaits!r}")
-        with self._lock:
-            now = self.keyframe_inputs(k)
-            if inputs is not None and inputs != now:
-                log.warning("%s: keyframe %d's result was computed from inputs that changed since: stale", self.path, k)
-            result = PoseResult(
-                pose={str(n): float(v) for n, v in pose.items()}, loss={n: float(v) for n, v in loss.items()},
-                shadow=frozen(shadow), inputs=inputs or now,
-                evaluation={n: float(v) for n, v in (evaluation or {}).items()},
-                collision_free=bool(collision_free), seconds=float(seconds), awaits=awaits,
-            )  # fmt: skip
-            self._commit(f"result of keyframe {k}", replace(self._state, results={**self._state.results, k: result}))
-
-    def refined_together(self, ids: list[int]) -> None:
-        """The results of keyframes ``ids`` no longer await their refinement together (it ran: each pose kept or
-        replaced); ids without a result, or not awaiting it, are left as they are."""
-        with self._lock:
-            s = self._state
-            done = {k: replace(r, awaits="") for k in ids if (r := s.results.get(k)) and r.awaits == "together"}
-            if done:
-                self._commit(f"keyframes {sorted(done)} refined together", replace(s, results={**s.results, **done}))
+        now = self.keyframe_inputs(k)
+        if inputs is not None and inputs != now:
+            log.warning("%s: keyframe %d's result was computed from inputs that changed since: stale", self.path, k)
+        return PoseResult(
+            pose={str(n): float(v) for n, v in pose.items()}, loss={n: float(v) for n, v in loss.items()},
+            shadow=frozen(shadow), inputs=inputs or now,
+            evaluation={n: float(v) for n, v in (evaluation or {}).items()},
+            collision_free=bool(collision_free), seconds=float(seconds), awaits=awaits,
+        )  # fmt: skip
 
     def optimise_again(self, ids: list[int]) -> None:
         """The results of keyframes ``ids`` are to be optimised again (a run found a move between two sources too

@@ -79,8 +79,8 @@ def together_stretches(project: ProjectHandle, optimised: Collection[int]) -> li
 
 def together_job(project: ProjectHandle, ids: list[int], cfg: Any, clip: Any = None, model_path: Any = None) -> Job:
     """One stretch ``ids`` (:func:`together_stretches`) refined together as ``cfg`` (a
-    :class:`~studio.project.run.RunConfig`) keeps the clock → ``project.set_result`` for each keyframe whose pose
-    moved, on completion."""
+    :class:`~studio.project.run.RunConfig`) keeps the clock → ``project.refined_together`` on completion (one edit:
+    the results of the keyframes whose pose moved, the others no longer awaiting it)."""
     seq, s, status = cfg.sequence, project.state, project.status()
     hand = load_hand()
     names = hand.joint_names
@@ -108,11 +108,13 @@ def together_job(project: ProjectHandle, ids: list[int], cfg: Any, clip: Any = N
         log.info("keyframes %d–%d together%s: sum %.4f → %.4f in %.1f s", ids[0], ids[-1], order, got.start_loss,
                  got.loss, got.seconds)  # fmt: skip
         share = got.seconds / len(ids)
+        moved = {}  # keyframe → set_result's arguments, for each pose the refinement moved
         for k, sc in zip(ids, scores, strict=True):
             if not np.array_equal(sc.theta, start[k].theta(names)):
-                project.set_result(k, sc.theta, sc.loss, sc.shadow, inputs=inputs[k], evaluation=sc.evaluation,
-                                   collision_free=sc.collision_free, seconds=start[k].seconds + share)  # fmt: skip
-        project.refined_together(list(ids))  # the poses kept no longer await it
+                moved[k] = {"pose": sc.theta, "loss": sc.loss, "shadow": sc.shadow, "inputs": inputs[k],
+                            "evaluation": sc.evaluation, "collision_free": sc.collision_free,
+                            "seconds": start[k].seconds + share}  # fmt: skip
+        project.refined_together(list(ids), moved)  # one edit: the poses moved, and those kept no longer await it
 
     job = refine_together_job(
         masks, expressive, np.stack([start[k].theta(names) for k in ids]), pairs=pairs, boxes=boxes, cfg=seq,
