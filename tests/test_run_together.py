@@ -97,7 +97,8 @@ def test_keyframes_the_run_did_not_optimise_never_move(horse, tmp_path):
 def test_a_run_cancelled_while_refining_together_refines_them_when_resumed(horse, tmp_path):
     """Cancelled while refining together: every keyframe posed one after another is saved, current, and awaits its
     refinement together (``project info`` says so). The next run, naming no keyframe, refines them together and
-    plans the show, with the poses of the run that was not cancelled: the same command resumes the same show."""
+    plans the show, with the poses of the run that was not cancelled: the same command resumes the same show. So
+    does a run stopped while posing."""
     whole = tmp_path / "whole.shadow"
     shutil.copytree(horse, whole)
     reference = Project.open(whole)
@@ -130,3 +131,21 @@ def test_a_run_cancelled_while_refining_together_refines_them_when_resumed(horse
     got, want = poses(reopened), poses(reference)
     assert all(np.array_equal(got[k], want[k]) for k in ids)
     assert reopened.show.equals(replace(reference.show, created=reopened.show.created))  # the same show
+    # stopped while posing the third keyframe of a new project: the two saved before it await the refinement, and
+    # the resumed run poses the rest and refines all of them together, to the same poses
+    fresh = Project.create(tmp_path / "fresh.shadow", sources=[DEFAULT_VIDEO], clustering=KeyframeConfig(tau=0.9))
+    fresh.set_roll(0.0)
+    assert [kf.id for kf in fresh.keyframes] == ids and len(ids) >= 3
+    cancel, posed = threading.Event(), []
+
+    def third(job, what):
+        posed.append(what)
+        if len(posed) == 3:
+            cancel.set()
+
+    assert run_project(fresh, RunConfig(sequence=TOGETHER), cancel=cancel, on_job=third).cancelled
+    assert [fresh.results[k].awaits for k in ids[:2]] == ["together"] * 2 and fresh.pending_keyframes() == ids[2:]
+    resumed = run_project(fresh, RunConfig(sequence=TOGETHER))
+    assert resumed.ok and resumed.optimised == ids[2:] and resumed.refined == ids, resumed.message
+    got = poses(fresh)
+    assert all(np.array_equal(got[k], want[k]) for k in ids)
