@@ -178,7 +178,8 @@ class KeyframeEditing:
             s = self._state
             again = {k: replace(r, awaits="again") for k in ids if (r := s.results.get(k)) is not None}
             if again:
-                label = f"keyframes {sorted(again)} to optimise again: a move to another source too fast"
+                which = ", ".join(map(str, sorted(again)))
+                label = f"keyframe{'s' * (len(again) > 1)} {which} to optimise again: a move to another source too fast"
                 self._commit(label, replace(s, results={**s.results, **again}))
 
     def set_show(self, show: Show | None, inputs: str | None = None) -> None:
