@@ -50,7 +50,7 @@ from studio.project.project_format import DOC, SUFFIX, save_state
 from studio.project.project_read import load_state
 from studio.project.run import Running
 from studio.project.show_timing import ShowLayout, project_timing
-from studio.project.sources import hash_source, load_sources, locate, make_source
+from studio.project.sources import check_sources, load_sources, make_source
 from studio.project.state import (
     Frame,
     Keyframe,
@@ -162,18 +162,7 @@ class Project(Editing, KeyframeEditing, Running, History):
         raise ProjectError(f"{path} keeps changing while it is read (another process is saving it); try again")
 
     def _check_sources(self) -> None:
-        self.missing_sources, self.changed_sources = [], []
-        for i, src in enumerate(self._state.sources):
-            where = locate(src, self.path)
-            if where is None:
-                self.missing_sources.append(MissingSource(i, src.path, src.absolute))
-                log.warning(
-                    "%s: source %d is missing: it was at %s (given as %s); its frames and results are kept, and "
-                    "re-reading it needs it relinked (source %d)", self.path, i, src.absolute, src.path, i
-                )  # fmt: skip
-            elif hash_source(where) != src.sha256:
-                self.changed_sources.append(i)
-                log.warning("%s: source %d changed since it was read (%s): its results are stale", self.path, i, where)
+        self.missing_sources, self.changed_sources = check_sources(self._state.sources, self.path)
 
     # ---------------------------------------------------------------- reading
     @property

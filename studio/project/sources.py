@@ -21,6 +21,7 @@ import numpy as np
 from studio.errors import ProgressFn, StudioError
 from studio.project.containment import check_source_path, is_source_path
 from studio.project.state import Frame, Source
+from studio.project.status import MissingSource
 from studio.targets.expressive import expressive_masks
 from studio.targets.images import TargetConfig
 from studio.targets.source import open_source, source_kind
@@ -130,3 +131,21 @@ def framed_frames(sources: Sequence[Source], frames: Sequence[Frame], folder: Pa
                 framed = crop_square(footage.frames[k], src.frame_box, video.size)
                 out[n] = np.clip(framed + 0.5, 0, 255).astype(np.uint8)
     return out
+
+
+def check_sources(sources: Sequence[Source], project: Path) -> tuple[list[MissingSource], list[int]]:
+    """The sources of the project at ``project`` that are missing (where they were last read, with a warning each)
+    and the indices of those whose content changed since (their results are stale)."""
+    missing, changed = [], []
+    for i, src in enumerate(sources):
+        where = locate(src, project)
+        if where is None:
+            missing.append(MissingSource(i, src.path, src.absolute))
+            log.warning(
+                "%s: source %d is missing: it was at %s (given as %s); its frames and results are kept, and "
+                "re-reading it needs it relinked (source %d)", project, i, src.absolute, src.path, i
+            )  # fmt: skip
+        elif hash_source(where) != src.sha256:
+            changed.append(i)
+            log.warning("%s: source %d changed since it was read (%s): its results are stale", project, i, where)
+    return missing, changed
