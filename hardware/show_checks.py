@@ -1,12 +1,20 @@
 """May this show play here? A show planned for another hand model, or for a mount rolled otherwise than the rig's
 calibration records, is refused with one clear line before any servo moves (DESIGN §1, §5.13). The player (`play`),
-the dry run, live control (`live`, the Live panel's view) and the real-vs-sim panel all ask these checks."""
+the dry run, live control (`live`, the Live panel's view) and the real-vs-sim panel all ask these checks.
+
+Will it play as planned? The studio poses the hand within the URDF's limits; a calibration's soft limits may lie
+inside them (the shipped one: 0.05 rad inside), and the player stops every command at those. :func:`beyond_soft_limits`
+says, before anything moves, which joints a show asks beyond them and by how much (`play`, the demo, the Export
+panel), so a shadow that differs from the planned one is never a surprise."""
 
 from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from pathlib import Path
+
+import numpy as np
 
 from hardware.calibration import Calibration
 from hardware.errors import MountMismatch, ShowForAnotherHand
@@ -15,7 +23,14 @@ from studio.sim.roll import mount_text, wrap_deg
 
 log = logging.getLogger(__name__)
 
-__all__ = ["MOUNT_TOL_DEG", "calibrated_roll_conflict", "check_mount", "check_show_hand"]
+__all__ = [
+    "MOUNT_TOL_DEG",
+    "beyond_soft_limits",
+    "calibrated_roll_conflict",
+    "check_mount",
+    "check_show_hand",
+    "soft_limit_text",
+]
 
 MOUNT_TOL_DEG = 0.5  # a show's roll and the calibration's may differ by this much, degrees
 
@@ -56,4 +71,34 @@ def check_show_hand(show_hash: str, hand: Hand, path: str | Path | None = None, 
     raise ShowForAnotherHand(
         f"the show{where} was planned for another hand model (hand {show_hash}, this one is {hand.hash}): plan it "
         "again for this hand, or force it if you are sure the two hands move alike"
+    )
+
+
+def beyond_soft_limits(
+    positions: np.ndarray, joint_names: Sequence[str], cal: Calibration, tol: float = 1e-6
+) -> list[tuple[str, float]]:
+    """The joints whose angles in ``positions (N, J) rad`` (columns named by ``joint_names``) lie beyond ``cal``'s
+    soft limits by more than ``tol`` rad, as ``(joint name, the most rad beyond)``, farthest first; the player
+    stops those joints at the limits. Joints the calibration does not map are left out."""
+    q = np.asarray(positions, dtype=np.float64)
+    out = []
+    for k, name in enumerate(cal.joint_names):
+        if name in joint_names:
+            col = q[:, list(joint_names).index(name)]
+            over = max(float(np.max(cal.lower[k] - col)), float(np.max(col - cal.upper[k])), 0.0)
+            if over > tol:
+                out.append((name, over))
+    return sorted(out, key=lambda x: -x[1])
+
+
+def soft_limit_text(beyond: Sequence[tuple[str, float]], most: int = 4) -> str | None:
+    """One line for :func:`beyond_soft_limits`' answer, the ``most`` farthest joints named (None: nothing beyond)."""
+    if not beyond:
+        return None
+    named = ", ".join(f"{n} by {math.degrees(r):.1f}°" for n, r in beyond[:most])
+    named += f" and {len(beyond) - most} more" if len(beyond) > most else ""
+    joints = "1 joint" if len(beyond) == 1 else f"{len(beyond)} joints"
+    return (
+        f"the show asks {joints} beyond the calibration's soft limits ({named}): the hand stops them at the limits, "
+        "so its shadow differs a little from the planned one"
     )

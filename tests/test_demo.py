@@ -14,6 +14,7 @@ import pytest
 from hardware.calibration import load_calibration
 from hardware.player import PlayerConfig
 from hardware.safety import SafetyConfig
+from hardware.show_checks import beyond_soft_limits
 from studio.cli.main import main
 from studio.motion.show import load_show
 from studio.project.project import Project
@@ -74,6 +75,10 @@ def test_demo_writes_the_project_the_show_and_plays_it(first_run, capsys):
     assert show.duration == pytest.approx(project.show.duration)
     assert main(["validate", summary["show"]]) == 0
     capsys.readouterr()
+    # the joints the shipped calibration's soft limits stop, said before playing (the planner works to the URDF's)
+    beyond = beyond_soft_limits(show.positions, show.joint_names, load_calibration(None, load_hand()))
+    assert summary["playback"]["beyond_soft_limits_deg"] == {n: round(np.degrees(r), 2) for n, r in beyond}
+    assert ("note: the show asks" in text) == bool(beyond)
 
 
 @pytest.mark.slow

@@ -391,3 +391,40 @@ def test_play_and_jog_keep_a_log_in_the_studio_home_by_default(hand, tmp_path, c
     assert f"jog log saved to {journal}" in capsys.readouterr().out
     text = journal.read_text()
     assert f"# shadow-studio jog on {emu.port}" in text and "> j wrist" in text and "end: servos stopped" in text
+
+
+def test_play_says_before_moving_which_joints_the_soft_limits_stop_and_the_player_stops_them_there(
+    hand, tmp_path, capsys
+):
+    """A show that asks two joints beyond the shipped calibration's soft limits (which lie 0.05 rad inside the URDF's):
+    `play` names them, farthest first, before anything moves, and the log shows the player stopped exactly those
+    joints, by exactly as much as it said."""
+    from hardware.show_checks import beyond_soft_limits
+    from studio.motion.show import Show, save_show
+
+    cal = load_calibration(None, hand)
+    wrist, pip = hand.joint_names.index("wrist"), hand.joint_names.index("index_pip")
+    t = np.arange(0, 1.0, 1 / 40)
+    q = np.tile(hand.rest_pose(), (len(t), 1))
+    q[:, wrist] = np.linspace(0.0, hand.upper[wrist] - 0.02, len(t))  # 0.03 rad beyond the soft upper limit
+    q[:, pip] = np.linspace(q[0, pip], hand.lower[pip], len(t))  # 0.05 rad beyond the soft lower limit
+    show = Show.from_samples(hand, t, q, title="to the limits")
+    beyond = beyond_soft_limits(show.positions, show.joint_names, cal)
+    assert [n for n, _ in beyond] == ["index_pip", "wrist"]
+    assert [r for _, r in beyond] == pytest.approx([0.05, 0.03], abs=1e-6)
+    save_show(show, tmp_path / "limits.json")
+    log = tmp_path / "log.npz"
+    assert main(["play", str(tmp_path / "limits.json"), "--dry-run", "--quiet", "--log", str(log)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    note = next(x for x in out if x.startswith("note:"))
+    assert out.index(note) < next(i for i, x in enumerate(out) if x.startswith("completed"))
+    assert "2 joints beyond the calibration's soft limits (index_pip by 2.9°, wrist by 1.7°)" in note
+    clipped = next(x for x in out if "ticks clipped:" in x)
+    saved = np.load(log)
+    names = [str(n) for n in saved["joint_names"]]
+    over = np.abs(saved["requested"] - saved["sent"]).max(0)
+    assert {names[j] for j in np.flatnonzero(over > 1e-6)} == {"index_pip", "wrist"}
+    assert over[names.index("index_pip")] == pytest.approx(0.05, abs=1e-4)
+    assert over[names.index("wrist")] == pytest.approx(0.03, abs=1e-4)
+    held = int((np.abs(saved["requested"] - saved["sent"]).max(1) > 1e-6).sum())
+    assert f"ticks clipped: {held} at the soft limits, 0 at the step limit" in clipped and held > 0

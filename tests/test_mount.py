@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from hardware.calibration import default_calibration, load_calibration, save_calibration
 from hardware.errors import MountMismatch
-from hardware.show_checks import check_mount
+from hardware.show_checks import beyond_soft_limits, check_mount, soft_limit_text
 from studio.motion.show import Show, load_show
 from studio.project.project import Project
 from studio.project.project_format import DOC
@@ -184,3 +185,23 @@ def test_the_review_and_the_scene_show_the_hand_mounted_rolled(tmp_path, hand):
         scene.set_roll(roll)
         shadow = scene.set_pose(theta)
     assert iou(shadow, ShadowRenderer(hand, Rig(resolution=shadow.shape[0], roll=roll)).render_one(theta)) == 1.0
+
+
+def test_the_joints_beyond_the_soft_limits_are_named_farthest_first_and_counted(hand):
+    """One line, the four farthest joints named in degrees and the rest counted; none beyond: no line. A calibration
+    that does not map a joint of the show leaves it out."""
+    cal = load_calibration(None, hand)
+    q = np.tile(hand.rest_pose(), (3, 1))
+    assert beyond_soft_limits(q, hand.joint_names, cal) == [] and soft_limit_text([]) is None
+    names = ["index_pip", "middle_pip", "ring_pip", "pinky_pip", "thumb_pip", "wrist"]
+    for k, name in enumerate(names):
+        j = hand.joint_names.index(name)
+        q[1, j] = cal.upper[j] + 0.001 * (k + 1)  # wrist farthest, index_pip nearest
+    beyond = beyond_soft_limits(q, hand.joint_names, cal)
+    assert [n for n, _ in beyond] == names[::-1] and beyond[0][1] == pytest.approx(0.006)
+    text = soft_limit_text(beyond)
+    assert text.startswith("the show asks 6 joints beyond the calibration's soft limits (wrist by 0.3°, thumb_pip")
+    assert "middle_pip" not in text and "ring_pip by 0.2° and 2 more)" in text and "differs a little" in text
+    assert "1 joint beyond" in soft_limit_text(beyond[:1])
+    fewer = replace(cal, joints=tuple(j for j in cal.joints if j.name != "wrist"))
+    assert [n for n, _ in beyond_soft_limits(q, hand.joint_names, fewer)] == names[-2::-1]

@@ -62,11 +62,12 @@ def test_plan_write_validate_info_and_csv(state, tmp_path):
     assert "validated" in panel.messages.text and np.allclose(show.positions, state.project.show.positions)
     shown = html_lines(panel.info.value)[1:]
     # what `shadow-studio show-info` prints, but for the lines an artist reads in the project's terms
-    artist = ("keyframes:", "media:", "made from:", "late:", "ramp-in:")
+    artist = ("keyframes:", "media:", "made from:", "late:", "ramp-in:", "limits:")
     assert [x for x in shown if not x.startswith(artist)] == [
         x for x in show_info_lines(show) if not x.startswith(artist)
     ]  # fmt: skip
     assert "made from:    asl_o.jpeg" in shown and "late:         none (every move fits the servos)" in shown
+    assert "limits:       every pose within the calibration's soft limits: the hand plays it as planned" in shown
     assert not any(x.startswith("media:") for x in shown)  # never "media: -"
     panel.csv_path.value = str(tmp_path / "out.csv")
     panel.degrees.value = True
@@ -194,9 +195,13 @@ def horse(tmp_path, hand):
 
 
 @pytest.mark.slow
-def test_the_show_is_described_in_the_projects_terms_with_its_late_moves_and_its_ramp_in(horse):
+def test_the_show_is_described_in_the_projects_terms_with_its_late_moves_and_its_ramp_in(horse, hand):
     p = horse.project
     assert len(p.keyframes) == 3 and len(p.frames) == 9
+    kf, pip = p.keyframes[-1], hand.joint_names.index("index_pip")
+    pose = np.array([p.results[kf.id].pose[n] for n in hand.joint_names])
+    pose[pip] = hand.upper[pip] - 0.01  # 0.04 rad beyond the shipped calibration's soft limit (0.05 inside the URDF's)
+    p.set_result(kf.id, pose, {"total": 0.3}, p.results[kf.id].shadow, inputs=p.keyframe_inputs(kf.id))
     panel = ExportPanel(horse)
     try:
         assert wait_for(panel.plan(), 120) == JobState.DONE
@@ -218,6 +223,11 @@ def test_the_show_is_described_in_the_projects_terms_with_its_late_moves_and_its
         ticks = played.result.ramp_ticks
         rate = panel.cfg.player.rate_hz if panel.cfg.player else 40.0
         assert said == pytest.approx(ticks / rate, abs=0.006)  # what the player did: the same ramp
+        limits = next(x for x in lines if x.startswith("limits:"))
+        assert "1 joint beyond the calibration's soft limits (index_pip by 2.3°)" in limits, limits
+        r = played.result  # what the player did: it stopped that joint, and only that one, at its limit
+        assert [r.joint_names[j] for j in np.flatnonzero(r.clipped_limit.any(0))] == ["index_pip"]
+        assert np.abs(r.requested - r.sent).max() == pytest.approx(0.04, abs=1e-4)
         assert "99999" not in panel.info.value and "(s)" not in panel.messages.text
     finally:
         panel.close()

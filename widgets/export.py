@@ -42,7 +42,7 @@ from studio.sim.hand import Hand, load_hand
 from widgets.export_jobs import ExportJobs
 from widgets.images import Messages, title
 from widgets.real_vs_sim import real_vs_sim_view
-from widgets.show_text import ProjectView, artist_lines, ramp_line
+from widgets.show_text import ProjectView, artist_lines, limits_line, ramp_line
 from widgets.state import StudioState
 from widgets.words import ALLOW_LATE, count, seconds
 
@@ -78,7 +78,7 @@ class ExportPanel(ExportJobs):
         self._sessions: dict[Job, ServoSession] = {}  # servos this panel opened for a play job (closed when it ends)
         self._last_draw = 0.0
         self._timings: dict[Job, VideoTiming] = {}  # plan job → the timing it planned (names its late transitions)
-        self._calibration: Calibration | None = None  # the shipped calibration, read once (the ramp-in line)
+        self._calibration: Calibration | None = None  # the shipped calibration, read once (ramp-in, limits)
         self.messages = Messages()
         self.allow_late = w.Checkbox(value=self.cfg.allow_late, description=ALLOW_LATE, indent=False,
                                      tooltip="stretch moves too fast for the servos: the show runs longer")  # fmt: skip
@@ -144,7 +144,7 @@ class ExportPanel(ExportJobs):
         if mine:
             names = tuple(Path(s.path).name for s in p.sources)
             view = ProjectView(len(p.keyframes), names, None if stale else self._project_late(show))
-        lines = artist_lines(show, view, self._ramp(show))
+        lines = artist_lines(show, view, self._hand_lines(show))
         text = note + ("\n" if note else "") + stale + "\n".join(lines)
         self.info.value = f"<pre style='margin:2px 0'>{html.escape(text)}</pre>"
 
@@ -158,15 +158,16 @@ class ExportPanel(ExportJobs):
             log.debug("late transitions by time only: %s", e)
             return None
 
-    def _ramp(self, show: Show) -> str | None:
-        """The ramp-in line for where the show would play (None when the calibration cannot be read)."""
+    def _hand_lines(self, show: Show) -> list[str]:
+        """The ramp-in and limits lines for where the show would play (none when the calibration cannot be read)."""
         try:
             if self._calibration is None:
                 self._calibration = load_calibration(None, self.hand)
-            return ramp_line(show, self._calibration, self.target.value == "emulator", self.cfg.player)
+            ramp = ramp_line(show, self._calibration, self.target.value == "emulator", self.cfg.player)
+            return [ramp, limits_line(show, self._calibration)]
         except (StudioError, ValueError) as e:
-            log.debug("no ramp-in line: %s", e)
-            return None
+            log.debug("no ramp-in or limits line: %s", e)
+            return []
 
     def plan(self) -> Job | None:
         """Plan the show as a job on the project's queue (applied by ``set_show`` when it completes)."""

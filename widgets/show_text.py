@@ -5,11 +5,13 @@ three things differently: the **keyframes** are the project's (a video's keyfram
 the planner's home pose is not one), **media** is what the show plays beside or, when nothing, the sources it was
 made from, and the **late** transitions are listed (frames, keyframes, needed versus given seconds). It adds the
 **ramp-in**: before show time 0 the player brings the hand from where it stands to the show's first pose, as
-:meth:`hardware.player.Player.trajectory` computes it, so a 1.44 s show can take seconds more to play.
+:meth:`hardware.player.Player.trajectory` computes it, so a 1.44 s show can take seconds more to play; and the
+**limits**: the joints the show asks beyond the calibration's soft limits, where the player stops them.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,6 +20,7 @@ import numpy as np
 from hardware.calibration import Calibration
 from hardware.constants import CENTER_UNITS
 from hardware.player import Player, PlayerConfig
+from hardware.show_checks import beyond_soft_limits, soft_limit_text
 from studio.motion.show import Show
 from studio.motion.show_info import show_info_lines
 from widgets.words import count, late_lines, seconds
@@ -97,8 +100,15 @@ def ramp_line(show: Show, calibration: Calibration, on_emulator: bool, player: P
                             f"about {seconds(total)}")  # fmt: skip
 
 
-def artist_lines(show: Show, view: ProjectView, ramp: str | None = None) -> list[str]:
-    """Every line of the panel's description of ``show`` (module doc)."""
+def limits_line(show: Show, calibration: Calibration) -> str:
+    """Whether the show's poses lie within the calibration's soft limits, where the player stops every command
+    (:func:`hardware.show_checks.beyond_soft_limits`)."""
+    text = soft_limit_text(beyond_soft_limits(show.positions, show.joint_names, calibration))
+    return _line("limits", text or "every pose within the calibration's soft limits: the hand plays it as planned")
+
+
+def artist_lines(show: Show, view: ProjectView, hand: Sequence[str] = ()) -> list[str]:
+    """Every line of the panel's description of ``show`` (module doc), then the ``hand`` lines (where it plays)."""
     out: list[str] = []
     for line in show_info_lines(show):
         label = line.split(":", 1)[0]
@@ -111,6 +121,4 @@ def artist_lines(show: Show, view: ProjectView, ramp: str | None = None) -> list
             out += late_text(show, view.late)
         else:
             out.append(line)
-    if ramp:
-        out.append(ramp)
-    return out
+    return out + list(hand)

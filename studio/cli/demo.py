@@ -23,6 +23,7 @@ import argparse
 import dataclasses
 import functools
 import json
+import math
 import shutil
 import sys
 import time
@@ -51,6 +52,16 @@ def _project(out: Path, fresh_start: bool):
     return project, fresh
 
 
+def _beyond_soft_limits(show) -> list[tuple[str, float]]:
+    """The joints ``show`` asks beyond the shipped calibration's soft limits, where the emulator's player stops
+    them (:func:`hardware.show_checks.beyond_soft_limits`)."""
+    from hardware.calibration import load_calibration
+    from hardware.show_checks import beyond_soft_limits
+    from studio.sim.hand import load_hand
+
+    return beyond_soft_limits(show.positions, show.joint_names, load_calibration(None, load_hand()))
+
+
 def _play(show, queue, cancel, **_):
     """Play ``show`` on the emulator as a job of ``queue`` until it ends or ``cancel`` is set → the finished job."""
     from studio.project.play import play_job
@@ -64,6 +75,7 @@ def _play(show, queue, cancel, **_):
 
 
 def _demo(args: argparse.Namespace) -> int:
+    from hardware.show_checks import soft_limit_text
     from studio.project.outputs import self_model_predictor
     from studio.project.project import ProjectError
     from studio.review.recording import ProjectRecording
@@ -101,6 +113,9 @@ def _demo(args: argparse.Namespace) -> int:
         summary["show"] = str(show_path)
         print(f"wrote {show_path}: {project.show.duration:.2f} s, {len(project.show.times)} samples; playing it on "
               "the emulator", file=sys.stderr)  # fmt: skip
+        beyond = _beyond_soft_limits(project.show)
+        if note := soft_limit_text(beyond):
+            print(f"note: {note}", file=sys.stderr)
         job = run_with_bars(functools.partial(_play, project.show), args.quiet)
         played = job.result
         if played is not None:
@@ -108,7 +123,8 @@ def _demo(args: argparse.Namespace) -> int:
     summary["played"] = bool(job.state.value == "done" and played is not None and played.ok)
     if played is not None:
         summary["playback"] = {"reason": played.reason.value, "ticks": len(played.t), "commands": played.commands,
-                               "max_tracking_error_rad": round(float(played.max_tracking_error_rad), 5)}  # fmt: skip
+                               "max_tracking_error_rad": round(float(played.max_tracking_error_rad), 5),
+                               "beyond_soft_limits_deg": {n: round(math.degrees(r), 2) for n, r in beyond}}  # fmt: skip
     summary["no_clip"] = clip is None
     summary["seconds"] = round(time.perf_counter() - t0, 2)
     print(f"wrote {out / 'review.rrd'} (open it with: rerun {out / 'review.rrd'})", file=sys.stderr)

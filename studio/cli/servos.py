@@ -42,7 +42,7 @@ from hardware.playback_log import PlaybackResult, StopReason, save_playback_log
 from hardware.player import Player, PlayerConfig
 from hardware.serial_bus import BusConfig
 from hardware.session import ServoSession, load_emulator
-from hardware.show_checks import check_mount, check_show_hand
+from hardware.show_checks import beyond_soft_limits, check_mount, check_show_hand, soft_limit_text
 from hardware.wizard import CalibrationWizard
 from studio.cli.flags import add_config_flags, config_from_args, ranged
 from studio.cli.play_camera import add_camera_flags, prepare_camera
@@ -172,6 +172,8 @@ def cmd_play(args) -> int:
             print(f"dry run: playing to the emulator on {session.emulator.port}")
         print(f"playing {show.title!r}: {show.duration:.2f} s, {len(show.times)} samples; Ctrl-C stops safely")
         print(f"mount: {mount_text(show.roll)}")
+        if note := soft_limit_text(beyond_soft_limits(show.positions, show.joint_names, cal)):
+            print(f"note: {note}")
         player = Player(session.bus, cal, cfg)
         try:
             with TqdmBars(disable=args.quiet) as bars:
@@ -197,12 +199,12 @@ def _report(result: PlaybackResult) -> None:
     line = f"{result.reason.value}: {result.message}; torque {result.torque}"
     print(line if result.ok else f"shadow-studio play: stopped: {line}", file=sys.stdout if result.ok else sys.stderr)
     late = np.abs(result.lateness_s) * 1000
-    clipped = int(result.clipped_limit.any(1).sum() + result.clipped_step.any(1).sum())
+    at_limit, at_step = int(result.clipped_limit.any(1).sum()), int(result.clipped_step.any(1).sum())
     if len(late):
         print(
             f"{len(result.sent)} ticks (ramp {result.ramp_ticks}), {result.commands} commands, tick jitter p50 "
-            f"{np.percentile(late, 50):.2f} ms p99 {np.percentile(late, 99):.2f} ms, {clipped} ticks clipped, "
-            f"max tracking error {result.max_tracking_error_rad:.3f} rad"
+            f"{np.percentile(late, 50):.2f} ms p99 {np.percentile(late, 99):.2f} ms, ticks clipped: {at_limit} at "
+            f"the soft limits, {at_step} at the step limit; max tracking error {result.max_tracking_error_rad:.3f} rad"
         )
 
 
