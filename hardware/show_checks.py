@@ -100,5 +100,5 @@ def soft_limit_text(beyond: Sequence[tuple[str, float]], most: int = 4) -> str |
     joints = "1 joint" if len(beyond) == 1 else f"{len(beyond)} joints"
     return (
         f"the show asks {joints} beyond the calibration's soft limits ({named}): the hand stops them at the limits, "
-        "so its shadow differs a little from the planned one"
+        "so its shadow differs from the planned one"
     )

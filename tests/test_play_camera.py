@@ -218,3 +218,43 @@ def test_a_camera_that_dies_mid_show_does_not_stop_it(hand, tmp_path):
     assert b.captured is None and "no picture" in b.error and "USB cable" in b.error
     assert "USB cable" in done.camera_error and math.isnan(b.losses["captured_vs_simulated"])
     assert np.abs(a.measured - a.commanded).max() < 0.05  # the read-backs at the frame's time: the hand held A
+
+
+def test_the_simulated_shadow_is_the_pose_the_player_sends_stopped_at_the_soft_limits(tmp_path, hand):
+    """A calibration whose wrist stops at 0 rad while the show's pose A asks 0.3 rad: `play` says so before moving,
+    the emulator's hand holds the wrist at its limit, and the simulated shadow beside the photograph is that pose's
+    (so the camera and the simulation agree), not the show's, whose own shadow is its target."""
+    from dataclasses import replace
+
+    from hardware.calibration import load_calibration, save_calibration
+    from studio.project.show_capture_data import aligned_iou_loss
+
+    (tmp_path / "rig.yaml").write_text("camera: {width: 480, height: 360}\n")  # the nominal rig: no rig error
+    show = two_keyframes(hand, tmp_path)
+    cal = load_calibration(None, hand)
+    save_calibration(replace(cal, joints=tuple(replace(j, upper=0.0) if j.name == "wrist" else j for j in cal.joints)),
+                     tmp_path / "narrow.yaml")  # fmt: skip
+    out = tmp_path / "captures"
+    args = ["play", str(show), "--dry-run", "--camera", "virtual", "--true-rig", str(tmp_path / "rig.yaml"),
+            "--calibration", str(tmp_path / "narrow.yaml"), "--captures-out", str(out), "--capture-resolution",
+            str(RES), "--quiet"]  # fmt: skip
+    import contextlib
+    import io
+
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        assert main(args) == 0
+    lines = stdout.getvalue().strip().splitlines()
+    assert any(x.startswith("note: the show asks 1 joint beyond the calibration's soft limits (wrist by 17.2°)")
+               for x in lines), lines  # fmt: skip
+    a = json.loads(lines[-1])["per_keyframe"][0]
+    qa = poses(hand)[0]
+    held = qa.copy()
+    held[hand.joint_names.index("wrist")] = 0.0
+    renderer = ShadowRenderer(hand, Rig(resolution=RES))
+    simulated = (cv2.imread(str(out / "k0_simulated.png"), cv2.IMREAD_GRAYSCALE) < 100).astype(np.uint8)
+    captured = (cv2.imread(str(out / "k0_captured.png"), cv2.IMREAD_GRAYSCALE) < 100).astype(np.uint8)
+    assert aligned_iou_loss(simulated, renderer.render_one(held)) < 0.01  # the pose as sent, not as the show asks
+    assert a["captured_vs_simulated"] < 0.03  # the camera sees what the simulation casts
+    assert a["simulated_vs_target"] > 0.1 and a["captured_vs_target"] > 0.1  # the show's pose cast its target
+    assert aligned_iou_loss(captured, renderer.render_one(qa)) > 3 * a["captured_vs_simulated"]

@@ -13,7 +13,8 @@ comparison and a queue put, nothing more) asks for a frame when the show's clock
 waits for the first frame that arrives ``settle_s`` after that moment (skipping ``skip_frames`` more: a frame that
 arrives just after it may have been exposed before), and a worker thread finds the backdrop, rectifies the window at
 ``resolution`` and scores it: the captured mask (1 = shadow) against the keyframe's simulated shadow (the show's
-commanded pose rendered on the calibrated rig, :meth:`Calibration.rig`, with the show's mount roll) as the window
+pose as the player sends it, stopped at the calibration's soft limits, rendered on the calibrated rig,
+:meth:`Calibration.rig`, with the show's mount roll) as the window
 IoU loss, and both against the keyframe's target (when the show or its project has one) as the crop-aligned IoU loss
 every result of the project is scored with (DESIGN §4). A camera that fails mid-show is logged and reported per
 keyframe; the show goes on and ends as the player decides. The measured pose of each capture is the player's
@@ -31,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hardware.calibration import Calibration
 from hardware.camera import Camera, Frame
 from hardware.errors import CameraAbsent, CameraError, HardwareError
 from hardware.playback_log import PlaybackResult, StopReason
@@ -75,6 +77,17 @@ def show_rig(calibration, show: Show) -> Rig:
     return rig if calibration.roll is not None else rig.with_roll(show.roll)
 
 
+def soft_limits(calibration: Calibration | None, hand: Hand) -> tuple[np.ndarray, np.ndarray]:
+    """``(lower (21,), upper (21,))`` rad in the hand's joint order: where the player stops each joint, the
+    calibration's soft limits within the URDF's (a joint it does not map, or no calibration: the URDF's)."""
+    lower, upper = hand.lower.copy(), hand.upper.copy()
+    for k, name in enumerate(calibration.joint_names if calibration is not None else ()):
+        if name in hand.joint_names:
+            j = hand.joint_names.index(name)
+            lower[j], upper[j] = max(lower[j], calibration.lower[k]), min(upper[j], calibration.upper[k])
+    return lower, upper
+
+
 def check_camera(
     camera: Camera, layout: BackdropLayout | None = None, find: bool = True, timeout_s: float = 10.0
 ) -> tuple[Frame, np.ndarray]:
@@ -99,17 +112,18 @@ class ShowCapture:
     def __init__(self, camera: Camera, show: Show, rig: Rig, targets: Sequence[np.ndarray | None] | None = None,
                  cfg: ShowCaptureConfig | None = None, layout: BackdropLayout | None = None,
                  H_backdrop_camera: np.ndarray | None = None, find: bool = True, ramp_s: float = 0.0,
-                 hand: Hand | None = None):  # fmt: skip
+                 hand: Hand | None = None, calibration: Calibration | None = None):  # fmt: skip
         self.camera, self.show, self.cfg = camera, show, cfg or ShowCaptureConfig()
         self.layout, self.H, self.find, self.ramp_s = layout or BackdropLayout(), H_backdrop_camera, find, ramp_s
         self.hand = hand or load_hand()
         self.rig = rig.with_resolution(self.cfg.resolution)
         self.key_t = np.array([m.t for m in show.keyframes], dtype=float)  # (K,) s
         K, cols = len(self.key_t), [show.joint_names.index(n) for n in self.hand.joint_names]
-        self.commanded = show.sample(self.key_t)[:, cols] if K else np.zeros((0, self.hand.dof))  # (K, 21) rad
-        pose = np.clip(self.commanded, self.hand.lower, self.hand.upper)
-        R = self.cfg.resolution
-        self.simulated = ShadowRenderer(self.hand, self.rig).render(pose) if K else np.zeros((0, R, R), np.uint8)
+        lower, upper = soft_limits(calibration, self.hand)  # where the player stops every command
+        wanted = show.sample(self.key_t)[:, cols] if K else np.zeros((0, self.hand.dof))  # (K, 21) rad
+        self.commanded = np.clip(wanted, lower, upper)  # (K, 21) rad: what the player sends at each keyframe
+        R, renderer = self.cfg.resolution, ShadowRenderer(self.hand, self.rig)
+        self.simulated = renderer.render(self.commanded) if K else np.zeros((0, R, R), np.uint8)
         self.targets = list(targets) if targets is not None else [None] * K
         if len(self.targets) != K:
             raise ValueError(f"{len(self.targets)} targets for the show's {K} keyframes")
@@ -261,7 +275,7 @@ def play_with_camera(
     rig = show_rig(player.cal, show)
     ramp_s = _ramp_ticks(player, show) / player.cfg.rate_hz
     capture = ShowCapture(camera, show, rig, targets, cfg, layout, H if find else H_backdrop_camera, find, ramp_s,
-                          hand)  # fmt: skip
+                          hand, player.cal)  # fmt: skip
     chained = player.on_sample
     player.on_sample = capture.hook(chained)
     capture.start()

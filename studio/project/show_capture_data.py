@@ -52,7 +52,8 @@ class KeyframeCapture:
 
     index: int  # the marker's position in ``show.keyframes``
     show_t: float  # the keyframe's show time, s
-    commanded: np.ndarray  # (21,) rad, the show's pose at the keyframe, the hand's joint order
+    commanded: np.ndarray  # (21,) rad, the show's pose at the keyframe as the player sends it (stopped at the
+    # calibration's soft limits), the hand's joint order
     simulated: np.ndarray  # (R, R) uint8, 1 = shadow: the commanded pose on the calibrated rig (mount roll included)
     target: np.ndarray | None  # (S, S) uint8, 1 = shadow: the keyframe's target, None when the show has none
     captured: np.ndarray | None = None  # (R, R) uint8, 1 = shadow: the camera's shadow in the window, None: no picture
