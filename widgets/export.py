@@ -5,8 +5,9 @@ A face of the engine (DESIGN §5.7): **plan** runs :func:`studio.project.run.pla
 ("allow late transitions" stretches transitions too fast for the servos instead of refusing, and lists them),
 applied by ``project.set_show``; **write** is :meth:`Project.export_show` to the path in the box (default next to
 the project) read back by :func:`studio.motion.show.load_show`, which validates it; **show info** is what
-``shadow-studio show-info`` prints in the artist's terms, with the late transitions and the ramp-in before the show
-(:mod:`widgets.show_text`);
+``shadow-studio show-info`` prints in the artist's terms, with the late transitions, the ramp-in before the show and
+the joints the soft limits stop (:mod:`widgets.show_text`), on the studio's calibration
+(:mod:`widgets.calibration_file`, which play uses too: a show for another mount roll is refused in one line);
 **CSV** is :func:`studio.motion.show.export_csv`; **play** runs :func:`studio.project.jobs.play_job` on the
 built-in emulator or on the hand at a serial port (the Jog panel's bus when it is connected to that port, so its
 e-stop stops the show; else a :class:`hardware.session.ServoSession` of its own, closed fail-safe when the job
@@ -26,7 +27,6 @@ from pathlib import Path
 
 import ipywidgets as w
 
-from hardware.calibration import Calibration, load_calibration
 from hardware.player import PlayerConfig
 from hardware.session import ServoSession
 from studio.errors import StudioError
@@ -39,6 +39,7 @@ from studio.project.run import plan_project_job
 from studio.project.show_timing import ShowLayout
 from studio.project.state import ProjectError
 from studio.sim.hand import Hand, load_hand
+from widgets.calibration_file import studio_calibration
 from widgets.export_jobs import ExportJobs
 from widgets.images import Messages, title
 from widgets.real_vs_sim import real_vs_sim_view
@@ -78,7 +79,6 @@ class ExportPanel(ExportJobs):
         self._sessions: dict[Job, ServoSession] = {}  # servos this panel opened for a play job (closed when it ends)
         self._last_draw = 0.0
         self._timings: dict[Job, VideoTiming] = {}  # plan job → the timing it planned (names its late transitions)
-        self._calibration: Calibration | None = None  # the shipped calibration, read once (ramp-in, limits)
         self.messages = Messages()
         self.allow_late = w.Checkbox(value=self.cfg.allow_late, description=ALLOW_LATE, indent=False,
                                      tooltip="stretch moves too fast for the servos: the show runs longer")  # fmt: skip
@@ -159,15 +159,15 @@ class ExportPanel(ExportJobs):
             return None
 
     def _hand_lines(self, show: Show) -> list[str]:
-        """The ramp-in and limits lines for where the show would play (none when the calibration cannot be read)."""
+        """The ramp-in and limits lines for where the show would play, on the studio's calibration
+        (:mod:`widgets.calibration_file`); one line saying why when it cannot be read."""
         try:
-            if self._calibration is None:
-                self._calibration = load_calibration(None, self.hand)
-            ramp = ramp_line(show, self._calibration, self.target.value == "emulator", self.cfg.player)
-            return [ramp, limits_line(show, self._calibration)]
+            cal = studio_calibration(self.state, self.hand, strict=True)
+            ramp = ramp_line(show, cal, self.target.value == "emulator", self.cfg.player)
+            return [ramp, limits_line(show, cal)]
         except (StudioError, ValueError) as e:
             log.debug("no ramp-in or limits line: %s", e)
-            return []
+            return [f"calibration:  {e}"]
 
     def plan(self) -> Job | None:
         """Plan the show as a job on the project's queue (applied by ``set_show`` when it completes)."""
@@ -221,6 +221,8 @@ class ExportPanel(ExportJobs):
         return self.messages.run(go)
 
     def _on_change(self, what: str) -> None:
+        if what == "hardware":  # the Rig panel saved the studio's calibration: the ramp-in and limits lines
+            self.show_info()
         if what == "project":
             self.show_info()
 

@@ -11,17 +11,20 @@ import time
 
 from hardware.player import PlayerConfig
 from hardware.session import ServoSession
+from hardware.show_checks import check_mount, check_show_hand
 from studio.jobs import Job, JobEvent, JobState
 from studio.project.play import play_job
 from studio.project.run_report import TooFast
+from widgets.calibration_file import calibration_path, studio_calibration
 from widgets.words import ALLOW_LATE, count, late_lines, seconds
 
 log = logging.getLogger(__name__)
 
 
 class ExportJobs:
-    """Jobs of ``ExportPanel`` (it provides ``state``, ``cfg``, ``jobs``, ``_sessions``, ``_timings``,
-    ``_last_draw``, ``messages``, the widgets, ``current_show`` and ``show_info``)."""
+    """Jobs of ``ExportPanel`` (it provides ``state``, ``hand``, ``cfg``, ``jobs``, ``_sessions``, ``_timings``,
+    ``_last_draw``, ``messages``, the widgets, ``current_show`` and ``show_info``). A show plays on the studio's
+    calibration (:mod:`widgets.calibration_file`), refused in one line when it records another mount roll."""
 
     def play(self) -> Job | None:
         """Play the planned show on the emulator or on the hand at the port, as a job."""
@@ -29,6 +32,9 @@ class ExportJobs:
 
     def _play(self) -> Job:
         show = self.current_show()
+        cal = studio_calibration(self.state, self.hand, strict=True)  # the artist's hand and rig, as Jog and Live
+        check_show_hand(show.hand_hash, self.hand)  # refused here, in one line, before any servo is opened
+        check_mount(show.roll, cal, calibration_path(self.state))
         bus, session = None, None
         if self.target.value == "port":
             port = self.port.value.strip()
@@ -41,9 +47,9 @@ class ExportJobs:
                 bus = jog.bus  # the Jog panel's: its e-stop stops the show
             else:
                 release = not (self.cfg.player or PlayerConfig()).hold_torque_on_stop  # as the player leaves it
-                session = ServoSession(port, release_on_close=release).open()
+                session = ServoSession(port, calibration=cal, release_on_close=release).open()
                 bus = session.bus
-        job = play_job(show, config=self.cfg.player, bus=bus, title=f"play {show.title}")
+        job = play_job(show, calibration=cal, config=self.cfg.player, bus=bus, title=f"play {show.title}")
         try:
             self._submit(job, session)
         except BaseException:

@@ -2,7 +2,8 @@
 
 A face of :class:`hardware.jog.Jog` (DESIGN §5.7) on a :class:`hardware.session.ServoSession`: connect to the
 emulator (21 virtual servos on a pseudo-terminal, started with the calibration's IDs, stopped on disconnect) or to
-a serial port; a slider per joint spans that joint's soft limits (``hardware.calibration``) and moves its servo at
+a serial port; a slider per joint spans that joint's soft limits in the studio's calibration
+(:mod:`widgets.calibration_file`, read again at each connect and when the Rig panel saves) and moves its servo at
 jog speed; read back the measured angles on demand or periodically (a background thread that only sets label
 values, ≤ 10 Hz); torque on/off; home; the selected keyframe's pose, ramped; a large e-stop that latches the bus
 (a separate reset clears it; the latch is shared with every process, :mod:`hardware.estop`). Failing safe (DESIGN
@@ -22,13 +23,14 @@ from dataclasses import dataclass, field, replace
 import ipywidgets as W
 import numpy as np
 
-from hardware.calibration import Calibration, load_calibration
+from hardware.calibration import Calibration
 from hardware.errors import BusError
 from hardware.jog import Jog, JogConfig
 from hardware.serial_bus import BusConfig, SerialServoBus
 from hardware.session import CloseReport, ServoSession
 from studio.errors import StudioError
 from studio.sim.hand import Hand, load_hand
+from widgets.calibration_file import studio_calibration
 from widgets.images import title
 from widgets.jog_actions import JogActions
 from widgets.sculpt import SculptView
@@ -59,7 +61,9 @@ class JogPanel(JogActions):
                  hand: Hand | None = None):  # fmt: skip
         self.state = state
         self.hand = hand or load_hand()
-        self.cal = calibration or load_calibration(None, self.hand)
+        self._given = calibration  # a calibration given here is kept; else the studio's, read again at each connect
+        unread: list[str] = []  # the studio's calibration file could not be read: said once the panel is built
+        self.cal = calibration or studio_calibration(state, self.hand, unread.append)
         self.cfg = config or JogPanelConfig()
         self.session: ServoSession | None = None  # the servos this panel opened (None: not connected)
         self.jog: Jog | None = None
@@ -73,6 +77,8 @@ class JogPanel(JogActions):
         self._set_enabled(False)
         self._say("not connected: the sliders shape the shadow only; choose the emulator (virtual servos) or a serial "
                   "port, then press connect to move the hand")  # fmt: skip
+        if unread:
+            self._say(unread[0], error=True)
 
     # ------------------------------------------------------------------ widgets
     def _build(self) -> None:
@@ -195,6 +201,8 @@ class JogPanel(JogActions):
         """Connect to the emulator (started now) or the port in the text box; returns whether it worked."""
         if self.jog is not None:
             self.disconnect()
+        if not self._read_calibration("connect"):
+            return False
         port = None
         if self.source.value != "emulator":
             port = self.port.value.strip()
@@ -273,6 +281,8 @@ class JogPanel(JogActions):
 
     # ------------------------------------------------------------------ periodic read-back and the studio
     def _on_change(self, what: str) -> None:
+        if what == "hardware" and self.jog is None:  # the Rig panel saved a calibration: the sliders' limits
+            self._read_calibration("read the new calibration")
         if what in ("selection", "project"):
             self.sculpt.redraw()  # the target of the frame in view
             k = self.selected_keyframe()

@@ -1,7 +1,7 @@
-"""What the Jog panel's buttons do (mixed into :class:`widgets.jog.JogPanel`): move a joint, read back, torque,
-home, the selected keyframe's pose, the e-stop and its reset, and the periodic read-back (a thread that only sets
-label values, ≤ 10 Hz). Each goes through ``_do`` (every error a message, anything unexpected a stop:
-DESIGN §5.13) on the connected :class:`hardware.jog.Jog`."""
+"""What the Jog panel's buttons do (mixed into :class:`widgets.jog.JogPanel`): read the studio's calibration again
+(at connect), move a joint, read back, torque, home, the selected keyframe's pose, the e-stop and its reset, and the
+periodic read-back (a thread that only sets label values, ≤ 10 Hz). Each goes through ``_do`` (every error a
+message, anything unexpected a stop: DESIGN §5.13) on the connected :class:`hardware.jog.Jog`."""
 
 from __future__ import annotations
 
@@ -14,14 +14,37 @@ import numpy as np
 from hardware.errors import BusError, EStopLatched
 from hardware.jog import JogMove
 from studio.errors import StudioError
+from widgets.calibration_file import studio_calibration
 
 log = logging.getLogger(__name__)
 
 
 class JogActions:
-    """Actions of ``JogPanel`` (it provides ``state``, ``cal``, ``jog``, ``bus``, ``_say``, ``_set_enabled``,
-    ``_show_target``, ``_show_measured``, ``_lost``, ``_refresh_stop``, ``_refresh_thread``, ``keyframe_button``
-    and ``torque_on``)."""
+    """Actions of ``JogPanel`` (it provides ``state``, ``hand``, ``cal``, ``_given``, ``sliders``, ``_quiet``,
+    ``jog``, ``bus``, ``_say``, ``_set_enabled``, ``_show_target``, ``_show_measured``, ``_lost``, ``_refresh_stop``,
+    ``_refresh_thread``, ``keyframe_button`` and ``torque_on``)."""
+
+    def _read_calibration(self, what: str) -> bool:
+        """Read the studio's calibration again (not a given one) and fit the sliders to its soft limits; whether it
+        could be read (a file that cannot be is said, "could not ``what``", and nothing changes)."""
+        if self._given is not None:
+            return True
+        try:
+            cal = studio_calibration(self.state, self.hand, strict=True)
+        except StudioError as e:
+            self._say(f"could not {what}: {e}", error=True)
+            return False
+        if cal != self.cal:
+            self.cal = cal
+            self._quiet = True
+            try:
+                for s, j in zip(self.sliders, cal.joints, strict=True):
+                    lo, hi = math.degrees(j.lower), math.degrees(j.upper)
+                    s.min, s.max = min(s.min, lo), max(s.max, hi)  # widen first: min never passes max
+                    s.min, s.max = lo, hi
+            finally:
+                self._quiet = False
+        return True
 
     def _do(self, what: str, action):
         """Run ``action()`` on the connected jog; every error becomes a message (DESIGN §5.13)."""

@@ -27,17 +27,16 @@ from typing import TYPE_CHECKING
 
 import ipywidgets as w
 
-from hardware.calibration import Calibration, load_calibration
+from hardware.calibration import Calibration
 from hardware.estop import clear_latch, is_latched, set_latch
 from hardware.session import CloseReport, ServoSession
-from studio.errors import StudioError
 from studio.sim.hand import Hand, load_hand
 from studio.sim.roll import wrap_deg
+from widgets.calibration_file import studio_calibration
 from widgets.images import Messages, title
 from widgets.jog import ESTOP_LATCHED_COLOUR
 from widgets.live_runner import Ask, LiveRunner
 from widgets.live_view import LiveView
-from widgets.rig import calibration_path
 from widgets.state import StudioState
 
 if TYPE_CHECKING:
@@ -113,14 +112,9 @@ class LivePanel:
         ])  # fmt: skip
 
     def _calibration(self, quiet: bool = False) -> Calibration:
-        """The studio's calibration (the Rig panel's file), else the shipped one (said, unless ``quiet``)."""
-        path = calibration_path(self.state)
-        try:
-            return load_calibration(path if path.is_file() else None, self.hand)
-        except StudioError as e:
-            if not quiet:
-                self.messages.say(f"{e}: using the shipped calibration", error=True)
-            return load_calibration(None, self.hand)
+        """The studio's calibration (:mod:`widgets.calibration_file`): for the session, a file that cannot be read
+        raises (the runner says why); ``quiet`` (what the panel shows before): the shipped one instead."""
+        return studio_calibration(self.state, self.hand, strict=not quiet)
 
     def _jog_servos(self) -> ServoSession | None:
         """The Jog panel's servo session, if it has one (the runner borrows it when it is open on the same servos)."""

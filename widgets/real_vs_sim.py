@@ -24,7 +24,7 @@ from typing import Any
 
 import ipywidgets as w
 
-from hardware.calibration import load_calibration
+from hardware.calibration import Calibration
 from hardware.player import Player, PlayerConfig
 from hardware.session import ServoSession
 from hardware.show_checks import check_mount, check_show_hand
@@ -33,6 +33,7 @@ from studio.project.capture import open_camera_source
 from studio.project.show_capture import ShowCaptureConfig, play_with_camera
 from studio.project.show_capture_data import LOSSES, ShowCaptureResult, show_targets
 from studio.sim.hand import Hand, load_hand
+from widgets.calibration_file import calibration_path, studio_calibration
 from widgets.images import Messages, png, shown_when_drawn
 from widgets.state import StudioState
 from widgets.words import seconds
@@ -98,12 +99,12 @@ class RealVsSimView:
         on_emulator = self.export.target.value == "emulator"
         if virtual and not on_emulator:
             raise ValueError("the virtual camera photographs the emulator's hand: play on the emulator")
-        cal = load_calibration(None, self.hand)
+        cal = studio_calibration(self.state, self.hand, strict=True)  # the artist's rig: its simulated shadows
         check_show_hand(show.hand_hash, self.hand)
-        check_mount(show.roll, cal)
+        check_mount(show.roll, cal, calibration_path(self.state))
         targets = show_targets(show, self.state.project, Path(self.state.project.path).parent)
         player_cfg = self.export.cfg.player or PlayerConfig()
-        bus = None if on_emulator else self._bus(player_cfg)
+        bus = None if on_emulator else self._bus(player_cfg, cal)
         capture = self.cfg.capture or ShowCaptureConfig()
         true_rig = Path(rig).expanduser() if virtual else None
 
@@ -129,15 +130,16 @@ class RealVsSimView:
             raise
         return job
 
-    def _bus(self, player_cfg: PlayerConfig):
-        """The bus at the Export panel's port: the Jog panel's when it is connected there, else one opened here."""
+    def _bus(self, player_cfg: PlayerConfig, cal: Calibration):
+        """The bus at the Export panel's port: the Jog panel's when it is connected there, else one opened here on
+        the studio's calibration ``cal``."""
         port = self.export.port.value.strip()
         if not port:
             raise ValueError("type the serial port of the servo adapter (e.g. /dev/ttyUSB0), or play on the emulator")
         jog = self.state.extras.get("jog")
         if jog is not None and jog.bus is not None and jog.bus.config.port == port:
             return jog.bus  # the Jog panel's: its e-stop stops the show
-        self._session = ServoSession(port, release_on_close=not player_cfg.hold_torque_on_stop).open()
+        self._session = ServoSession(port, calibration=cal, release_on_close=not player_cfg.hold_torque_on_stop).open()
         return self._session.bus
 
     def _close_session(self) -> None:

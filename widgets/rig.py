@@ -24,7 +24,7 @@ from pathlib import Path
 import ipywidgets as w
 import numpy as np
 
-from hardware.calibration import Calibration, check_writable, load_calibration, save_calibration
+from hardware.calibration import Calibration, check_writable, save_calibration
 from hardware.camera import Camera
 from hardware.errors import EStopLatched
 from hardware.estop import check_not_latched
@@ -34,6 +34,7 @@ from studio.errors import Cancelled, Progress, StudioError
 from studio.project.capture import open_camera_source
 from studio.project.rig_calibration import RigCalibration, RigCalibrationConfig, calibrate_rig
 from studio.sim.hand import Hand, load_hand
+from widgets.calibration_file import calibration_path, studio_calibration
 from widgets.images import Messages, background, shown_when_drawn, title
 from widgets.rig_view import WindowView, progress_line, summary_lines
 from widgets.state import StudioState
@@ -50,11 +51,6 @@ class RigPanelConfig:
     mask_px: int = 240  # side of the rectified shadow on screen, px
     redraw_hz: float = 10.0  # progress redraws a second at most, from the calibration's thread (0, 30]
     timeout_s: float | None = None  # s to wait for a servo's answer (None: 0.02 on a port, 0.2 on the emulator) (0, 10]
-
-
-def calibration_path(state: StudioState) -> Path:
-    """The studio's calibration file: ``state.extras["calibration_path"]``, else the project folder's one."""
-    return Path(state.extras.get("calibration_path") or state.project.path / "calibration.yaml")
 
 
 class RigPanel:
@@ -76,12 +72,7 @@ class RigPanel:
         self._build()
 
     def _start_calibration(self) -> Calibration:
-        path = calibration_path(self.state)
-        try:
-            return load_calibration(path if path.is_file() else None, self.hand)
-        except StudioError as e:
-            self.messages.say(f"{e}: starting from the shipped calibration", error=True)
-            return load_calibration(None, self.hand)
+        return studio_calibration(self.state, self.hand, lambda text: self.messages.say(text, error=True))
 
     def _build(self) -> None:
         lay = w.Layout
