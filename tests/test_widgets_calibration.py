@@ -1,7 +1,8 @@
 """The notebook's hardware panels use one calibration, the studio's (widgets.calibration_file: the Rig panel's file in
 the project's folder, else the shipped one): Export's play and real-vs-sim refuse a show for another mount roll in one
 line, as ``play --calibration`` does; Export's limits line and the Jog sliders follow its soft limits, read again when
-the Rig panel saves; a file that cannot be read stops what would drive the servos, saying why."""
+the Rig panel saves; a file that cannot be read stops what would drive the servos (Jog, Export, Live, Rig), saying
+why."""
 
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from widgets.export import ExportPanel
 from widgets.jog import JogPanel
 from widgets.live import LivePanel
 from widgets.real_vs_sim import RealVsSimView
+from widgets.rig import RigPanel
 from widgets.state import StudioState
 
 
@@ -92,6 +94,10 @@ def test_the_limits_line_and_the_jog_sliders_follow_the_studios_calibration_when
         assert panel.play() is None and "not a calibration file" in panel.messages.text
         with pytest.raises(Exception, match="not a calibration file"):
             LivePanel(state)._calibration()  # the live session is refused, the runner says why
+        rig = RigPanel(state)  # it starts from the shipped one (and says so), but calibrates on none but the file's
+        assert "not a calibration file" in rig.messages.text and "using the shipped calibration" in rig.messages.text
+        assert rig.calibrate() is False and not rig.running
+        assert "could not calibrate" in rig.messages.text and "fix it, or move it away" in rig.messages.text
     finally:
         jog.close()
         panel.close()

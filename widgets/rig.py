@@ -3,11 +3,12 @@
 The notebook face of :func:`studio.project.rig_calibration.calibrate_rig` (the engine of ``calibrate-rig``).
 **Show camera** grabs a frame (a device number, a video file or frame folder, or ``virtual``: the emulator's hand
 photographed on a true-rig YAML's rig) and shows the window on it beside its rectified shadow (:class:`widgets.rig_view
-.WindowView`: from the backdrop's markers, or four clicked corners). **Calibrate** runs in a thread of its own with
-progress and **Cancel**, on the Jog panel's connection when it is connected to the chosen servos (its e-stop stops
-the run), else on a :class:`hardware.session.ServoSession` of its own, closed fail-safe (servos stopped, torque held)
-however the run ends; its files go to ``rig-calibration/`` in the project's folder. **Save to calibration** writes
-the measured rig to :func:`calibration_path`, atomically, only on that click. Errors are one line in the panel.
+.WindowView`: from the backdrop's markers, or four clicked corners). **Calibrate** starts from the studio's
+calibration as it is then (:mod:`widgets.calibration_file`; one that cannot be read stops it), in a thread of its own
+with progress and **Cancel**, on the Jog panel's connection when it is connected to the chosen servos (its e-stop
+stops the run), else on a :class:`hardware.session.ServoSession` of its own, closed fail-safe (servos stopped, torque
+held) however the run ends; its files go to ``rig-calibration/`` in the project's folder. **Save to calibration**
+writes the measured rig to :func:`calibration_path`, atomically, only on that click. Errors are one line in the panel.
 """
 
 from __future__ import annotations
@@ -169,6 +170,11 @@ class RigPanel:
     def calibrate(self) -> bool:
         """Start a calibration in the background (module doc); whether it started."""
         if self.running:
+            return False
+        try:  # the servos are driven on the studio's calibration as it is now, never the shipped one in its place
+            self.cal = studio_calibration(self.state, self.hand, strict=True)
+        except StudioError as e:
+            self.messages.say(f"could not calibrate: {e}", True)
             return False
         H = self.view.H if self.view.clicking else None
         if self.view.clicking and H is None:
