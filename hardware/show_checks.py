@@ -25,6 +25,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "MOUNT_TOL_DEG",
+    "beyond_names",
     "beyond_soft_limits",
     "calibrated_roll_conflict",
     "check_mount",
@@ -91,12 +92,18 @@ def beyond_soft_limits(
     return sorted(out, key=lambda x: -x[1])
 
 
+def beyond_names(beyond: Sequence[tuple[str, float]], most: int = 4) -> str:
+    """``"ring_pip by 2.9°, wrist by 1.7° and 2 more"``: the ``most`` farthest of :func:`beyond_soft_limits`'
+    answer named, the rest counted."""
+    named = ", ".join(f"{n} by {math.degrees(r):.1f}°" for n, r in beyond[:most])
+    return named + (f" and {len(beyond) - most} more" if len(beyond) > most else "")
+
+
 def soft_limit_text(beyond: Sequence[tuple[str, float]], most: int = 4) -> str | None:
     """One line for :func:`beyond_soft_limits`' answer, the ``most`` farthest joints named (None: nothing beyond)."""
     if not beyond:
         return None
-    named = ", ".join(f"{n} by {math.degrees(r):.1f}°" for n, r in beyond[:most])
-    named += f" and {len(beyond) - most} more" if len(beyond) > most else ""
+    named = beyond_names(beyond, most)
     joints = "1 joint" if len(beyond) == 1 else f"{len(beyond)} joints"
     return (
         f"the show asks {joints} beyond the calibration's soft limits ({named}): the hand stops them at the limits, "

@@ -139,6 +139,7 @@ def test_torque_home_and_the_selected_keyframes_pose(state, hand):
     pose = hand.rest_pose().copy()
     pose[cal.joint_names.index("index_pip")] = 0.6
     pose[cal.joint_names.index("middle_pip")] = 0.4
+    pose[cal.joint_names.index("ring_pip")] = hand.upper[hand.joint_names.index("ring_pip")]  # 0.05 rad past the soft
     state.edit("set_result", k, pose, {"total": 0.5}, state.project.keyframe_masks(k)[0])
     p = jog_panel(state, config=FAST)
     assert state.extras["jog"] is p and isinstance(p.widget, W.VBox)
@@ -149,6 +150,7 @@ def test_torque_home_and_the_selected_keyframes_pose(state, hand):
     assert p.keyframe_button.description == f"go to keyframe {k}"
     p.keyframe_button.click()
     assert f"keyframe {k}'s pose" in p.message.value, p.message.value
+    assert "stopped at the soft limits (ring_pip by 2.9°)" in p.message.value, p.message.value
     settle()
     assert np.allclose(emulator_rad(p), np.clip(pose, cal.lower, cal.upper), atol=0.01)
     assert p.sliders[cal.joint_names.index("index_pip")].value == pytest.approx(math.degrees(0.6))

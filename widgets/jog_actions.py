@@ -13,6 +13,7 @@ import numpy as np
 
 from hardware.errors import BusError, EStopLatched
 from hardware.jog import JogMove
+from hardware.show_checks import beyond_names, beyond_soft_limits
 from studio.errors import StudioError
 from widgets.calibration_file import studio_calibration
 
@@ -130,10 +131,12 @@ class JogActions:
             return None
 
         def go() -> JogMove:
-            m = self.jog.go_pose(result.theta(self.cal.joint_names))
+            theta = result.theta(self.cal.joint_names)
+            m = self.jog.go_pose(theta)
             self._show_target()
             stale = " (its result is stale)" if self.state.project.is_stale(k) else ""
-            clipped = ", clipped to the soft limits" if m.clipped else ""
+            beyond = beyond_soft_limits(theta[None], self.cal.joint_names, self.cal)
+            clipped = f", stopped at the soft limits ({beyond_names(beyond)})" if beyond else ""
             self._say(f"keyframe {k}'s pose{stale} in {m.duration_s:.2f} s{clipped}")
             return m
 
