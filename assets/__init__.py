@@ -21,3 +21,13 @@ def asset(relative: str, must_exist: bool = True) -> Path:
     if must_exist and not path.exists():
         raise FileNotFoundError(f"shipped asset missing from the installation: {relative} (looked in {root})")
     return path
+
+
+def shipped_samples() -> dict[str, Path]:
+    """The shipped stills and videos (``targets/``, ``videos/``; the Targets panel's samples): file name → path."""
+    found: dict[str, Path] = {}
+    for folder in (asset("targets"), asset("videos")):
+        for p in sorted(folder.iterdir()):
+            if p.suffix.lower() in (".jpeg", ".jpg", ".png", ".gif", ".mp4", ".avi", ".mov"):
+                found[p.name] = p
+    return found

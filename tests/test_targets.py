@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
+from studio.assets import shipped_samples
 
 from studio.errors import StudioError, TargetError
 from studio.targets.holes import fill_holes, find_holes
@@ -90,6 +91,9 @@ def test_bundled_samples_load() -> None:
         framed = load_target(f, size=64)
         assert framed.shape == (64, 64) and framed.any()
     assert find_holes(load_target(DEFAULT_TARGET)).any()
+    samples = shipped_samples()  # the Targets panel's list: every shipped still and video, by file name
+    assert {DEFAULT_TARGET.name, "muybridge_horse.gif"} <= set(samples) and {f.name for f in files} <= set(samples)
+    assert all(path.is_file() and path.name == name for name, path in samples.items())
 
 
 def _ring(size: int = 200, r_out: int = 70, r_in: int = 28) -> tuple[np.ndarray, np.ndarray]:

@@ -22,7 +22,7 @@ from pathlib import Path
 import cv2
 import ipywidgets as w
 import numpy as np
-from studio.assets import asset
+from studio.assets import shipped_samples
 
 from studio.jobs import Job
 from studio.project.sources import locate
@@ -39,16 +39,6 @@ from widgets.words import count, seconds
 
 PREVIEW_PX = 256  # side of the preview image, px
 POLARITY_WORDS = {"dark": "a dark shape on a light ground", "bright": "a bright shape on a dark ground"}
-
-
-def bundled_samples() -> dict[str, Path]:
-    """The shipped stills and videos: name → path."""
-    found: dict[str, Path] = {}
-    for folder in (Path(asset("targets/asl_o.jpeg")).parent, Path(asset("videos/muybridge_horse.gif")).parent):
-        for p in sorted(folder.iterdir()):
-            if p.suffix.lower() in (".jpeg", ".jpg", ".png", ".gif", ".mp4", ".avi", ".mov"):
-                found[p.name] = p
-    return found
 
 
 class TargetsPanel(TargetsActions):
@@ -70,7 +60,7 @@ class TargetsPanel(TargetsActions):
         self._first_source: tuple | None = None  # (source, path, box) whose first frame the first-frame picture has
         self._drawing = threading.RLock()  # one preview drawn at a time: a late throttled draw never lands last stale
 
-        samples = bundled_samples()
+        samples = shipped_samples()
         self.sample = w.Dropdown(options=list(samples), description="sample")
         self._samples = samples
         self.add_sample = w.Button(description="Add sample", icon="plus")
