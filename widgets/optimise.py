@@ -195,10 +195,6 @@ class OptimisePanel(OptimiseDrawing):
         later = " (after the retrieval index, first use only)" if self.warmup.building else ""
         self.status.value = f"optimising {what}{later}"
 
-    def keyframes_of(self, job_id: int) -> list[int]:
-        """The keyframe ids a job of this panel optimises (empty for another's)."""
-        return next((list(job.meta.get("keyframes", [])) for job in list(self.jobs) if job.id == job_id), [])
-
     def _run_jobs(self, use_clip: bool, keyframes: list[int] | None) -> None:
         """The project's run in its own thread (it waits for each job); the panel draws its jobs' events as any."""
         chosen = self.budget.value  # a preset's name (--preset), or None: the panel's own budgets

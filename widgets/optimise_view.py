@@ -61,6 +61,10 @@ class OptimiseDrawing:
     """Drawing of ``OptimisePanel`` (it provides ``state``, ``cfg``, ``jobs``, the widgets and the followed job's
     fields: ``_following``, ``bars``, ``_bar_labels``, ``best``, ``last``, ``step``, ``_target_k``)."""
 
+    def keyframes_of(self, job_id: int) -> list[int]:
+        """The keyframe ids a job of this panel optimises (empty for another's)."""
+        return next((list(job.meta.get("keyframes", [])) for job in list(self.jobs) if job.id == job_id), [])
+
     def job_line(self, job_id: int) -> str:
         """What a job of this panel does, in the artist's words: ``keyframe 3 (3 of 5)``, ``keyframes 0–4 together``,
         ``the show``."""
