@@ -30,6 +30,7 @@ __all__ = [
     "calibrated_roll_conflict",
     "check_mount",
     "check_show_hand",
+    "soft_limit_summary",
     "soft_limit_text",
 ]
 
@@ -109,3 +110,10 @@ def soft_limit_text(beyond: Sequence[tuple[str, float]], most: int = 4) -> str |
         f"the show asks {joints} beyond the calibration's soft limits ({named}): the hand stops them at the limits, "
         "so its shadow differs from the planned one"
     )
+
+
+def soft_limit_summary(positions: np.ndarray, joint_names: Sequence[str], cal: Calibration) -> str:
+    """What `show-info` and the Export panel say of the soft limits: :func:`soft_limit_text` of the joints beyond
+    them, else that every pose lies within them."""
+    text = soft_limit_text(beyond_soft_limits(positions, joint_names, cal))
+    return text or "every pose within the calibration's soft limits: the hand plays it as planned"

@@ -428,3 +428,9 @@ def test_play_says_before_moving_which_joints_the_soft_limits_stop_and_the_playe
     assert over[names.index("wrist")] == pytest.approx(0.03, abs=1e-4)
     held = int((np.abs(saved["requested"] - saved["sent"]).max(1) > 1e-6).sum())
     assert f"ticks clipped: {held} at the soft limits, 0 at the step limit" in clipped and held > 0
+    assert main(["show-info", str(tmp_path / "limits.json")]) == 0  # says it too, without playing
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last.startswith("limits:       the show asks 2 joints") and "(index_pip by 2.9°, wrist by 1.7°)" in last
+    save_calibration(default_calibration(hand, margin=0.0), tmp_path / "wide.yaml")  # soft limits = the URDF's
+    assert main(["show-info", str(tmp_path / "limits.json"), "--calibration", str(tmp_path / "wide.yaml")]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1].startswith("limits:       every pose within the")

@@ -20,7 +20,7 @@ import numpy as np
 from hardware.calibration import Calibration
 from hardware.constants import CENTER_UNITS
 from hardware.player import Player, PlayerConfig
-from hardware.show_checks import beyond_soft_limits, soft_limit_text
+from hardware.show_checks import soft_limit_summary
 from studio.motion.show import Show
 from studio.motion.show_info import show_info_lines
 from widgets.words import count, late_lines, seconds
@@ -103,8 +103,7 @@ def ramp_line(show: Show, calibration: Calibration, on_emulator: bool, player: P
 def limits_line(show: Show, calibration: Calibration) -> str:
     """Whether the show's poses lie within the calibration's soft limits, where the player stops every command
     (:func:`hardware.show_checks.beyond_soft_limits`)."""
-    text = soft_limit_text(beyond_soft_limits(show.positions, show.joint_names, calibration))
-    return _line("limits", text or "every pose within the calibration's soft limits: the hand plays it as planned")
+    return _line("limits", soft_limit_summary(show.positions, show.joint_names, calibration))
 
 
 def artist_lines(show: Show, view: ProjectView, hand: Sequence[str] = ()) -> list[str]:

@@ -63,7 +63,14 @@ def _validate(args: argparse.Namespace) -> int:
 
 
 def _info(args: argparse.Namespace) -> int:
-    print("\n".join(show_info_lines(load_show(args.show, load_hand(args.urdf)))))
+    from hardware.calibration import load_calibration
+    from hardware.show_checks import soft_limit_summary
+
+    hand = load_hand(args.urdf)
+    show = load_show(args.show, hand)
+    cal = load_calibration(args.calibration, hand)  # what `play` would play it on (default: the shipped one)
+    limits = soft_limit_summary(show.positions, show.joint_names, cal)
+    print("\n".join([*show_info_lines(show), f"limits:       {limits}"]))
     return 0
 
 
@@ -92,6 +99,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         p = sub.add_parser(name, help=text)
         p.add_argument("show", type=Path, help="show file (JSON)")
         p.add_argument("--urdf", type=Path, default=None, help="hand URDF (default: the shipped hand)")
+        if name == "show-info":  # its last line: the joints this calibration's soft limits stop, as `play` says
+            p.add_argument("--calibration", type=Path, default=None,
+                           help="calibration YAML it would play on (default: assets/calibration.yaml)")  # fmt: skip
         p.set_defaults(func=fn)
 
     p = sub.add_parser("export-csv", help="export a show's samples as CSV (t, one column per joint)")
