@@ -56,7 +56,12 @@ def info(panel: ExportPanel) -> str:
 
 
 def test_export_and_real_vs_sim_refuse_a_show_for_another_roll_than_the_studios_calibration(state, hand):
+    live = LivePanel(state)
+    assert live.roll.value == 0.0
     write(state, hand, roll_deg=30.0)
+    state.changed("hardware")  # what the Rig panel's "Save to calibration" says: Live's roll box follows the rig
+    assert live.roll.value == 30.0
+    live.close()
     panel = ExportPanel(state)
     try:
         assert panel.play() is None and not panel.jobs  # refused before any servo is opened

@@ -4,7 +4,8 @@ The notebook face of :func:`studio.project.live.run_live` (``shadow-studio live`
 a camera (a device number, a video file or a frame folder played as a camera, looping if asked), the servos (the
 emulator, or the hand at a serial port: the Jog panel's connection when it is connected to the same servos, else a
 :class:`~hardware.session.ServoSession` of the panel's own, closed fail-safe however the session ends), the mount's
-roll (default: the calibration's) and whether to record. **Start** runs everything in a thread of its own
+roll (default: the studio's calibration's, :mod:`widgets.calibration_file`, following the Rig panel's saves) and
+whether to record. **Start** runs everything in a thread of its own
 (:class:`widgets.live_runner.LiveRunner`, which the panel owns), saying what it does: the camera is tried first (a
 bad source is one line, before any servo is opened), then the e-stop's latch, the self-model and its retrieval index
 (built once per machine, with its progress), the servos, the session.
@@ -76,11 +77,21 @@ class LivePanel:
         self._thread: threading.Thread | None = None  # the session's (the runner's) thread
         self._build()
         self._estop_look(is_latched())
+        self._stop_listening = state.on_change(self._on_change)
+
+    def _calibrated_roll(self) -> float:
+        """The roll box's start: the studio's calibration's recorded roll, degrees (0 when it records none)."""
+        cal = self._calibration(quiet=True)
+        return 0.0 if cal.roll is None else round(wrap_deg(math.degrees(cal.roll)), 2)
+
+    def _on_change(self, what: str) -> None:
+        """The Rig panel saved the studio's calibration: the roll box follows the roll it records (not mid-session)."""
+        if what == "hardware" and not self.running:
+            self.roll.value = self._calibrated_roll()
 
     def _build(self) -> None:
         lay = w.Layout
-        cal = self._calibration(quiet=True)
-        roll = 0.0 if cal.roll is None else round(wrap_deg(math.degrees(cal.roll)), 2)
+        roll = self._calibrated_roll()
         self.source = w.Text(value="0", description="camera", placeholder="0, a video file or a frame folder",
                              layout=lay(width="420px"))  # fmt: skip
         self.loop = w.Checkbox(value=False, description="loop a file", indent=False, layout=lay(width="110px"))
@@ -241,6 +252,7 @@ class LivePanel:
 
     def close(self) -> None:
         """Stop a running session (servos stopped), wait for it, and let the self-model go."""
+        self._stop_listening()
         self.stop(10.0)
         self.wait(10.0)
         self.view.end()
