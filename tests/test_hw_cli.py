@@ -1,10 +1,10 @@
-"""The hardware verbs end to end: `emulate` in a subprocess, then scan / jog / calibrate / play against it."""
+"""The hardware verbs end to end: `emulate` in a subprocess, then scan / jog / calibrate / play against it (what
+`play` checks and says before anything moves, and its dry run: test_play_verb.py)."""
 
 from __future__ import annotations
 
 import io
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+from test_play_verb import tiny_show
 
 from hardware import constants as C
 from hardware.calibration import default_calibration, load_calibration, save_calibration
@@ -90,45 +91,11 @@ def test_jog_and_calibrate_read_stdin(emulate, capsys, monkeypatch, tmp_path, ha
     assert load_calibration(out_file, hand).ids == list(range(1, 22))
 
 
-def test_play_dry_run(hand, tmp_path, capsys):
-    from studio.motion.show import Show, save_show
-
-    t = np.arange(0, 0.5, 1 / 40)
-    q = np.tile(hand.rest_pose(), (len(t), 1))
-    q[:, 0] = 0.3 * t
-    save_show(Show.from_samples(hand, t, q, title="tiny"), tmp_path / "tiny.json")
-    log = tmp_path / "log.npz"
-    assert main(["play", str(tmp_path / "tiny.json"), "--dry-run", "--log", str(log)]) == 0
-    captured = capsys.readouterr()
-    out = captured.out
-    assert "completed" in out and "torque held" in out and "jitter" in out
-    assert re.search(rf"play:\s*\d+%.*\| \d+/{len(t)} ", captured.err), captured.err  # the bar counts the show's ticks
-    saved = np.load(log)
-    assert saved["sent"].shape == (len(t), 21) and len(saved["measured_rad"]) > 0
-    assert main(["play", str(tmp_path / "tiny.json")]) == 2  # no port, no dry run: a one-line error
-    assert "--port" in capsys.readouterr().err
-    bad = tmp_path / "bad.yaml"
-    bad.write_text("format: nope\n")
-    assert main(["play", str(tmp_path / "tiny.json"), "--dry-run", "--calibration", str(bad)]) == 2
-    assert "not a calibration file" in capsys.readouterr().err
-    assert load_calibration(None, hand).ids == list(range(1, 22))
-
-
-def _tiny_show(hand, path, seconds):
-    from studio.motion.show import Show, save_show
-
-    t = np.arange(0, seconds, 1 / 40)
-    q = np.tile(hand.rest_pose(), (len(t), 1))
-    q[:, 0] = 0.3 * np.sin(t)
-    save_show(Show.from_samples(hand, t, q, title="tiny"), path)
-    return path
-
-
 @pytest.mark.slow
 def test_play_survives_the_emulator_dying(emulate, hand, tmp_path):
     """`emulate` is killed mid-show: play ends with one clear line on stderr, no traceback, and its log."""
     port = emulate()
-    show = _tiny_show(hand, tmp_path / "long.json", 6.0)
+    show = tiny_show(hand, tmp_path / "long.json", 6.0)
     cal = tmp_path / "cal.yaml"
     save_calibration(default_calibration(hand), cal)  # made for this hand: no warning about another one
     log = tmp_path / "run.npz"
@@ -239,7 +206,7 @@ def test_jog_survives_missed_reads_and_ends_cleanly_on_a_lost_port(capsys, monke
 def test_non_serial_verbs_need_no_pty_or_termios(hand, tmp_path):
     """On a system without pty/termios (Windows) the CLI builds, non-serial verbs run, and `emulate` says why it
     cannot run in one line."""
-    show = _tiny_show(hand, tmp_path / "s.json", 0.5)
+    show = tiny_show(hand, tmp_path / "s.json", 0.5)
     code = f"""
 import sys
 sys.modules["pty"] = sys.modules["termios"] = sys.modules["tty"] = None  # importing them now fails
@@ -252,94 +219,6 @@ assert main(["emulate"]) == 2
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env(), timeout=300)
     assert r.returncode == 0, r.stderr
     assert "tiny" in r.stdout and "POSIX" in r.stderr and "Traceback" not in r.stderr
-
-
-class RecordingEmulator(ServoEmulator):
-    """The emulator, keeping ``(servo id, command code)`` of every packet the host sent (the stop packet is seen)."""
-
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.seen: list[tuple[int, int]] = []
-
-    def _handle(self, pkt):
-        self.seen.append((pkt.servo_id, pkt.cmd))
-        return super()._handle(pkt)
-
-    def stopped_after_the_last_move(self) -> bool:
-        """A MOVE_STOP broadcast arrived after the last move command."""
-        moves = [k for k, (_, c) in enumerate(self.seen) if c == C.MOVE_TIME_WRITE.code]
-        stops = [k for k, (i, c) in enumerate(self.seen) if c == C.MOVE_STOP.code and i == C.BROADCAST_ID]
-        return bool(moves and stops and stops[-1] > moves[-1])
-
-
-def _start(args: list[str], **kwargs) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "studio.cli", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env(), **kwargs)  # fmt: skip
-
-
-@pytest.mark.parametrize(
-    "signals, code, name",
-    [
-        ((signal.SIGTERM,), 143, "SIGTERM"),
-        pytest.param((signal.SIGINT, signal.SIGINT), 130, "Ctrl-C", marks=pytest.mark.slow),  # twice: still 130
-        pytest.param((signal.SIGHUP,), 129, "SIGHUP", marks=pytest.mark.slow),
-    ],
-)
-def test_a_stop_signal_mid_show_stops_the_servos_writes_the_log_and_says_so(hand, tmp_path, signals, code, name):
-    """`play` in a subprocess on a port, stopped mid-show by a signal: the stop packet reaches the servos after the
-    last move, torque held, the log written, one line naming the signal, exit code 128 + the signal."""
-    show = _tiny_show(hand, tmp_path / "long.json", 6.0)
-    cal = tmp_path / "cal.yaml"
-    save_calibration(default_calibration(hand), cal)
-    log = tmp_path / "run.npz"
-    with RecordingEmulator(range(1, 22)) as emu:
-        play = _start(["play", str(show), "--port", emu.port, "--calibration", str(cal), "--log", str(log), "--quiet"])
-        try:
-            assert play.stdout.readline().startswith("playing 'tiny'"), play.stderr.read()
-            time.sleep(1.0)
-            for sig in signals:
-                play.send_signal(sig)
-                time.sleep(0.02)
-            out, err = play.communicate(timeout=60)
-        finally:
-            if play.poll() is None:
-                play.kill()
-        assert emu.stopped_after_the_last_move() and all(emu.servo(i).torque for i in range(1, 22))
-        before = emu.positions()
-        time.sleep(0.1)
-        assert emu.positions() == before  # nothing moves after the verb ended
-    said = [line for line in err.splitlines() if line.strip() and not line.startswith("INFO ")]
-    lines = [line for line in said if "already stopping" not in line]  # what a second Ctrl-C prints meanwhile
-    assert play.returncode == code, err
-    assert len(lines) == 1 and f"play: stopped: interrupted: stopped by {name}; torque held" in lines[0], err
-    saved = np.load(log)
-    assert str(saved["reason"]) == "INTERRUPTED" and name in str(saved["message"]) and str(saved["torque"]) == "held"
-    assert 10 < len(saved["sent"]) < 6 * 40 and f"saved to {log}" in out
-
-
-def test_sigterm_ends_jog_with_the_servos_stopped_and_its_log(tmp_path):
-    """`jog` waiting for its user, SIGTERM: the servos get the stop, one line, exit code 143, its log written."""
-    log = tmp_path / "jog.txt"
-    with RecordingEmulator(range(1, 22)) as emu:
-        jog = _start(["jog", "--port", emu.port, "--log", str(log)], stdin=subprocess.PIPE)
-        try:
-            jog.stdin.write("go 20\n")
-            jog.stdin.flush()
-            for line in jog.stdout:
-                if "wrist -> 20.0 deg" in line:
-                    break
-            jog.send_signal(signal.SIGTERM)
-            out, err = jog.communicate(timeout=60)
-        finally:
-            if jog.poll() is None:
-                jog.kill()
-        assert emu.stopped_after_the_last_move() and emu.servo(1).torque
-    lines = [line for line in err.splitlines() if line.strip() and not line.startswith("INFO ")]
-    assert jog.returncode == 143 and len(lines) == 1, err
-    assert "jog: stopped by SIGTERM: servos stopped, torque held" in lines[0]
-    text = log.read_text()
-    assert "> go 20" in text and "wrist -> 20.0 deg" in text and "end: stopped by SIGTERM" in text
-    assert f"jog log saved to {log}" in out
 
 
 def test_servo_ids_are_0_to_253_and_bad_lists_are_one_usage_line(in_process, hand, tmp_path):
@@ -359,28 +238,13 @@ def test_servo_ids_are_0_to_253_and_bad_lists_are_one_usage_line(in_process, han
     bad = tmp_path / "cal.yaml"
     save_calibration(default_calibration(hand), bad)
     bad.write_text(bad.read_text().replace("id: 21", "id: 254"))
-    done = in_process("play", str(_tiny_show(hand, tmp_path / "s.json", 0.2)), "--dry-run", "--calibration", bad)
+    done = in_process("play", str(tiny_show(hand, tmp_path / "s.json", 0.2)), "--dry-run", "--calibration", bad)
     assert done.returncode == 2 and "servo ID 254 is outside 0..253" in done.stderr
-
-
-def test_a_show_for_another_hand_is_refused_unless_forced(hand, tmp_path, capsys):
-    from dataclasses import replace
-
-    from studio.motion.show import load_show, save_show
-
-    show = tmp_path / "other.json"
-    save_show(replace(load_show(_tiny_show(hand, show, 0.3)), hand_hash="0123456789abcdef"), show)
-    assert main(["play", str(show), "--dry-run", "--log", str(tmp_path / "a.npz")]) == 2
-    err = capsys.readouterr().err
-    assert "planned for another hand model (hand 0123456789abcdef" in err and "pass --force" in err
-    assert not (tmp_path / "a.npz").exists()
-    assert main(["play", str(show), "--dry-run", "--log", str(tmp_path / "b.npz"), "--force"]) == 0
-    assert "completed" in capsys.readouterr().out
 
 
 def test_play_and_jog_keep_a_log_in_the_studio_home_by_default(hand, tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("SHADOW_STUDIO_HOME", str(tmp_path / "home"))
-    assert main(["play", str(_tiny_show(hand, tmp_path / "s.json", 0.3)), "--dry-run", "--quiet"]) == 0
+    assert main(["play", str(tiny_show(hand, tmp_path / "s.json", 0.3)), "--dry-run", "--quiet"]) == 0
     [log] = (tmp_path / "home" / "logs").glob("play-*.npz")
     assert f"command vs measured saved to {log}" in capsys.readouterr().out
     assert str(np.load(log)["reason"]) == "COMPLETED"
@@ -391,46 +255,3 @@ def test_play_and_jog_keep_a_log_in_the_studio_home_by_default(hand, tmp_path, c
     assert f"jog log saved to {journal}" in capsys.readouterr().out
     text = journal.read_text()
     assert f"# shadow-studio jog on {emu.port}" in text and "> j wrist" in text and "end: servos stopped" in text
-
-
-def test_play_says_before_moving_which_joints_the_soft_limits_stop_and_the_player_stops_them_there(
-    hand, tmp_path, capsys
-):
-    """A show that asks two joints beyond the shipped calibration's soft limits (which lie 0.05 rad inside the URDF's):
-    `play` names them, farthest first, before anything moves, and the log shows the player stopped exactly those
-    joints, by exactly as much as it said."""
-    from hardware.show_checks import beyond_soft_limits
-    from studio.motion.show import Show, save_show
-
-    cal = load_calibration(None, hand)
-    wrist, pip = hand.joint_names.index("wrist"), hand.joint_names.index("index_pip")
-    t = np.arange(0, 1.0, 1 / 40)
-    q = np.tile(hand.rest_pose(), (len(t), 1))
-    q[:, wrist] = np.linspace(0.0, hand.upper[wrist] - 0.02, len(t))  # 0.03 rad beyond the soft upper limit
-    q[:, pip] = np.linspace(q[0, pip], hand.lower[pip], len(t))  # 0.05 rad beyond the soft lower limit
-    show = Show.from_samples(hand, t, q, title="to the limits")
-    beyond = beyond_soft_limits(show.positions, show.joint_names, cal)
-    assert [n for n, _ in beyond] == ["index_pip", "wrist"]
-    assert [r for _, r in beyond] == pytest.approx([0.05, 0.03], abs=1e-6)
-    save_show(show, tmp_path / "limits.json")
-    log = tmp_path / "log.npz"
-    assert main(["play", str(tmp_path / "limits.json"), "--dry-run", "--quiet", "--log", str(log)]) == 0
-    out = capsys.readouterr().out.splitlines()
-    note = next(x for x in out if x.startswith("note:"))
-    assert out.index(note) < next(i for i, x in enumerate(out) if x.startswith("completed"))
-    assert "2 joints beyond the calibration's soft limits (index_pip by 2.9°, wrist by 1.7°)" in note
-    clipped = next(x for x in out if "ticks clipped:" in x)
-    saved = np.load(log)
-    names = [str(n) for n in saved["joint_names"]]
-    over = np.abs(saved["requested"] - saved["sent"]).max(0)
-    assert {names[j] for j in np.flatnonzero(over > 1e-6)} == {"index_pip", "wrist"}
-    assert over[names.index("index_pip")] == pytest.approx(0.05, abs=1e-4)
-    assert over[names.index("wrist")] == pytest.approx(0.03, abs=1e-4)
-    held = int((np.abs(saved["requested"] - saved["sent"]).max(1) > 1e-6).sum())
-    assert f"ticks clipped: {held} at the soft limits, 0 at the step limit" in clipped and held > 0
-    assert main(["show-info", str(tmp_path / "limits.json")]) == 0  # says it too, without playing
-    last = capsys.readouterr().out.strip().splitlines()[-1]
-    assert last.startswith("limits:       the show asks 2 joints") and "(index_pip by 2.9°, wrist by 1.7°)" in last
-    save_calibration(default_calibration(hand, margin=0.0), tmp_path / "wide.yaml")  # soft limits = the URDF's
-    assert main(["show-info", str(tmp_path / "limits.json"), "--calibration", str(tmp_path / "wide.yaml")]) == 0
-    assert capsys.readouterr().out.strip().splitlines()[-1].startswith("limits:       every pose within the")
