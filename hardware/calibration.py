@@ -90,6 +90,16 @@ class Calibration:
         """(J,) soft upper limits, rad."""
         return np.array([j.upper for j in self.joints])
 
+    def hand_box(self, hand: Hand) -> tuple[np.ndarray, np.ndarray]:
+        """``(lower (21,), upper (21,))`` rad in ``hand``'s joint order: where the player stops each joint, these
+        soft limits within the URDF's (a joint this calibration does not map: the URDF's)."""
+        lower, upper = hand.lower.copy(), hand.upper.copy()
+        for j in self.joints:
+            if j.name in hand.joint_names:
+                k = hand.joint_names.index(j.name)
+                lower[k], upper[k] = max(lower[k], j.lower), min(upper[k], j.upper)
+        return lower, upper
+
     def to_units(self, theta: np.ndarray) -> np.ndarray:
         """θ (..., J) rad → servo units (..., J), float (rounding happens on the bus)."""
         d = np.array([j.direction for j in self.joints], dtype=float)

@@ -114,6 +114,21 @@ def test_validate_reorders_to_hand_order(hand):
     assert validate(shuffled, hand).joint_names == hand.joint_names
 
 
+def test_hand_box_is_the_soft_limits_within_the_urdfs_in_the_hands_order(hand):
+    """Where the player stops each joint, in the hand's order: the shipped soft limits, a joint narrowed to its own
+    limits, a joint set wider than the URDF held to the URDF's, a joint the calibration does not map left at it."""
+    cal = default_calibration(hand)
+    lo, hi = cal.hand_box(hand)
+    assert np.allclose(lo, cal.lower) and np.allclose(hi, cal.upper) and np.all(lo >= hand.lower)
+    pip, wrist = hand.joint_names.index("index_pip"), hand.joint_names.index("wrist")
+    joints = tuple(replace(j, upper=0.3) if j.name == "index_pip" else replace(j, lower=-9.0) if j.name == "wrist"
+                   else j for j in reversed(cal.joints) if j.name != "pinky_dip")  # fmt: skip
+    lo, hi = replace(cal, joints=joints).hand_box(hand)
+    assert hi[pip] == 0.3 and lo[wrist] == hand.lower[wrist]
+    d = hand.joint_names.index("pinky_dip")
+    assert (lo[d], hi[d]) == (hand.lower[d], hand.upper[d])
+
+
 def test_wizard_jog_and_by_hand(hand):
     """Joint 1 is jogged with + / -; joint 2 is set by hand with reversed direction; the rest are skipped."""
     start = default_calibration(hand)

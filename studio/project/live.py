@@ -135,8 +135,7 @@ class LiveSession:
         )  # fmt: skip
         self.ticks = LiveTicks(lim, order, PlayerConfig().rate_hz, cfg.speed_scale, cfg.ramp_speed_rad_s)
         self.roll = cfg.mount_roll(calibration.roll)
-        box = (np.empty(len(order)), np.empty(len(order)))  # the servos' soft limits, in the hand's order
-        box[0][order], box[1][order] = lim.lower, lim.upper
+        box = calibration.hand_box(hand)  # the servos' soft limits, in the hand's order
         self.poser = LivePoser(imitator.retrieval_index(), imitator.refiner, pose_cfg, roll=self.roll, box=box)
         self.target_cfg = target_cfg
         self.on_update = on_update

@@ -77,17 +77,6 @@ def show_rig(calibration, show: Show) -> Rig:
     return rig if calibration.roll is not None else rig.with_roll(show.roll)
 
 
-def soft_limits(calibration: Calibration | None, hand: Hand) -> tuple[np.ndarray, np.ndarray]:
-    """``(lower (21,), upper (21,))`` rad in the hand's joint order: where the player stops each joint, the
-    calibration's soft limits within the URDF's (a joint it does not map, or no calibration: the URDF's)."""
-    lower, upper = hand.lower.copy(), hand.upper.copy()
-    for k, name in enumerate(calibration.joint_names if calibration is not None else ()):
-        if name in hand.joint_names:
-            j = hand.joint_names.index(name)
-            lower[j], upper[j] = max(lower[j], calibration.lower[k]), min(upper[j], calibration.upper[k])
-    return lower, upper
-
-
 def check_camera(
     camera: Camera, layout: BackdropLayout | None = None, find: bool = True, timeout_s: float = 10.0
 ) -> tuple[Frame, np.ndarray]:
@@ -119,7 +108,7 @@ class ShowCapture:
         self.rig = rig.with_resolution(self.cfg.resolution)
         self.key_t = np.array([m.t for m in show.keyframes], dtype=float)  # (K,) s
         K, cols = len(self.key_t), [show.joint_names.index(n) for n in self.hand.joint_names]
-        lower, upper = soft_limits(calibration, self.hand)  # where the player stops every command
+        lower, upper = (self.hand.lower, self.hand.upper) if calibration is None else calibration.hand_box(self.hand)
         wanted = show.sample(self.key_t)[:, cols] if K else np.zeros((0, self.hand.dof))  # (K, 21) rad
         self.commanded = np.clip(wanted, lower, upper)  # (K, 21) rad: what the player sends at each keyframe
         R, renderer = self.cfg.resolution, ShadowRenderer(self.hand, self.rig)
