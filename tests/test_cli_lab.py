@@ -70,6 +70,24 @@ def test_lab_refuses_a_folder_that_is_not_a_project(tmp_path):
     assert not (tmp_path / "home" / "lab").exists()  # nothing started, nothing copied
 
 
+def test_lab_refuses_a_port_another_server_answers_on(tmp_path, monkeypatch, capsys):
+    """`--port N` where a server already listens (a studio started before): one line saying so, before anything is
+    made or started (it was taken for JupyterLab refusing the studio's token: the old server answered 403)."""
+    import socket
+
+    from studio.cli.main import main
+
+    monkeypatch.setenv("SHADOW_STUDIO_HOME", str(tmp_path / "home"))
+    with socket.socket() as other:
+        other.bind(("127.0.0.1", 0))
+        other.listen()
+        port = other.getsockname()[1]
+        assert main(["lab", "--port", str(port), "--no-browser"]) == 2
+    err = capsys.readouterr().err
+    assert f"port {port} is in use on this machine" in err and "pass another --port" in err and "token" not in err, err
+    assert "Traceback" not in err and not (tmp_path / "home").exists()  # no demo project made, no notebook copied
+
+
 def family(pid: int) -> list[psutil.Process]:
     """The processes below ``pid`` that still run."""
     try:

@@ -79,6 +79,16 @@ def free_port(start: int = 8888, tries: int = 100) -> int:
     raise LabError(f"no free port in {start}..{start + tries - 1}: pass --port N")
 
 
+def check_port_free(port: int) -> None:
+    """A LabError when something on this machine already answers on ``port`` (localhost): JupyterLab could not
+    serve there, and the server that answers (a studio started before?) must not be taken for the new one."""
+    with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), timeout=1.0):
+        raise LabError(
+            f"port {port} is in use on this machine (a server answers there: a studio or Jupyter started before?): "
+            "stop it, pass another --port, or leave it out to take the first free one"
+        )
+
+
 def lab_command(folder: Path, port: int, open_browser: bool, extra: list[str]) -> list[str]:
     """The ``jupyter lab`` command line serving ``folder`` on 127.0.0.1:``port``, opening the studio. No token: it
     goes in the environment (``JUPYTER_TOKEN``), where ``ps`` cannot show it to other users."""
@@ -171,6 +181,8 @@ def _lab(args: argparse.Namespace) -> int:
     from studio.home import studio_home
     from studio.project.demo import demo_project
 
+    if args.port:
+        check_port_free(args.port)  # before anything is made or started
     home = studio_home()
     if args.project is None:
         project, fresh = demo_project(home)
