@@ -8,9 +8,12 @@ chosen for its roll; the line under the box says what the project holds now.
 
 from __future__ import annotations
 
+import html
+
 import ipywidgets as w
 
 from studio.project.state import ProjectError
+from studio.project.summary import apart_text, mount_apart
 from studio.sim.roll import mount_text, roll_deg
 from widgets.state import StudioState
 
@@ -24,7 +27,8 @@ def mount_line(project) -> str:
     gain = ""
     if m.auto and m.loss is not None and m.upright_loss is not None:
         gain = f"; first-answer outline loss {m.loss:.3f} vs {m.upright_loss:.3f} upright"
-    return f"{mount_text(m.roll)}{chosen}{gain}"
+    apart = apart_text(mount_apart(project.state))
+    return f"{mount_text(m.roll)}{chosen}{gain}" + (f"<br>{html.escape(apart)}" if apart else "")
 
 
 class MountControl:

@@ -43,6 +43,7 @@ from studio.learn.threads import torch_threads
 def print_info(project) -> dict:
     """Print ``project``'s human summary lines, then its JSON summary last; returns the summary."""
     from studio.project.state import AWAITS
+    from studio.project.summary import apart_text
 
     s = project.summary()
     state = project.state
@@ -55,6 +56,8 @@ def print_info(project) -> dict:
         note = "CHANGED since it was read" if src["changed"] else note
         print(f"source {i}: {src['path']} ({src['kind']}, {src['footage']}), {src['frames']} frame(s) {note}".rstrip())
     print(f"mount: {s['mount']['how']}")
+    if s["mount"]["apart"]:
+        print(f"  {apart_text(s['mount']['apart'])}")
     for kf in s["keyframes"]:
         f = state.frames[kf["representative"]]
         extra = "".join([f", at {kf['time_s']:g} s" if kf["time_s"] is not None else "", ", hold" * kf["hold"],

@@ -62,10 +62,13 @@ def print_late(late: list[dict], stretched: bool) -> None:
 def print_run(report: Any) -> None:
     """The human lines of a run (a :class:`~studio.project.run.RunReport`): the late transitions, then what happened
     (on stderr when it did not end with a show) and, when transitions were too fast, what to pass."""
+    from studio.project.summary import apart_text
     from studio.sim.roll import mount_text
 
     print_late(report.late, stretched=report.show is not None)
     print(f"mount: {mount_text(report.roll)}")
+    if report.apart:
+        print(f"  {apart_text(report.apart)}")
     message = report.message
     if report.too_fast:
         message += " (pass --allow-late to stretch them)"

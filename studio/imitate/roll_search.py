@@ -24,6 +24,12 @@ within the first answer's budget (≈ 3 ms an angle and target, compiled, :meth:
    own sweep, 4 starts × 1024 draws, one pass: 0.1542 for 2.1 s; no draws, only the rolled scoring: 0.1558); on 16
    MPEG-7 animal images 0.2410 → 0.2417 (within the choice's noise: 0.2414–0.2424 over those variants).
 
+5. **what the one mount costs** (a show): a target whose first answer on the roll chosen is clearly worse
+   (``apart_ratio`` ×, and ``apart_margin`` more) than at the coarse roll best for it alone is named
+   (:attr:`RollChoice.apart`), so that the artist learns why it reads worse and where it would read better (a still
+   in a show of a sideways animal: the bundled demo's ASL "o" with the Muybridge horse, 0.235 at the horse's −83.4°
+   against 0.106 at −15°; its imitation's IoU loss 0.56 against 0.19 on its own roll). The roll is not changed.
+
 Every stage scores the outline (the base loss: MAE + IoU, + CLIP when on), as the index does; the expressive term is
 left to the imitation at the roll chosen. A still's expressive region is its holes, lit in the target, so that term
 is a step on whether a held index pose leaks any shadow into a hole; it let such a leak decide the roll: on 12 rolled
@@ -69,17 +75,31 @@ class RollSearchConfig:
     swept: int = 3  # a still's best candidates (by the exact stage) ranked again by a quick sweep of the index's best
     # pose at each angle (module doc, 4.) [1, ∞); 1: the exact stage decides. About 0.07 s a candidate
     sweep_draws: int = 256  # settings drawn per finger block in that sweep's one pass; the wrist a quarter [4, 16384]
+    apart_ratio: float = 1.5  # a show's target is named as better cast on another mount when its first answer on the
+    apart_margin: float = 0.05  # roll chosen is ≥ ratio × and ≥ margin above its best roll's (module doc, 5.)
 
     def __post_init__(self) -> None:
         if not 0 < self.coarse_deg <= 90 or not 0 < self.index_deg <= self.coarse_deg or self.fine_deg <= 0:
             raise ValueError("roll search needs 0 < index_deg ≤ coarse_deg ≤ 90 and fine_deg > 0 (degrees)")
         if self.top < 1 or self.exact_k < 1 or self.swept < 1 or not 4 <= self.sweep_draws <= 16384:
             raise ValueError("roll search needs top ≥ 1, exact_k ≥ 1, swept ≥ 1 and 4 ≤ sweep_draws ≤ 16384")
+        if self.apart_ratio < 1 or self.apart_margin < 0:
+            raise ValueError("roll search needs apart_ratio ≥ 1 and apart_margin ≥ 0")
 
     @property
     def quick_sweep(self) -> SweepConfig:
         """The sweep that ranks the candidates: one start, one pass, ``sweep_draws``."""
         return SweepConfig(starts=1, draws=self.sweep_draws, wrist_draws=self.sweep_draws // 4, passes=1)
+
+
+@dataclass(frozen=True)
+class Apart:
+    """One target of a show that another mount would cast clearly better (plain data)."""
+
+    target: int  # its index in the targets
+    loss: float  # its first answer's rendered outline loss on the roll chosen
+    own_roll: float  # rad, the roll best for it alone
+    own_loss: float  # its first answer's loss there
 
 
 @dataclass
@@ -95,6 +115,8 @@ class RollChoice:
     # the other refined angles by their exact loss, each angle once (benchmarks/bench_roll_choice.py imitates each)
     swept: list[float] = field(default_factory=list)  # the mean loss after the quick sweep (module doc, 4.) of the
     # first ``RollSearchConfig.swept`` candidates, in their order (empty: not swept); the roll chosen has the lowest
+    apart: list[Apart] = field(default_factory=list)  # a show's targets that the roll chosen casts clearly worse
+    # than a roll of their own would (module doc, 5.; empty for a still), in the targets' order
 
     @property
     def deg(self) -> float:
@@ -143,15 +165,19 @@ def _turned(targets: np.ndarray, deg: float) -> np.ndarray:
     return np.stack([into_hand_frame(t, None, math.radians(deg))[0] for t in targets])
 
 
-def _index_scores(index: RetrievalIndex, targets: np.ndarray, degs: list[float], memo: dict[float, float]) -> list:
-    """Mean best index pixel loss of the targets turned by each of ``degs`` (one compiled call for the new ones)."""
+def _index_each(index: RetrievalIndex, targets: np.ndarray, degs: list[float], memo: dict[float, np.ndarray]) -> list:
+    """Each target's best index pixel loss, ``(K,)`` for each of ``degs`` (one compiled call for the new angles)."""
     keys = [round(wrap_deg(d), 6) for d in degs]
     new = list(dict.fromkeys(k for k in keys if k not in memo))
     if new:
         turned = np.concatenate([_turned(targets, k) for k in new])
-        best = index.best(turned)[0].reshape(len(new), len(targets)).mean(axis=1)
-        memo.update(zip(new, best.tolist(), strict=True))
+        memo.update(zip(new, index.best(turned)[0].reshape(len(new), len(targets)), strict=True))
     return [memo[k] for k in keys]
+
+
+def _index_scores(index: RetrievalIndex, targets: np.ndarray, degs: list[float], memo: dict[float, np.ndarray]) -> list:
+    """Mean best index pixel loss of the targets turned by each of ``degs``."""
+    return [float(np.mean(each)) for each in _index_each(index, targets, degs, memo)]
 
 
 def _halve(score: Callable[[list[float]], list[float]], deg: float, step: float, stop: float) -> float:
@@ -184,7 +210,7 @@ def choose_roll(
     targets = np.asarray(targets)
     if targets.ndim != 3 or not len(targets):
         raise ValueError(f"targets must be (K, S, S) with K ≥ 1, not shape {targets.shape}")
-    memo: dict[float, float] = {}
+    memo: dict[float, np.ndarray] = {}
     grid = [float(wrap_deg(d)) for d in np.arange(0.0, 360.0, cfg.coarse_deg)]
     coarse = dict(zip(grid, _index_scores(index, targets, grid, memo), strict=True))
     starts = sorted(coarse, key=coarse.get)[: cfg.top]
@@ -243,4 +269,32 @@ def choose_roll(
         candidates = [candidates[i] for i in order]
         swept = [swept[i] for i in order if i < len(swept)]
     best_deg, loss = candidates[0]
-    return RollChoice(math.radians(best_deg), loss, upright, time.perf_counter() - t0, coarse, candidates, swept)
+    apart = [] if len(targets) < 2 or stopped(cancel) else _apart(index, refiner, targets, make_loss, seen, memo, grid,
+                                                                  best_deg, cfg)  # fmt: skip
+    return RollChoice(math.radians(best_deg), loss, upright, time.perf_counter() - t0, coarse, candidates, swept, apart)
+
+
+def _apart(
+    index: RetrievalIndex, refiner: Refiner, targets: np.ndarray, make_loss: LossFactory, seen: list[_Scorer],
+    memo: dict[float, np.ndarray], grid: list[float], chosen_deg: float, cfg: RollSearchConfig,
+) -> list[Apart]:  # fmt: skip
+    """The targets of a show that the roll chosen casts clearly worse than the coarse roll best for each alone
+    (module doc, 5.), each scored as the exact stage scores: its index shortlist at that mount, rendered rolled and
+    scored against the target as it is."""
+
+    def first_answer(k: int, deg: float) -> float:
+        turned = _turned(targets[k : k + 1], deg)[0]
+        fn = make_loss(turned, None)
+        got = index.query(turned, lambda th: refiner.score(fn, th)[0], cfg.exact_k)
+        return float(seen[k](_rolled(refiner, deg).render(got.theta, check=False)).min())
+
+    each = np.stack(_index_each(index, targets, grid, memo))  # (G, K): each target's index loss at each coarse roll
+    out = []
+    for k in range(len(targets)):
+        own = float(grid[int(np.argmin(each[:, k]))])
+        if abs(wrap_deg(own - chosen_deg)) < cfg.coarse_deg / 2:  # its own roll is the one chosen
+            continue
+        here, there = first_answer(k, chosen_deg), first_answer(k, own)
+        if here >= cfg.apart_ratio * there and here - there >= cfg.apart_margin:
+            out.append(Apart(k, here, math.radians(wrap_deg(own)), there))
+    return out

@@ -12,6 +12,7 @@ frame key, and a cluster whose frames and representative are unchanged keeps its
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,7 @@ from studio.errors import ProgressFn
 from studio.imitate.config import LossConfig
 from studio.project import edits
 from studio.project.sources import load_sources, locate, make_source
-from studio.project.state import Mount, ProjectError, ProjectState, frozen
+from studio.project.state import Mount, MountApart, ProjectError, ProjectState, frozen
 from studio.project.status import SourceMissing
 from studio.sim.roll import roll_deg
 from studio.targets.images import read_grey
@@ -215,8 +216,13 @@ class Editing:
             mount = Mount.from_setting(roll)
             self._commit(f"mount roll {roll}", replace(self._state, mount=mount))
 
-    def set_chosen_roll(self, roll: float, loss: float | None = None, upright_loss: float | None = None) -> None:
-        """What ``auto`` chose: ``roll`` rad (with the losses it compared), kept until the artist sets the roll."""
+    def set_chosen_roll(
+        self, roll: float, loss: float | None = None, upright_loss: float | None = None,
+        apart: Sequence[MountApart] = (),
+    ) -> None:  # fmt: skip
+        """What ``auto`` chose: ``roll`` rad (with the losses it compared and the keyframes it casts clearly worse
+        than a roll of their own would), kept until the artist sets the roll."""
         with self._lock:
-            mount = Mount(auto=True, roll=float(roll), chosen=True, loss=loss, upright_loss=upright_loss)
+            mount = Mount(auto=True, roll=float(roll), chosen=True, loss=loss, upright_loss=upright_loss,
+                          apart=tuple(apart))  # fmt: skip
             self._commit(f"mount roll chosen: {roll_deg(roll):g}°", replace(self._state, mount=mount))

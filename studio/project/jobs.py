@@ -27,6 +27,7 @@ import numpy as np
 from studio.jobs.engine import choose_roll_job, imitate_video_job, plan_job
 from studio.jobs.job import Job
 from studio.jobs.queue import DEFAULT_WORKER, JobQueue
+from studio.project.state import MountApart
 from studio.project.status import ProjectHandle
 
 if TYPE_CHECKING:
@@ -101,14 +102,17 @@ def roll_job(project: ProjectHandle, *, model_path: Path | None = None) -> Job:
     """``--roll auto``: choose the one mount roll for every keyframe target of the project (their outlines, the
     project's weights, CLIP off) → ``project.set_chosen_roll`` on completion, which makes the keyframes optimised for
     another roll stale."""
-    masks = np.stack([np.array(project.keyframe_masks(kf.id)[0]) for kf in project.keyframes])
+    keyframes = project.keyframes
+    masks = np.stack([np.array(project.keyframe_masks(kf.id)[0]) for kf in keyframes])
 
     def apply(r) -> None:
         if r is not None:
-            project.set_chosen_roll(r.roll, loss=r.loss, upright_loss=r.upright_loss)
+            apart = [MountApart(keyframes[a.target].id, keyframes[a.target].representative, a.loss, a.own_roll,
+                                a.own_loss) for a in r.apart]  # fmt: skip
+            project.set_chosen_roll(r.roll, loss=r.loss, upright_loss=r.upright_loss, apart=apart)
 
     job = choose_roll_job(masks, loss_cfg=project_loss(project, masks.shape[-1]), model_path=model_path, apply=apply)
-    job.meta["keyframes"] = [kf.id for kf in project.keyframes]
+    job.meta["keyframes"] = [kf.id for kf in keyframes]
     return job
 
 

@@ -25,7 +25,8 @@ what loading found: fps, duration, footage kind, square frame; segmentation box 
 frame key ``"S:F"``); ``keyframes`` (id, representative frame, member frames, time override, hold, edited);
 ``results`` (keyframe id, pose as joint name → rad, loss components, shadow file, the inputs' fingerprint, what a
 stopped run still owes it: ``awaits`` "together" or "again", absent or "": nothing); ``show``
-(file and the inputs' fingerprint); ``mount`` (auto, roll_deg, chosen; the losses auto compared; absent: upright).
+(file and the inputs' fingerprint); ``mount`` (auto, roll_deg, chosen; the losses auto compared; ``apart``: the
+keyframes it casts clearly worse than a roll of their own would; absent: upright).
 """
 
 from __future__ import annotations
@@ -146,6 +147,16 @@ def state_doc(s: ProjectState) -> dict[str, Any]:
             "chosen": s.mount.chosen,
             "upright_loss": _num(s.mount.upright_loss),
             "loss": _num(s.mount.loss),
+            "apart": [
+                {
+                    "keyframe": a.keyframe,
+                    "frame": a.frame,
+                    "loss": a.loss,
+                    "own_roll_deg": file_deg(a.own_roll),
+                    "own_loss": a.own_loss,
+                }
+                for a in s.mount.apart
+            ],  # fmt: skip
         },
     }
 

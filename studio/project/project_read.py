@@ -33,6 +33,7 @@ from studio.project.state import (
     Frame,
     Keyframe,
     Mount,
+    MountApart,
     NotAProject,
     PoseResult,
     ProjectError,
@@ -272,6 +273,15 @@ def _still(d: Any) -> TargetConfig:
     return typed_config(TargetConfig, old | d, f"{DOC}: settings.still")
 
 
+def _apart(d: Any) -> MountApart:
+    """One entry of the mount's ``apart`` list (a ValueError when it is not one)."""
+    ok = isinstance(d, Mapping) and all(type(d.get(k)) is int and d[k] >= 0 for k in ("keyframe", "frame"))
+    loss, deg, own = (float(d.get(k)) if ok else math.nan for k in ("loss", "own_roll_deg", "own_loss"))
+    if not all(math.isfinite(v) for v in (loss, deg, own)):
+        raise ValueError
+    return MountApart(d["keyframe"], d["frame"], loss, math.radians(deg), own)
+
+
 def _mount(d: Any) -> Mount:
     """The ``mount`` entry (absent in projects made before it: upright, as their keyframes were optimised)."""
     if not isinstance(d, Mapping):
@@ -284,6 +294,7 @@ def _mount(d: Any) -> Mount:
         return Mount(
             auto=bool(d.get("auto", False)), roll=roll, chosen=bool(d.get("chosen", True)),
             upright_loss=None if upright is None else float(upright), loss=None if loss is None else float(loss),
+            apart=tuple(_apart(a) for a in d.get("apart", [])),
         )  # fmt: skip
     except (TypeError, ValueError):
         raise Damaged(f"{DOC}: the mount entry is not understood: {json.dumps(d)[:80]}") from None

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 from studio.jobs.events import JobError
-from studio.project.summary import project_transitions
+from studio.project.summary import mount_apart, project_transitions
 from studio.sim.roll import mount_text, roll_deg
 
 if TYPE_CHECKING:
@@ -45,6 +45,7 @@ class RunReport:
     too_fast: bool = False  # no show because transitions are too fast for the servos (``late`` lists them)
     roll: float = 0.0  # the mount roll the keyframes are optimised for, rad
     roll_chosen: bool = False  # this run chose it (``--roll auto``)
+    apart: list[dict] = field(default_factory=list)  # keyframes another roll would cast clearly better (mount_apart)
     seconds: float = 0.0  # wall time of the run
 
     @property
@@ -63,7 +64,7 @@ class RunReport:
             "transitions_ok_literal": self.transitions_literal.get("success", 0),
             "transitions": self.transitions.get("transitions", 0), "cancelled": self.cancelled,
             "error": None if self.error is None else str(self.error), "message": self.message,
-            "roll_deg": roll_deg(self.roll), "mount": mount_text(self.roll),
+            "roll_deg": roll_deg(self.roll), "mount": mount_text(self.roll), "mount_apart": self.apart,
             "seconds": round(self.seconds, 2),
         }  # fmt: skip
 
@@ -71,6 +72,7 @@ class RunReport:
         """The run's last step: the roll, the show's length, both readings of transition success (in the message
         too) and the wall time since ``t0`` (``time.perf_counter()``)."""
         self.roll = project.mount.roll
+        self.apart = mount_apart(project.state)
         if self.roll_chosen:
             self.message = f"chose the mount roll {roll_deg(self.roll):+.1f}° (auto); {self.message}"
         if project.show is not None and self.show is not None:

@@ -114,6 +114,18 @@ class PoseResult:
 
 
 @dataclass(frozen=True)
+class MountApart:
+    """A keyframe that the roll auto chose casts clearly worse than a roll of its own would: what one mount for the
+    whole show costs it (:attr:`studio.imitate.roll_search.RollChoice.apart`)."""
+
+    keyframe: int  # the keyframe's id
+    frame: int  # its representative frame when the roll was chosen (a keyframe since made again is not named)
+    loss: float  # its first answer's outline loss on the roll chosen
+    own_roll: float  # rad, the roll best for it alone (to the roll search's coarse step)
+    own_loss: float  # its first answer's outline loss there
+
+
+@dataclass(frozen=True)
 class Mount:
     """How the hand is mounted for the project's show (DESIGN §1): one roll about the light axis for all of it."""
 
@@ -122,6 +134,7 @@ class Mount:
     chosen: bool = True  # auto: the roll has been chosen (False: it is chosen at the start of the next run)
     upright_loss: float | None = None  # auto: the retrieval's mean outline loss at roll 0, beside the chosen roll's
     loss: float | None = None  # auto: … at the chosen roll (both for the summary: what the roll bought)
+    apart: tuple[MountApart, ...] = ()  # auto: the keyframes another roll would cast clearly better (what it costs)
 
     @staticmethod
     def from_setting(roll: str | float | None) -> Mount:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -61,6 +62,7 @@ def summarise(s: ProjectState, status: ProjectStatus) -> dict:
             "chosen": s.mount.chosen,
             "roll_deg": roll_deg(s.mount.roll),
             "how": mount_text(s.mount.roll) if s.mount.chosen else "roll auto: chosen at the next run",
+            "apart": mount_apart(s),
         },
         "keyframes": keyframes,
         "results": counts,
@@ -70,6 +72,35 @@ def summarise(s: ProjectState, status: ProjectStatus) -> dict:
         "can_undo": status.can_undo,
         "can_redo": status.can_redo,
     }
+
+
+def mount_apart(s: ProjectState) -> list[dict]:
+    """The keyframes that the roll auto chose casts clearly worse than a roll of their own would (``Mount.apart``),
+    those still as they were when it was chosen: ``{"keyframe", "source", "loss", "own_roll_deg", "own_loss"}``."""
+    if not (s.mount.auto and s.mount.chosen):
+        return []
+    now = {kf.id: kf.representative for kf in s.keyframes}
+    return [
+        {"keyframe": a.keyframe, "source": Path(s.sources[s.frames[a.frame].source].path).name,
+         "loss": round(a.loss, 4), "own_roll_deg": roll_deg(a.own_roll), "own_loss": round(a.own_loss, 4)}
+        for a in s.mount.apart if now.get(a.keyframe) == a.frame < len(s.frames)
+    ]  # fmt: skip
+
+
+def apart_text(apart: list[dict]) -> str:
+    """:func:`mount_apart`'s keyframes in one sentence for the artist ("" when none): where each would read better."""
+    if not apart:
+        return ""
+    if len(apart) == 1:
+        a = apart[0]
+        return (f"one mount serves the whole show: keyframe {a['keyframe']} ({a['source']}) would cast better at roll "
+                f"{a['own_roll_deg']:+.0f}° (first-answer outline loss {a['own_loss']:.3f} there, {a['loss']:.3f} on "
+                "this mount); set the roll by hand, or give it a show of its own")  # fmt: skip
+    each = "; ".join(f"{a['keyframe']} ({a['source']}) at {a['own_roll_deg']:+.0f}° ({a['own_loss']:.3f}, "
+                     f"{a['loss']:.3f})" for a in apart)  # fmt: skip
+    return ("one mount serves the whole show: these keyframes would cast better on a roll of their own (first-answer "
+            f"outline loss there, then on this mount): {each}; set the roll by hand, or give them a show of their "
+            "own")  # fmt: skip
 
 
 def project_transitions(s: ProjectState, cfg: TransitionConfig | None = None) -> dict:
