@@ -46,7 +46,7 @@ from PIL import Image
 from studio.atomic import write_json, write_with
 from studio.motion.show import Show, save_show
 from studio.project.containment import NAME, SUBFOLDERS, check_name, check_subfolders, regular_file
-from studio.project.state import Frame, ProjectState, mask_hash, text_hash
+from studio.project.state import Frame, MountApart, ProjectState, mask_hash, text_hash
 from studio.sim.roll import file_deg
 
 log = logging.getLogger(__name__)
@@ -147,18 +147,15 @@ def state_doc(s: ProjectState) -> dict[str, Any]:
             "chosen": s.mount.chosen,
             "upright_loss": _num(s.mount.upright_loss),
             "loss": _num(s.mount.loss),
-            "apart": [
-                {
-                    "keyframe": a.keyframe,
-                    "frame": a.frame,
-                    "loss": a.loss,
-                    "own_roll_deg": file_deg(a.own_roll),
-                    "own_loss": a.own_loss,
-                }
-                for a in s.mount.apart
-            ],  # fmt: skip
-        },
+        }
+        | ({"apart": [_apart(a) for a in s.mount.apart]} if s.mount.apart else {}),  # written when auto named some
     }
+
+
+def _apart(a: MountApart) -> dict[str, Any]:
+    """One keyframe the mount's roll casts clearly worse (:class:`~studio.project.state.MountApart`) as written."""
+    return {"keyframe": a.keyframe, "frame": a.frame, "loss": a.loss, "own_roll_deg": file_deg(a.own_roll),
+            "own_loss": a.own_loss}  # fmt: skip
 
 
 def _files(s: ProjectState, doc: dict[str, Any]) -> dict[str, np.ndarray | Show]:
