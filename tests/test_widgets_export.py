@@ -56,7 +56,8 @@ def test_plan_write_validate_info_and_csv(state, tmp_path):
     assert wait_for(job) == JobState.DONE, job.error
     assert state.project.show is not None and state.project.history[-1] == "planned show"
     assert "planned a" in panel.messages.text and panel.progress.value == 1.0
-    assert "title:        export" in panel.info.value and "keyframes:    1 keyframe, on the show" in panel.info.value
+    held = "keyframes:    1 keyframe at 2 marks on the show clock: 0.00 s (hold), "  # a still: held from its mark
+    assert "title:        export" in panel.info.value and held in panel.info.value
     panel.write_button.click()
     show = load_show(tmp_path / "export.show.json")
     assert "validated" in panel.messages.text and np.allclose(show.positions, state.project.show.positions)
@@ -207,7 +208,8 @@ def test_the_show_is_described_in_the_projects_terms_with_its_late_moves_and_its
         assert wait_for(panel.plan(), 120) == JobState.DONE
         lines = html_lines(panel.info.value)
         assert len(p.show.keyframes) > 3  # the planner's keyframes: every run of a keyframe, not the artist's count
-        assert next(x for x in lines if x.startswith("keyframes:")).startswith("keyframes:    3 keyframes, on the")
+        marks = f"keyframes:    3 keyframes at {len(p.show.keyframes)} marks on the show clock: 0.00 s (hold), "
+        assert next(x for x in lines if x.startswith("keyframes:")).startswith(marks)  # the artist's count, the marks
         media = next(x for x in lines if x.startswith("media:"))
         assert "muybridge_horse.gif (video) plays beside it from 0.00 s" in media  # what the show was made from
         late = [x.strip() for x in lines[lines.index(next(x for x in lines if x.startswith("late:"))) + 1 :]]

@@ -47,6 +47,8 @@ def keyframe_line(show: Show, keyframes: int | None) -> str:
     n = keyframes if keyframes is not None else len({m.target for m in marks if m.target}) or len(marks)
     times = ", ".join(seconds(m.t) + (" (hold)" if m.hold else "") for m in marks[:12])
     times += ", …" if len(marks) > 12 else ""
+    if len(marks) != n:  # a held still, or a keyframe of several frames, is reached at more than one mark
+        return _line("keyframes", f"{count(n, 'keyframe')} at {count(len(marks), 'mark')} on the show clock: {times}")
     return _line("keyframes", f"{count(n, 'keyframe')}, on the show clock at {times}")
 
 
