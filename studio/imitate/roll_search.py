@@ -165,6 +165,19 @@ def _turned(targets: np.ndarray, deg: float) -> np.ndarray:
     return np.stack([into_hand_frame(t, None, math.radians(deg))[0] for t in targets])
 
 
+def _first_answer(
+    index: RetrievalIndex, refiner: Refiner, make_loss: LossFactory, target: np.ndarray, audience: _Scorer,
+    rolled: ShadowRenderer, deg: float, k: int,
+) -> tuple[np.ndarray, float]:  # fmt: skip
+    """The exact stage's score of ``target (S, S)`` on the mount ``rolled`` by ``deg``: the index's ``k`` best poses
+    for the target turned into the hand's frame → those poses and the best outline loss of them as that mount casts
+    them, against the target as it is (``audience``)."""
+    turned = _turned(target[None], deg)[0]
+    fn = make_loss(turned, None)
+    got = index.query(turned, lambda th: refiner.score(fn, th)[0], k)
+    return got.theta, float(audience(rolled.render(got.theta, check=False)).min())
+
+
 def _index_each(index: RetrievalIndex, targets: np.ndarray, degs: list[float], memo: dict[float, np.ndarray]) -> list:
     """Each target's best index pixel loss, ``(K,)`` for each of ``degs`` (one compiled call for the new angles)."""
     keys = [round(wrap_deg(d), 6) for d in degs]
@@ -217,21 +230,12 @@ def choose_roll(
     refined = [_halve(lambda ds: _index_scores(index, targets, ds, memo), d, cfg.coarse_deg / 2, cfg.index_deg)
                for d in starts]  # fmt: skip
 
-    def losses(deg: float) -> tuple[list[ImageLoss], list[np.ndarray]]:
-        turned = list(_turned(targets, deg))
-        return [make_loss(t, None) for t in turned], turned
-
     seen = [_Scorer(make_loss(t, None)) for t in targets]  # the targets as they are
 
     def exact_at(deg: float) -> tuple[float, list[np.ndarray]]:
-        fns, turned = losses(deg)
         rolled = _rolled(refiner, deg)
-        poses, total = [], 0.0
-        for fn, t, audience in zip(fns, turned, seen, strict=True):
-            got = index.query(t, lambda th, fn=fn: refiner.score(fn, th)[0], cfg.exact_k)
-            poses.append(got.theta)
-            total += float(audience(rolled.render(got.theta, check=False)).min())
-        return total / len(fns), poses
+        got = [_first_answer(index, refiner, make_loss, t, a, rolled, deg, cfg.exact_k) for t, a in zip(targets, seen)]
+        return float(np.mean([loss for _, loss in got])), [theta for theta, _ in got]
 
     tried = sorted(((d, *exact_at(d)) for d in dict.fromkeys(round(wrap_deg(d), 6) for d in refined)),
                    key=lambda r: r[1])  # fmt: skip
@@ -282,19 +286,14 @@ def _apart(
     (module doc, 5.), each scored as the exact stage scores: its index shortlist at that mount, rendered rolled and
     scored against the target as it is."""
 
-    def first_answer(k: int, deg: float) -> float:
-        turned = _turned(targets[k : k + 1], deg)[0]
-        fn = make_loss(turned, None)
-        got = index.query(turned, lambda th: refiner.score(fn, th)[0], cfg.exact_k)
-        return float(seen[k](_rolled(refiner, deg).render(got.theta, check=False)).min())
-
     each = np.stack(_index_each(index, targets, grid, memo))  # (G, K): each target's index loss at each coarse roll
     out = []
     for k in range(len(targets)):
         own = float(grid[int(np.argmin(each[:, k]))])
         if abs(wrap_deg(own - chosen_deg)) < cfg.coarse_deg / 2:  # its own roll is the one chosen
             continue
-        here, there = first_answer(k, chosen_deg), first_answer(k, own)
+        here, there = (_first_answer(index, refiner, make_loss, targets[k], seen[k], _rolled(refiner, d), d,
+                                     cfg.exact_k)[1] for d in (chosen_deg, own))  # fmt: skip
         if here >= cfg.apart_ratio * there and here - there >= cfg.apart_margin:
             out.append(Apart(k, here, math.radians(wrap_deg(own)), there))
     return out
