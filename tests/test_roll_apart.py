@@ -36,6 +36,7 @@ def elongated(shadows: np.ndarray, n: int) -> list[int]:
     return [int(i) for i in np.argsort(ratio)[::-1][:n]]
 
 
+@pytest.mark.slow  # builds a 3,000-pose index (1.4 s)
 def test_roll_auto_names_the_keyframe_its_one_mount_casts_worse(hand):
     """Two tall reachable shadows cast by a mount rolled 90° and one cast upright: the show's roll is 90° (two of
     three), and the upright one is named, with its own roll (upright, to the coarse step) where its first answer
@@ -113,6 +114,7 @@ def test_a_damaged_apart_entry_is_refused_in_one_line(demo, entry):
         Project.open(demo.path)
 
 
+@pytest.mark.slow  # the shipped model and index (26 s on a machine whose index cache is empty)
 def test_the_roll_job_of_the_demo_names_the_still_its_sideways_mount_casts_worse(demo):
     """The demo's first run chooses one roll for the still and the horse: the horse's sideways mount (its four
     keyframes), and the ASL "o" named, with the upright-ish roll where it would read better."""
