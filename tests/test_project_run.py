@@ -158,7 +158,6 @@ def test_a_stale_keyframe_is_recomputed_and_the_show_replanned(tmp_path, capsys)
     assert project.results[0].inputs != old.inputs
 
 
-@pytest.mark.slow  # a project run on the shipped model and index (32 s where the index cache is empty)
 def test_a_missing_source_does_not_block_the_run(tmp_path, capsys):
     """Every frame's mask is stored in the project: a deleted source is warned about, the run goes on."""
     src = tmp_path / "o.jpeg"
