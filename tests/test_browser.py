@@ -44,10 +44,13 @@ from browser_pixels import drawn_recording, drawn_rig, over_the_shape, plotted, 
 from preview_support import dark, give_results, horse, plan
 
 from studio.cli.lab import free_port
-from studio.review.series import series_colour
+from studio.imitate.config import COMPONENTS
+from studio.review.blueprint import FRAME_LOSS
+from studio.review.series import PALETTE, series_colour
 
 CHROMIUM = Path("/usr/bin/chromium")
 TOTAL_LINE = series_colour("loss/frame/total")  # the colour of the total loss's line in Rerun's plots
+SERVO_LINE = next(c for c in PALETTE if c not in {series_colour(f"{FRAME_LOSS}/{n}") for n in COMPONENTS})
 CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--disable-background-networking",
                   "--disable-component-update", "--disable-sync", "--no-first-run"]  # fmt: skip
 VIEWPORT = {"width": 1600, "height": 2300}  # the tester's 1,600 px wide window, tall enough for a whole tab
@@ -174,6 +177,20 @@ def progress_widths(page) -> list[float]:
     return page.evaluate("""() => Array.from(document.querySelectorAll(
         ".jp-OutputArea-output .shadow-studio [data-shown-tab='1'] .progress-bar"))
         .map(b => parseFloat(b.style.width) || 0)""")
+
+
+def rerun_draws(page, canvas, colour: tuple[int, int, int], path: Path, seconds: float = 30) -> tuple:
+    """Look at the Rerun canvas until it draws a frame of the recording and a plot line of ``colour``, or ``seconds``
+    pass; the last picture is kept at ``path`` → (drawn_recording's answer, plotted's answer)."""
+    canvas.scroll_into_view_if_needed()
+    deadline = time.monotonic() + seconds
+    while True:
+        shown = picture(canvas)
+        drawn, line = drawn_recording(shown), plotted(shown, colour)
+        if (drawn[0] and line[0]) or time.monotonic() > deadline:
+            keep(shown, path)
+            return drawn, line
+        page.wait_for_timeout(1000)
 
 
 def tracebacks(page) -> list[str]:
@@ -324,18 +341,23 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
         assert drawn, f"the Review tab's meshcat scene does not draw the rig: {rig_facts}"
         # the Rerun viewer followed the player onto show_time: its views show the frame played there, not "No data",
         # and its loss plot the frames' losses along the show (the total's line, in its colour)
-        canvas.scroll_into_view_if_needed()
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline:
-            on_show = picture(canvas)
-            (ok, facts), (line, line_facts) = drawn_recording(on_show), plotted(on_show, TOTAL_LINE)
-            if ok and line:
-                break
-            page.wait_for_timeout(1000)
-        keep(on_show, folder / "rerun_on_show_time.png")
+        (ok, facts), (line, line_facts) = rerun_draws(page, canvas, TOTAL_LINE, folder / "rerun_on_show_time.png")
         assert ok, f"the Rerun viewer shows no frame at the show time the player stopped at: {facts}"
         assert line, f"the Rerun viewer's loss plot draws no loss along the show: {line_facts}"
         shots.append(shoot_tab(page, "Review", folder))
+
+        # Export: play the show on the emulator; the Rerun viewer then plays it on show_time with the servo plot in
+        # front (a line of a colour no loss series has: one of the played joints') and the show's frames beside it
+        open_tab(page, "Export")
+        page.locator(f"{TAB} button", has_text="play").first.click()
+        page.locator(f"{TAB} .widget-html:has-text('played '), {TAB} .widget-label:has-text('played ')").first.wait_for(
+            timeout=60_000
+        )
+        open_tab(page, "Review")
+        (ok, facts), (line, line_facts) = rerun_draws(page, canvas, SERVO_LINE, folder / "rerun_after_play.png")
+        assert line, f"after a play the Rerun viewer shows no servo angles (its plot tab): {line_facts}"
+        assert ok, f"after a play the Rerun viewer's image views show no frame of the show: {facts}"
+        marks["play reviewed"] = time.perf_counter() - t0
 
         # Optimise: start this keyframe and see a progress bar advance
         open_tab(page, "Optimise")

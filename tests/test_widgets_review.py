@@ -19,7 +19,7 @@ from studio.jobs.events import JobState
 from studio.jobs.job import Job
 from studio.project.jobs import queue_for
 from studio.project.project import Project
-from studio.review.blueprint import RENDERED, SELF_MODEL, TARGET
+from studio.review.blueprint import LOSS_TAB, RENDERED, SELF_MODEL, SERVO_TAB, TARGET
 from studio.review.readback import read_recording
 from studio.review.scene import ShadowScene
 from studio.targets.video import DEFAULT_VIDEO
@@ -231,7 +231,12 @@ def test_the_viewer_follows_the_studio(state, hand):
                                  measured_t=t[::2], measured_joint=np.zeros(6, int), measured_rad=np.zeros(6),
                                  reason=SimpleNamespace(value="completed"), message="played")  # fmt: skip
         assert q.run(Job("play", lambda report, cancel: played), timeout=60).state == JobState.DONE
-        assert box.where == ("play_time", 0.0)  # its commanded vs measured angles, played from the start
+        # its commanded vs measured angles, played on show_time from the start of its ramp (4 ticks at 40 Hz), the
+        # servo plot in front; a frame chosen then brings the loss plot back
+        assert box.where == ("show_time", pytest.approx(-0.1))
+        assert panel.recording.plot_in_front == SERVO_TAB
+        state.select(frame=1)
+        assert box.where == ("frame", 1.0) and panel.recording.plot_in_front == LOSS_TAB
 
         q.wait(timeout=300)  # the show preview the player plays is rendered
         shown = panel.preview.preview

@@ -7,9 +7,11 @@ The viewer (:func:`studio.review.notebook_viewer.notebook_viewer`) reads the rec
 is logged as it is logged, not a file. While **follow** is on, its time follows what the studio does: the selected
 frame (``frame``), a running optimisation's newest step (``opt_step``, where its best loss and shadow are drawn), the
 show player's time (``show_time``; ``frame`` when there is no planned show yet), and a finished play, whose commanded
-vs measured servo angles are logged when it ends and then played from its start (``play_time``). Switch it off to
-browse the recording by hand. Job events arrive on the queue's thread: a lock keeps one writer at a time, and moves
-come at most every ``min_interval_s`` while a job or the player runs.
+vs measured servo angles are logged when it ends and then played on ``show_time`` from the start of its ramp, with
+the servo plot in front and the show's frames beside it (the loss plot comes back in front when the viewer next
+goes to a frame or a job's step, where servo angles have no time). Switch it off to browse the recording by hand.
+Job events arrive on the queue's thread: a lock keeps one writer at a time, and moves come at most every
+``min_interval_s`` while a job or the player runs.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from typing import Any
 
 import ipywidgets as w
 
-from studio.review.blueprint import FRAME, OPT_STEP, PLAY_TIME, SHOW_TIME
+from studio.review.blueprint import FRAME, LOSS_TAB, OPT_STEP, SERVO_TAB, SHOW_TIME
 from studio.review.notebook_viewer import MAX_HEIGHT, MIN_HEIGHT, clamp_height
 from studio.review.recording import ProjectRecording
 
@@ -62,6 +64,7 @@ class ViewerBox:
                 return False
             self._last = now
             if timeline in (FRAME, OPT_STEP):
+                self.recording.front_plot(LOSS_TAB, timeline)  # after a play: the servo angles have no frame
                 self.viewer.set_time_ctrl(timeline, sequence=int(value), play=play)
             else:
                 self.viewer.set_time_ctrl(timeline, duration_nanos=round(float(value) * 1e9), play=play)
@@ -88,24 +91,30 @@ class ViewerBox:
 
     def job_event(self, event: Any) -> None:
         """A queue event: a play that ended with a result has its commanded vs measured angles logged
-        (:func:`log_finished_play`), and the viewer plays them from the start."""
-        if log_finished_play(self.recording, self.queue, event):
-            self._move(PLAY_TIME, 0.0, play=True)
+        (:func:`log_finished_play`), and the viewer plays them on ``show_time`` from the start of the ramp, the
+        servo plot in front, the show's frames and rig beside it."""
+        ramp = log_finished_play(self.recording, self.queue, event)
+        if ramp is not None:
+            with self._lock:
+                if self.follow.value:
+                    self.recording.front_plot(SERVO_TAB, SHOW_TIME)
+                    self._move(SHOW_TIME, -ramp, play=True)
 
 
-def log_finished_play(recording: ProjectRecording, queue: Any, event: Any) -> bool:
+def log_finished_play(recording: ProjectRecording, queue: Any, event: Any) -> float | None:
     """Log the commanded vs measured angles of the play job that ``event`` ends (done, or cancelled with a
-    ``PlaybackResult``) to ``recording``; True when it logged them. A queue subscriber: never raises."""
+    ``PlaybackResult``) to ``recording``; the ramp's length in s when it logged them (``show_time`` is ``play_time``
+    minus it), else None. A queue subscriber: never raises."""
     state = getattr(event.state, "value", str(event.state))
     if event.kind != "play" or state not in ("done", "cancelled") or queue is None or recording.closed:
-        return False
+        return None
     try:
         result = queue.get(event.job_id).result
         if result is None or not hasattr(result, "sent"):
-            return False
-        recording.log_playback(result)
+            return None
+        ramp = recording.log_playback(result)
         recording.flush()
-        return True
+        return ramp
     except Exception:  # a subscriber never stops a job; the log says what went wrong
         log.exception("review: the playback of job %s could not be logged", event.job_id)
-        return False
+        return None

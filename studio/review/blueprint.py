@@ -53,6 +53,7 @@ POSE = "world/pose"
 LIGHT = "world/light"
 BACKDROP = "world/backdrop"
 SERVO = "servo"
+LOSS_TAB, SERVO_TAB = "loss", "servos: commanded vs measured"  # the plot tabs a layout can open on
 
 
 def part(name: str) -> str:
@@ -88,11 +89,11 @@ def set_time(rec: rr.RecordingStream, **times: float) -> None:
             rec.set_time(timeline, duration=float(value))
 
 
-def project_blueprint(timeline: str = FRAME, sources: bool = False) -> rrb.Blueprint:
+def project_blueprint(timeline: str = FRAME, sources: bool = False, plot: str = LOSS_TAB) -> rrb.Blueprint:
     """The viewer layout of a project's review: the images side by side (source, when ``sources``, then target,
     expressive mask, self-model shadow, rendered shadow), under them tabs of plots (loss, servo angles, keyframe per
     frame) and the text log, and the rig in 3D on the right (hand, light, backdrop carrying the shadow).
-    ``timeline`` is the one the viewer opens on."""
+    ``timeline`` is the one the viewer opens on; ``plot`` the tab in front (``LOSS_TAB`` or ``SERVO_TAB``)."""
     views = [
         rrb.Spatial2DView(origin=TARGET, name="target"),
         rrb.Spatial2DView(origin=EXPRESSIVE, name="expressive mask"),
@@ -102,10 +103,11 @@ def project_blueprint(timeline: str = FRAME, sources: bool = False) -> rrb.Bluep
     if sources:
         views.insert(0, rrb.Spatial2DView(origin=SOURCE, name="source"))
     plots = rrb.Tabs(
-        rrb.TimeSeriesView(origin=LOSS, name="loss"),
-        rrb.TimeSeriesView(origin=SERVO, name="servos: commanded vs measured"),
+        rrb.TimeSeriesView(origin=LOSS, name=LOSS_TAB),
+        rrb.TimeSeriesView(origin=SERVO, name=SERVO_TAB),
         rrb.TimeSeriesView(origin=KEYFRAME_OF_FRAME, name="keyframe per frame"),
         rrb.TextLogView(origin=LOG, name="log"),
+        active_tab=plot,
     )
     return rrb.Blueprint(
         rrb.Horizontal(

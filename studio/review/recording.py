@@ -31,7 +31,7 @@ import rerun as rr
 
 from studio.errors import StudioError
 from studio.motion.show import Show
-from studio.review.blueprint import FRAME, project_blueprint
+from studio.review.blueprint import FRAME, LOSS_TAB, project_blueprint
 from studio.review.frames import FramesLogged, KeyframeReview, log_frames
 from studio.review.job_progress import JobProgressLog
 from studio.review.notebook_viewer import DEFAULT_HEIGHT, NotebookViewerError, notebook_viewer
@@ -118,6 +118,8 @@ class ProjectRecording:
         self.server_url: str | None = None
         self.flush_timeout_s = flush_timeout_s
         self.blueprint = project_blueprint(timeline, sources=sources)
+        self._sources = sources
+        self.plot_in_front = LOSS_TAB  # the plot tab of the layout sent last (front_plot)
         sinks: list[Any] = []
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -227,6 +229,17 @@ class ProjectRecording:
         return which
 
     # ---------------------------------------------------------------- viewers and the end
+    def front_plot(self, plot: str, timeline: str) -> bool:
+        """Bring the plot tab ``plot`` (``blueprint.LOSS_TAB``, ``SERVO_TAB``) to the front of every viewer: the
+        layout is sent again with it, on ``timeline``, unless the last one sent has it already (a layout sent
+        replaces what the artist arranged, so it is sent only when the tab changes). True when it was sent."""
+        if plot == self.plot_in_front or self.closed:
+            return False
+        self.rec.send_blueprint(project_blueprint(timeline, self._sources, plot), make_active=True,
+                                make_default=False)  # fmt: skip
+        self.plot_in_front = plot
+        return True
+
     def notebook_widget(self, height: int = DEFAULT_HEIGHT, panels: Mapping[str, str] | None = None):
         """The live viewer as a widget to place in a notebook layout (made with ``notebook=True``; not displayed):
         :func:`studio.review.notebook_viewer.notebook_viewer` on this recording's stream, 100 % wide and ``height``
