@@ -4,8 +4,10 @@ additions apart; clear and undo."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from PIL import Image
@@ -138,7 +140,7 @@ def test_a_bad_mode_is_refused_and_the_mouse_shows_it(state):
 def test_the_brush_is_an_ipycanvas_canvas_wired_to_the_mouse(state):
     ipycanvas = pytest.importorskip("ipycanvas")
     panel = MasksPanel(state, side=SIDE)
-    assert isinstance(panel.canvas, ipycanvas.Canvas) and panel.canvas in panel.widget.children
+    assert isinstance(panel.canvas, ipycanvas.Canvas) and panel.canvas in panel.widget.children[2].children
     assert panel.canvas.width == SIDE and panel.canvas.height == SIDE
     for event, x in (("mouse_down", 40), ("mouse_move", 60), ("mouse_up", 80)):  # what the browser sends
         panel.canvas._handle_frontend_event(panel.canvas, {"event": event, "x": x, "y": 40}, [])
@@ -151,3 +153,31 @@ def test_a_closed_panel_stops_following_the_state(state):
     panel.close()
     state.edit("paint", 0, additions=np.ones((S, S), np.uint8))
     assert "painted" not in panel.info.value
+
+
+def test_the_legend_names_the_colours_the_picture_paints(state):
+    """Under the picture a line names each colour: the expressive region, painted in, painted out. Each legend square
+    has the hue of what the picture draws there (a legend coloured the other way round fails)."""
+    panel = MasksPanel(state, side=SIDE)
+    panel.stroke([(20, 20), (100, 20)], radius=8, mode="add")  # painted in: mask rows 3..6, columns 3..26
+    panel.stroke([(200, 200)], radius=8, mode="erase")  # painted out: around mask px (50, 50)
+    pic = panel.picture()
+    keys = re.findall(r"background:rgb\((\d+), (\d+), (\d+)\)\"></span>([^&<]+)", panel.legend.value)
+    said = {words.strip(): tuple(int(v) for v in rgb) for *rgb, words in keys}
+    assert list(said) == ["expressive region (the Exp. terms weigh it)", "painted in", "painted out"]
+    assert "drag on the frame to paint" in panel.legend.value
+
+    def hue(rgb) -> float:
+        return float(cv2.cvtColor(np.uint8([[rgb]]), cv2.COLOR_RGB2HSV_FULL)[0, 0, 0])
+
+    def hue_gap(a: float, b: float) -> float:
+        return min(abs(a - b), 256 - abs(a - b))
+
+    auto = state.project.combined_mask(0) & ~state.project.state.additions["0:0"].astype(bool)
+    y, x = np.argwhere(auto)[len(np.argwhere(auto)) // 2] * (SIDE // S) + SIDE // S // 2
+    for (py, px), words in (((y, x), "expressive region (the Exp. terms weigh it)"), ((20, 60), "painted in"),
+                            ((200, 200), "painted out")):  # fmt: skip
+        drawn = pic[py, px]
+        assert drawn.max() - drawn.min() > 40, f"{words}: the picture draws grey {drawn} there"
+        gaps = {name: hue_gap(hue(drawn), hue(rgb)) for name, rgb in said.items()}
+        assert min(gaps, key=gaps.get) == words, (words, drawn, gaps)

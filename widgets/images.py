@@ -37,6 +37,16 @@ def title(text: str) -> w.HTML:
     return w.HTML(f"<b style='font-size:1.2em'>{text}</b>")
 
 
+def legend(entries: Sequence[tuple[tuple[int, int, int], str]], then: str = "") -> w.HTML:
+    """A line naming what each colour of a picture means: a square of each ``(rgb, words)``, then ``then``."""
+    keys = "&ensp;".join(
+        f'<span style="display:inline-block;width:0.9em;height:0.9em;margin-right:0.3em;vertical-align:-0.1em;'
+        f'background:rgb{tuple(rgb)}"></span>{html.escape(words)}'
+        for rgb, words in entries
+    )
+    return w.HTML(keys + (f"&ensp;·&ensp;{html.escape(then)}" if then else ""))
+
+
 def grey_rgb(image: np.ndarray) -> np.ndarray:
     """``(H, W)`` grey or ``{0, 1}`` mask, or ``(H, W, 3)`` → ``(H, W, 3)`` uint8 RGB (a {0, 1} mask: black shape
     on white)."""

@@ -29,6 +29,7 @@ from widgets.images import (
     Messages,
     frame_in_view,
     grey_rgb,
+    legend,
     stroke_mask,
     tint,
     title,
@@ -63,10 +64,15 @@ class MasksPanel:
         picture, note = self.paint.widget, self.paint.note
         self.clear.on_click(lambda _: self.messages.run(self._clear))
         self.undo.on_click(lambda _: self.messages.run(self.state.undo))
+        keys = [(MASK_RGB, "expressive region (the Exp. terms weigh it)"), (ADD_RGB, "painted in"),
+                (ERASE_RGB, "painted out")]  # fmt: skip
+        self.legend = legend(keys, then="drag on the frame to paint in the mode chosen")
+        framed = w.Box([picture], layout={"border": "1px solid #bbb", "width": "fit-content"})  # the frame's edge
         self.widget = w.VBox([
             title("Masks"),
             self.frame_picker,
-            picture,
+            framed,
+            self.legend,
             w.HBox([self.mode, self.brush]),
             w.HBox([self.clear, self.undo, self.info]),
             w.HTML(f"<i>{note}</i>" if note else ""),
