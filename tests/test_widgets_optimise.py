@@ -20,7 +20,7 @@ from studio.project.project import Project
 from studio.project.run_report import RunReport
 from widgets.images import mask_picture
 from widgets.optimise import OptimiseConfig, optimise_panel
-from widgets.optimise_view import budget_list
+from widgets.optimise_view import budget_list, job_name
 from widgets.state import StudioState
 
 TINY = SequenceConfig(first=SearchConfig(batch=8, iterations=20), next=SearchConfig(batch=8, iterations=10, lr=0.08),
@@ -383,3 +383,15 @@ def test_keyframes_posed_again_last_to_first_show_each_ones_own_target_beside_it
     finally:
         panel.close()
         state.close()
+
+
+def test_the_jobs_list_names_a_job_once():
+    """The jobs list writes a job's title where it says what the job does, its kind before it where not: never
+    "play play horse" nor "preview show preview"."""
+    assert job_name("play", "play horse") == "play horse"
+    assert job_name("preview", "show preview") == "show preview"
+    assert job_name("index", "retrieval index (first use only)") == "retrieval index (first use only)"
+    assert job_name("imitate-keyframes", "keyframe 0") == "imitate-keyframes keyframe 0"
+    assert job_name("plan", "show") == "plan show"
+    assert job_name("plan", "") == "plan"
+    assert job_name("imitate-keyframe", "imitate keyframe 2") == "imitate keyframe 2"

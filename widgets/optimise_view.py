@@ -177,12 +177,21 @@ class OptimiseDrawing:
             return "<i>no jobs yet</i>"
         head = "<tr><th>#</th><th>job</th><th>state</th><th>stage</th><th>best</th><th>s</th></tr>"
         body = "".join(
-            f"<tr><td>{r['id']}</td><td>{html.escape(r['kind'])} {html.escape(r['title'])}</td>"
+            f"<tr><td>{r['id']}</td><td>{html.escape(job_name(r['kind'], r['title']))}</td>"
             f"<td>{r['state']}</td><td>{html.escape(stage(r['stage'], r['total']))} {r['step']:,}/{r['total']:,}</td>"
             f"<td>{_loss(r['best'])}</td><td>{r['elapsed']:.1f}</td></tr>"
             for r in rows[-12:]
         )  # fmt: skip
         return f"<table style='font-size:0.9em'>{head}{body}</table>"
+
+
+def job_name(kind: str, title: str) -> str:
+    """A job as the jobs list names it: its title where the title says what it does (``play horse``, ``show
+    preview``), else its kind then its title (``imitate-keyframes keyframe 0``), never the kind twice."""
+    verb = kind.split("-")[0]
+    if not title:
+        return kind
+    return title if verb in title.lower().replace("-", " ").split() else f"{kind} {title}"
 
 
 def _loss(value: float) -> str:
