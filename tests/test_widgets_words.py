@@ -13,8 +13,9 @@ from studio.assets import asset
 from studio.project.jobs import queue_for
 from studio.project.project import Project
 from studio.targets.video import VideoConfig
+from studio.words import count, plural
 from widgets.state import StudioState
-from widgets.words import bar_label, count, late_lines, seconds, span, stage
+from widgets.words import bar_label, late_lines, seconds, span, stage
 
 WIDGETS = Path(__file__).resolve().parents[1] / "widgets"
 FLAG = re.compile(r"(?<![\w-])--[a-z][a-z-]+")  # --allow-late, --clip-weights
@@ -26,6 +27,7 @@ def test_times_counts_and_stages_in_words():
     assert span(0.4, 0.7999999999999999) == "0.40–0.80 s" and span(1.0, 1.001) == "1.00 s"
     assert count(1, "keyframe") == "1 keyframe" and count(5, "keyframe") == "5 keyframes"
     assert count(0, "pass") == "0 passes" and count(200_000, "pose") == "200,000 poses"
+    assert plural("collides", 2) == "collide" and plural("is", 3) == "are" and plural("belongs", 1) == "belongs"
     assert stage("index", 200_000) == "building the retrieval index of 200,000 poses (first use only, cached)"
     assert stage("keyframe 2/5: index", 10).startswith("keyframe 2/5: building the retrieval index of 10 poses")
     assert stage("search", 40) == "search"
@@ -61,6 +63,18 @@ def shown_strings(path: Path) -> list[tuple[int, str]]:
 def test_no_panel_names_a_command_line_flag(module):
     said = [(line, text) for line, text in shown_strings(WIDGETS / module) if FLAG.search(text)]
     assert said == [], f"{module} shows a flag to a notebook user (say what to tick or type instead): {said}"
+
+
+MAYBE_PLURAL = re.compile(r"[a-z]\(s\)")  # keyframe(s): a count that does not agree with its word
+
+
+@pytest.mark.parametrize("package", ["studio", "widgets", "hardware"])
+def test_no_message_writes_a_word_with_s_in_brackets(package):
+    """Every message counts in words that agree with the number (``studio.words.count``), never ``keyframe(s)``."""
+    root = WIDGETS.parent / package
+    said = [(str(p.relative_to(root.parent)), line, text) for p in sorted(root.rglob("*.py"))
+            for line, text in shown_strings(p) if MAYBE_PLURAL.search(text)]  # fmt: skip
+    assert said == [], f"write these counts with studio.words.count / plural: {said}"
 
 
 def visible(widget) -> list[str]:

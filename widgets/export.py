@@ -39,13 +39,14 @@ from studio.project.run import plan_project_job
 from studio.project.show_timing import ShowLayout
 from studio.project.state import ProjectError
 from studio.sim.hand import Hand, load_hand
+from studio.words import count
 from widgets.calibration_file import studio_calibration
 from widgets.export_jobs import ExportJobs
 from widgets.images import Messages, title
 from widgets.real_vs_sim import real_vs_sim_view
 from widgets.show_text import ProjectView, artist_lines, limits_line, ramp_line
 from widgets.state import StudioState
-from widgets.words import ALLOW_LATE, count, seconds
+from widgets.words import ALLOW_LATE, seconds
 
 log = logging.getLogger(__name__)
 

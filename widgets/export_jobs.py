@@ -15,8 +15,9 @@ from hardware.show_checks import check_mount, check_show_hand
 from studio.jobs import Job, JobEvent, JobState
 from studio.project.play import play_job
 from studio.project.run_report import TooFast
+from studio.words import count
 from widgets.calibration_file import calibration_path, studio_calibration
-from widgets.words import ALLOW_LATE, count, late_lines, seconds
+from widgets.words import ALLOW_LATE, late_lines, seconds
 
 log = logging.getLogger(__name__)
 

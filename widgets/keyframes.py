@@ -23,9 +23,10 @@ import numpy as np
 from studio.project.edits import combined_masks
 from studio.project.state import AWAITS, Keyframe
 from studio.project.status import ProjectStatus
+from studio.words import count
 from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, png, tint, title, upscale
 from widgets.state import StudioState
-from widgets.words import count, loss, seconds, span
+from widgets.words import loss, seconds, span
 
 log = logging.getLogger(__name__)
 

@@ -15,8 +15,9 @@ import numpy as np
 from studio.imitate.config import PRESET_WORDS, PRESETS, STUDIO, SequenceConfig
 from studio.jobs import JobEvent, JobState
 from studio.project.run import RunReport
+from studio.words import count
 from widgets.images import background, mask_picture
-from widgets.words import ALLOW_LATE, bar_label, count, late_lines, stage
+from widgets.words import ALLOW_LATE, bar_label, late_lines, stage
 
 
 def budget_list(sequence: SequenceConfig, gpu: bool | None = None) -> w.Dropdown:

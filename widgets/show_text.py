@@ -23,7 +23,8 @@ from hardware.player import Player, PlayerConfig
 from hardware.show_checks import soft_limit_summary
 from studio.motion.show import Show
 from studio.motion.show_info import show_info_lines
-from widgets.words import count, late_lines, seconds
+from studio.words import count
+from widgets.words import late_lines, seconds
 
 LABEL = 14  # width of a line's label, as show-info prints them ("keyframes:    ")
 

@@ -29,13 +29,14 @@ from studio.project.sources import locate
 from studio.project.state import ProjectError
 from studio.targets.pockets import POCKET_REACH
 from studio.targets.source import raw_frames
+from studio.words import count
 from widgets.first_frame import FirstFrame
 from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, mask_picture, png, tint, title
 from widgets.relink import RelinkControl
 from widgets.state import StudioState
 from widgets.target_preview import frame_preview, source_polarity
 from widgets.targets_actions import TargetsActions
-from widgets.words import count, seconds
+from widgets.words import seconds
 
 PREVIEW_PX = 256  # side of the preview image, px
 POLARITY_WORDS = {"dark": "a dark shape on a light ground", "bright": "a bright shape on a dark ground"}

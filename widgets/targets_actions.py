@@ -20,7 +20,7 @@ from studio.project.containment import check_subfolders
 from studio.project.state import ProjectError
 from studio.targets.source import source_kind
 from studio.targets.video import SegmentationNeeded
-from widgets.words import count
+from studio.words import count
 
 log = logging.getLogger(__name__)
 

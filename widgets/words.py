@@ -1,14 +1,15 @@
-"""How the panels write numbers for the artist: times, counts with their plural, losses and shares.
+"""How the panels write numbers for the artist: times, losses and shares, the stages of a job, late transitions.
 
-One place, so every panel writes a time as ``0.80 s`` (never ``0.7999999999999999``) and a count as ``1 keyframe`` /
-``5 keyframes`` (never ``1 keyframes`` nor ``keyframe(s)``).
+One place, so every panel writes a time as ``0.80 s`` (never ``0.7999999999999999``); a count is
+:func:`studio.words.count` (``1 keyframe`` / ``5 keyframes``, never ``1 keyframes`` nor ``keyframe(s)``).
 """
 
 from __future__ import annotations
 
 import math
 
-IRREGULAR = {"was": "were", "is": "are", "it": "them"}  # words whose plural is not the word + "s"
+from studio.words import count
+
 ALLOW_LATE = "allow late transitions"  # the box that stretches moves too fast for the servos (Optimise, Export)
 
 
@@ -23,20 +24,6 @@ def span(t0: float, t1: float) -> str:
     """A time range: ``0.40–0.80 s``, or one time when both ends are the same to the hundredth."""
     a, b = seconds(t0), seconds(t1)
     return a if a == b else f"{a[:-2]}–{b}"
-
-
-def plural(word: str, n: int) -> str:
-    """``word`` for one, its plural for any other count (``keyframe`` → ``keyframes``, ``was`` → ``were``)."""
-    if n == 1:
-        return word
-    if word in IRREGULAR:
-        return IRREGULAR[word]
-    return word + ("es" if word.endswith(("s", "x", "ch", "sh")) else "s")
-
-
-def count(n: int, word: str) -> str:
-    """``1 keyframe``, ``0 keyframes``, ``200,000 poses``: the number and the word that agrees with it."""
-    return f"{n:,} {plural(word, n)}"
 
 
 def loss(value: float | None) -> str:

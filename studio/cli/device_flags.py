@@ -14,6 +14,7 @@ import argparse
 from studio.cli.flags import field_docs, ranged
 from studio.learn.config import TrainerConfig
 from studio.learn.threads import DEFAULT_THREADS
+from studio.words import plural
 
 MAX_THREADS = int(field_docs(TrainerConfig)["threads"].range.hi)  # more threads than this only slow torch down
 DEVICES = ("cpu", "cuda")  # what --device names (cuda:N picks one GPU)
@@ -31,7 +32,8 @@ def device_arg(text: str) -> str:
         if count == 0:
             raise argparse.ArgumentTypeError(f"{text}: this machine has no CUDA GPU that torch can use; use cpu")
         if index and int(index) >= count:
-            raise argparse.ArgumentTypeError(f"{text}: {count} CUDA GPU(s) here: cuda:0 to cuda:{count - 1}")
+            gpus = f"{count} CUDA {plural('GPU', count)}"
+            raise argparse.ArgumentTypeError(f"{text}: {gpus} here: cuda:0 to cuda:{count - 1}")
     return text.strip().lower()
 
 

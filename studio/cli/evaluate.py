@@ -26,6 +26,7 @@ from studio.cli.source_flags import add_source_flags, still_config_from_args
 from studio.imitate.config import still_configs
 from studio.learn.threads import torch_threads
 from studio.targets.image_sets import gather_targets
+from studio.words import count
 
 DEFAULT_INVERSE = asset("models/inverse_cpu128.pt", must_exist=False)
 
@@ -95,7 +96,7 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
     print(json.dumps(summary, allow_nan=False, default=str))
     if cancel.is_set():
         done = len({r["target"] for r in result.records})
-        print(f"shadow-studio evaluate: stopped by Ctrl-C; the table holds the {done} target(s) finished",
+        print(f"shadow-studio evaluate: stopped by Ctrl-C; the table holds the {count(done, 'target')} finished",
               file=sys.stderr)  # fmt: skip
         return 130
     return 0

@@ -38,6 +38,7 @@ from studio.cli.runs import print_run, run_with_bars
 from studio.cli.scale_flags import add_fanout_flags, fanout_from_args, models_from_args
 from studio.cli.source_flags import add_source_flags, roll_arg, source_settings_from_args
 from studio.learn.threads import torch_threads
+from studio.words import count, plural
 
 
 def print_info(project) -> dict:
@@ -47,14 +48,14 @@ def print_info(project) -> dict:
 
     s = project.summary()
     state = project.state
-    print(
-        f"project {s['project']} ({s['title']!r}): {len(s['sources'])} source(s), {s['frames']} frames at "
-        f"{s['hz']:g} Hz ({s['size']} px), {len(s['keyframes'])} keyframes (tau {s['tau']:g})"
-    )
+    sources, frames, keyframes = count(len(s["sources"]), "source"), count(s["frames"], "frame"), s["keyframes"]
+    print(f"project {s['project']} ({s['title']!r}): {sources}, {frames} at {s['hz']:g} Hz ({s['size']} px), "
+          f"{count(len(keyframes), 'keyframe')} (tau {s['tau']:g})")  # fmt: skip
     for i, src in enumerate(s["sources"]):
         note = f"MISSING (was at {src['absolute']})" if src["missing"] else ""
         note = "CHANGED since it was read" if src["changed"] else note
-        print(f"source {i}: {src['path']} ({src['kind']}, {src['footage']}), {src['frames']} frame(s) {note}".rstrip())
+        frames = count(src["frames"], "frame")
+        print(f"source {i}: {src['path']} ({src['kind']}, {src['footage']}), {frames} {note}".rstrip())
     print(f"mount: {s['mount']['how']}")
     if s["mount"]["apart"]:
         print(f"  {apart_text(s['mount']['apart'])}")
@@ -67,7 +68,7 @@ def print_info(project) -> dict:
         together = f"; {AWAITS[kf['awaits']]}" if kf["awaits"] else ""
         print(
             f"keyframe {kf['id']}: frame {kf['representative']} (source {f.source}, {f.time_s:.2f} s), "
-            f"{len(kf['members'])} frame(s){extra}; result {kf['result']}{loss}{collides}{together}"
+            f"{count(len(kf['members']), 'frame')}{extra}; result {kf['result']}{loss}{collides}{together}"
         )
     if s["show"] is None:
         print("show: none planned yet")
@@ -127,7 +128,10 @@ def _run(args: argparse.Namespace) -> int:
 
     project = Project.open(Path(args.name))
     if args.reload_sources and project.changed_sources:
-        print(f"re-reading changed source(s) {project.changed_sources}", file=sys.stderr)
+        print(
+            f"re-reading changed {plural('source', len(project.changed_sources))} {project.changed_sources}",
+            file=sys.stderr,
+        )
         project.reload_sources()
     if args.roll is not None:
         project.set_roll(args.roll)  # another roll: the keyframes are optimised again for it

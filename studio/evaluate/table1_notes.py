@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 from studio.evaluate.config import EvalConfig
+from studio.words import count
 
 
 def _method_note(st: dict) -> str:
@@ -19,7 +20,7 @@ def _method_note(st: dict) -> str:
     if r["method"] == "hill":
         refine = f"hill climbing, {r['restarts']} chains × {r['steps']} steps"
     else:
-        refine = f"CMA-ES, {r['restarts']} run(s) × {r['steps']} generations of {r['popsize']}"
+        refine = f"CMA-ES, {count(r['restarts'], 'run')} × {r['steps']} generations of {r['popsize']}"
     first = (
         f"retrieval over {st['retrieval']['size']} collision-free self-exploration shadows (Ours, first answer: "
         f"its best pose), " + sweep + "its best distinct poses seeding the search, "

@@ -27,6 +27,7 @@ import numpy as np
 
 from studio.atomic import JsonFileError, read_json, write_json, write_with
 from studio.errors import StudioError
+from studio.words import count
 
 if TYPE_CHECKING:
     from studio.sim.hand import Hand
@@ -184,7 +185,7 @@ def split(cs: CaptureSet, held_out_fraction: float = 0.1, seed: int = 0) -> tupl
         raise ValueError(f"held_out_fraction must be in (0, 1), got {held_out_fraction}")
     n = len(cs)
     if n < 2:
-        raise CapturesMismatch(f"a capture set of {n} pair(s) cannot be split: capture at least 2")
+        raise CapturesMismatch(f"a capture set of {count(n, 'pair')} cannot be split: capture at least 2")
     k = min(n - 1, max(1, round(held_out_fraction * n)))
     order = np.random.default_rng(seed).permutation(n)
     return cs.subset(np.sort(order[k:])), cs.subset(np.sort(order[:k]))

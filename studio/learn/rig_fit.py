@@ -38,6 +38,7 @@ import numpy as np
 from studio.errors import Cancelled, ProgressFn, StudioError, report
 from studio.sim.hand import Hand, load_hand
 from studio.sim.shadow import Rig, ShadowRenderer
+from studio.words import plural
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +70,10 @@ class RigFitConfig:
     def __post_init__(self) -> None:
         unknown = set(self.fit) - set(PARAMETERS)
         if unknown:
-            raise ValueError(f"unknown rig parameter(s) {sorted(unknown)}: choose from {', '.join(PARAMETERS)}")
+            raise ValueError(
+                f"unknown rig {plural('parameter', len(unknown))} {sorted(unknown)}: choose from "
+                f"{', '.join(PARAMETERS)}"
+            )
         if not 1 <= self.supersample <= 8 or self.max_evals < 50:
             raise ValueError("supersample must be within 1..8 and max_evals at least 50")
 

@@ -6,6 +6,7 @@ import threading
 from dataclasses import dataclass
 
 from studio.errors import Cancelled, StudioError, stopped
+from studio.words import count
 
 
 class PlanError(StudioError):
@@ -58,7 +59,7 @@ class SegmentTooFastError(PlanError):
         self.segments = list(segments)
         lines = "; ".join(s.describe() for s in self.segments)
         super().__init__(
-            f"{len(self.segments)} segment(s) too fast for the servo limits: {lines}. "
+            f"{count(len(self.segments), 'segment')} too fast for the servo limits: {lines}. "
             "Give those keyframes more time, or allow late transitions to stretch them (later keyframes shift)"
         )
 

@@ -45,6 +45,7 @@ from studio.motion.timing import TimedTrajectory, TimingConfig, time_path
 from studio.sim.hand import Hand
 from studio.sim.physics import CollisionWorld
 from studio.sim.roll import file_deg
+from studio.words import count, plural
 
 log = logging.getLogger(__name__)
 
@@ -215,8 +216,8 @@ def check_keyframes(world: CollisionWorld, poses: np.ndarray, times: np.ndarray)
             touching = ", ".join(f"{c.link_a}–{c.link_b}" for c in world.contacts(poses[i]) if c.distance < 0)
             parts.append(f"t = {times[i]:.3f} s ({touching})")
         raise KeyframeCollisionError(
-            f"{bad.size} keyframe(s) are in self-collision: {'; '.join(parts)}. Keyframes are never moved: "
-            "optimise those keyframes again or edit their poses"
+            f"{count(bad.size, 'keyframe')} {plural('is', bad.size)} in self-collision: {'; '.join(parts)}. Keyframes "
+            "are never moved: optimise those keyframes again or edit their poses"
         )
 
 

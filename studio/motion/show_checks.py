@@ -24,6 +24,7 @@ from studio.motion.bounds import (
 )
 from studio.motion.limits import limit_problems
 from studio.sim.hand import Hand
+from studio.words import count
 
 FORMAT_NAME = "shadow-studio-show"
 READABLE_VERSIONS = (1,)  # versions this code can read
@@ -84,7 +85,7 @@ def _sample_problems(rows: list[list[float]], names: list[str], limits: dict[str
         i = int(back[0]) + 1
         problems.append(
             f"time goes backwards or repeats at sample {i} (t = {fmt(t[i])} s after {fmt(t[i - 1])} s, "
-            f"{back.size} place(s) in all); times must strictly increase"
+            f"{count(back.size, 'place')} in all); times must strictly increase"
         )
     if limits is not None and not limit_problems(limits, names):
         lo, hi = np.asarray(limits["lower"]), np.asarray(limits["upper"])

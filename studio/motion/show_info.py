@@ -6,6 +6,7 @@ import numpy as np
 
 from studio.motion.show import Show
 from studio.sim.roll import mount_text
+from studio.words import count
 
 
 def show_info_lines(show: Show) -> list[str]:
@@ -30,5 +31,5 @@ def show_info_lines(show: Show) -> list[str]:
         ratio = speed[:, j].max() / show.limits.velocity[j]
         lines.append(f"peak speed:   {show.joint_names[j]} at {ratio:.0%} of its velocity limit")
     late = show.provenance.get("late_segments") or []
-    lines.append(f"late:         {len(late)} segment(s) stretched" if late else "late:         none")
+    lines.append(f"late:         {count(len(late), 'segment')} stretched" if late else "late:         none")
     return lines

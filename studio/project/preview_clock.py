@@ -29,6 +29,7 @@ from studio.project.state import ProjectState
 from studio.project.status import ProjectStatus
 from studio.review.preview import PreviewClock, PreviewTick, home_move, remap, show_clock_map
 from studio.review.video_review import frame_at, video_times
+from studio.words import count
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,7 +91,7 @@ def preview_clock(inp: PreviewInputs, fps: float, home: float | None = None) -> 
             for d in late_transitions(timing, show)]  # fmt: skip
     note = "the planned show" + (f", after the move from home ({-t[0]:.2f} s)" if t[0] < 0 else "")
     if late:
-        note += f"; {len(late)} late transition(s), stretched (shaded red)"
+        note += f"; {count(len(late), 'late transition')}, stretched (shaded red)"
     return PreviewClock(t, frame, theta, float(t[0]), float(show.times[-1]), fps, True, ticks, late, note)
 
 
@@ -135,6 +136,6 @@ def _keyframe_clock(inp: PreviewInputs, fps: float, home: float | None) -> Previ
     ticks = _ticks(timing, status, timing.keyframes.times)
     why = "the show is stale: plan it again" if s.show is not None else "no show planned yet"
     if status.pending:
-        why = f"{len(status.pending)} keyframe(s) to optimise before the show"
+        why = f"{count(len(status.pending), 'keyframe')} to optimise before the show"
     note = f"{why}; each frame plays its keyframe's pose" + (", after the move from home" if t[0] < 0 else "")
     return PreviewClock(t, frame, theta, float(t[0]), float(timing.end_s), fps, False, ticks, [], note)

@@ -45,6 +45,7 @@ from studio.project.state import (
 from studio.targets.images import TargetConfig
 from studio.targets.keyframes import KeyframeConfig
 from studio.targets.video import VideoConfig
+from studio.words import count, plural
 
 MAX_DOC_BYTES = 64 << 20  # a project.json larger than this is not one this studio wrote (≈ 100,000 frames)
 
@@ -181,10 +182,10 @@ def _keyframes(doc: dict, n_frames: int) -> tuple[Keyframe, ...]:
             raise Damaged(f"{DOC}: keyframe {kid}'s representative frame {rep} is not one of its members")
         out.append(Keyframe(kid, rep, tuple(sorted(members)), None if t is None else float(t), **flags))
     if n_frames and not out:
-        raise Damaged(f"{DOC}: the project has {n_frames} frame(s) but no keyframe; every frame belongs to one")
+        raise Damaged(f"{DOC}: the project has {count(n_frames, 'frame')} but no keyframe; every frame belongs to one")
     alone = sorted(set(range(n_frames)) - seen_frames)
-    if alone:
-        raise Damaged(f"{DOC}: frame(s) {alone[:10]} belong to no keyframe; every frame belongs to exactly one")
+    if n := len(alone):
+        raise Damaged(f"{DOC}: {plural('frame', n)} {alone[:10]} {plural('belongs', n)} to no keyframe")
     return tuple(out)
 
 
@@ -267,8 +268,7 @@ def _from_doc(folder: Path, doc: dict[str, Any]) -> ProjectState:
 
 
 def _still(d: Any) -> TargetConfig:
-    """The still settings; a project saved before the loader filled crease pockets made its masks without them, so
-    its settings without ``pocket_reach`` read as 0 (off) and its results stay current."""
+    """The still settings; saved before the loader filled crease pockets, they lack ``pocket_reach``: 0 (off)."""
     old = {"pocket_reach": 0.0} if isinstance(d, Mapping) and "pocket_reach" not in d else {}
     return typed_config(TargetConfig, old | d, f"{DOC}: settings.still")
 

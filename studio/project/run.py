@@ -39,12 +39,13 @@ from studio.jobs.queue import JobQueue
 from studio.learn.fanout import FanoutConfig
 from studio.motion.plan import PlanConfig
 from studio.project.jobs import queue_for, roll_job, video_job
-from studio.project.run_report import RunReport, TooFast, counted, late_transitions, plural
+from studio.project.run_report import RunReport, TooFast, late_transitions
 from studio.project.run_spread import keyframe_config, place_in_source, run_spread, source_keyframes
 from studio.project.run_together import refine_stretches, refines_together, to_refine_together
 from studio.project.show_timing import ShowLayout, keyframe_box, seams_out_of_reach
 from studio.project.state import ProjectError
 from studio.project.status import ProjectHandle, check_sources
+from studio.words import count, plural
 
 if TYPE_CHECKING:
     from studio.motion.plan import Keyframes
@@ -151,7 +152,7 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
     if project.mount.auto and not project.mount.chosen and (pending or project.results):
         job = queue.submit(roll_job(project, model_path=model_path))
         if on_job is not None:
-            on_job(job, f"the mount roll for {counted(len(ids), 'keyframe')}")
+            on_job(job, f"the mount roll for {count(len(ids), 'keyframe')}")
         state = job.follow(cancel)
         if state != JobState.DONE or not project.mount.chosen:
             report.cancelled, report.error = state == JobState.CANCELLED, job.error
@@ -184,11 +185,11 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
     if refines_together(seq) and not refine_stretches(project, cfg, clip, queue, cancel, model_path, on_job, report):
         return report.finish(project, cfg.transitions, t0)
     if not plan:
-        report.message = f"optimised {counted(len(report.optimised), 'keyframe')}"
+        report.message = f"optimised {count(len(report.optimised), 'keyframe')}"
         return report.finish(project, cfg.transitions, t0)
     status = project.status()
     if status.missing or status.stale:
-        done = counted(len(report.optimised), "keyframe")
+        done = count(len(report.optimised), "keyframe")
         report.message = (
             f"optimised {done}; the show needs every keyframe current (still to optimise: {list(status.pending)})"
         )
@@ -218,17 +219,17 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
         report.late = timing.late_transitions(job.result.segments, job.result.home_added)
         report.too_fast = True
         report.message = (
-            f"no show: {counted(len(report.late), 'transition')} too fast for the servos at the show's clock; allow "
+            f"no show: {count(len(report.late), 'transition')} too fast for the servos at the show's clock; allow "
             "late transitions to stretch them (the show then runs longer), or give those keyframes more time"
         )
         return report.finish(project, cfg.transitions, t0)
     planned = job.result
     report.late = late_transitions(timing, planned.show)
     report.show = "planned"
-    stretched = f", {counted(len(report.late), 'late transition')} stretched" if report.late else ""
+    stretched = f", {count(len(report.late), 'late transition')} stretched" if report.late else ""
     resumed = [k for k in report.refined if k not in report.optimised]  # a stopped run posed them, did not refine
-    again = f", refined {counted(len(resumed), 'keyframe')} together that a stopped run had posed" if resumed else ""
-    report.message = (f"optimised {counted(len(report.optimised), 'keyframe')}, skipped {len(report.skipped)} current"
+    again = f", refined {count(len(resumed), 'keyframe')} together that a stopped run had posed" if resumed else ""
+    report.message = (f"optimised {count(len(report.optimised), 'keyframe')}, skipped {len(report.skipped)} current"
                       f"{again}; planned a {planned.show.duration:.2f} s show{stretched}")  # fmt: skip
     return report.finish(project, cfg.transitions, t0)
 
@@ -262,9 +263,7 @@ def _optimise(project, cfg, clip, queue, cancel, model_path, on_job, pending, se
             continue
         report.cancelled, report.error = state == JobState.CANCELLED, job.error
         what = "cancelled" if report.cancelled else f"failed ({job.error})"
-        report.message = (
-            f"keyframe {k} {what}; {counted(len(report.optimised), 'keyframe')} finished and saved before it"
-        )
+        report.message = f"keyframe {k} {what}; {count(len(report.optimised), 'keyframe')} finished and saved before it"
         return False
     return True
 

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 from studio.jobs.events import JobError
 from studio.project.summary import mount_apart, project_transitions
 from studio.sim.roll import mount_text, roll_deg
+from studio.words import count
 
 if TYPE_CHECKING:
     from studio.imitate.transitions import TransitionConfig
@@ -89,9 +90,9 @@ class RunReport:
     def nothing_done(self) -> str:
         """The message of a run that planned no show because the show is current."""
         if self.optimised:
-            return f"optimised {counted(len(self.optimised), 'keyframe')}; the show is current"
+            return f"optimised {count(len(self.optimised), 'keyframe')}; the show is current"
         every = "all " if len(self.skipped) > 1 else ""
-        return f"nothing to do: {every}{counted(len(self.skipped), 'keyframe')} and the show are current"
+        return f"nothing to do: {every}{count(len(self.skipped), 'keyframe')} and the show are current"
 
 
 def late_transitions(timing, show) -> list[dict]:
@@ -100,15 +101,3 @@ def late_transitions(timing, show) -> list[dict]:
 
     late = [SegmentTiming(**d) for d in show.provenance.get("late_segments", [])]
     return timing.late_transitions(late, bool(show.provenance.get("home_added", False)))
-
-
-def plural(word: str, n: int) -> str:
-    """``word`` agreeing with a count of ``n`` (``keyframe`` / ``keyframes``; a verb: ``collides`` / ``collide``)."""
-    if n == 1:
-        return word
-    return word[:-1] if word.endswith("des") else word + "s"
-
-
-def counted(n: int, word: str) -> str:
-    """``1 keyframe``, ``3 keyframes``: every message of a run counts in words that agree with the number."""
-    return f"{n} {plural(word, n)}"

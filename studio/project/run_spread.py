@@ -225,7 +225,7 @@ def run_spread(
 
     from studio.jobs.events import JobError
     from studio.project.jobs import project_loss
-    from studio.project.run_report import counted
+    from studio.words import count
 
     chains = chains_of(project, pending, settled, layout)
     task = KeyframeTask(models, project_loss(project, chains[0].masks.shape[-1], clip), seq, project.mount.roll, limits)
@@ -233,11 +233,11 @@ def run_spread(
         report.optimised = optimise_spread(project, chains, task, fanout, progress, cancel, report.optimised, together)
     except Exception as e:  # a worker's failure, or no Ray to run on: one line, what was saved stays
         report.error = JobError(type(e).__name__, str(e), traceback.format_exc())
-        done = counted(len(report.optimised), "keyframe")
+        done = count(len(report.optimised), "keyframe")
         report.message = f"the spread run stopped ({e}); {done} finished and saved"
         return False
     if stopped(cancel):
         report.cancelled = True
-        report.message = f"cancelled; {counted(len(report.optimised), 'keyframe')} finished and saved before it"
+        report.message = f"cancelled; {count(len(report.optimised), 'keyframe')} finished and saved before it"
         return False
     return True

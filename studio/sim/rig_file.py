@@ -25,6 +25,7 @@ import yaml
 from studio.errors import StudioError
 from studio.sim.roll import file_deg
 from studio.sim.shadow import Rig
+from studio.words import plural
 
 KEYS = ("light_distance_m", "backdrop_distance_m", "hand_offset_m", "mount_roll_deg", "foam_mm")
 ALIASES = {"roll_deg": "mount_roll_deg"}  # a calibration file's rig section names the roll roll_deg
@@ -50,7 +51,9 @@ def rig_from_mapping(d: dict, base: Rig | None = None, where: str = "") -> Rig:
     d = {ALIASES.get(k, k): v for k, v in d.items()}
     unknown = set(d) - set(KEYS) - set(EXTRA)
     if unknown:
-        raise RigFileError(f"{where}unknown key(s) {', '.join(sorted(unknown))}: a rig has {', '.join(KEYS)}")
+        raise RigFileError(
+            f"{where}unknown {plural('key', len(unknown))} {', '.join(sorted(unknown))}: a rig has {', '.join(KEYS)}"
+        )
     light = base.light
     if "light_distance_m" in d:
         light = (base.light[0], base.light[1], _number(d, "light_distance_m", where))
