@@ -275,7 +275,7 @@ def test_the_horse_preview_tints_the_horse_not_its_backdrop_and_shows_what_is_st
             at_size = cv2.resize(stored, saved.shape[::-1], interpolation=cv2.INTER_AREA) >= 0.5
             iou = (at_size & (saved > 0)).sum() / (at_size | (saved > 0)).sum()
             assert iou > 0.95, (frame, iou)
-            assert "dark shape on a light ground" in panel.stored_info.value
+            assert "found a dark shape on a light ground" in panel.stored_info.value  # the studio read it
     finally:
         s.close()
 

@@ -23,6 +23,7 @@ log = logging.getLogger(__name__)
 ADD_RGB = (60, 200, 90)  # painted additions
 ERASE_RGB = (230, 60, 60)  # painted erasures
 MASK_RGB = (255, 170, 0)  # an automatic / binary mask over a frame
+FRAME_EDGE = "1px solid #bbb"  # the CSS border of a frame's picture (its white backdrop meets the white page)
 EXIT_WAIT_S = 10.0  # s the interpreter waits at exit for the panels' background work (below) to end
 
 
@@ -109,9 +110,11 @@ def shown_when_drawn(image: w.Image) -> w.Image:
     return image
 
 
-def image_widget(side: int) -> w.Image:
-    """An empty square PNG image widget ``side`` px wide."""
-    return w.Image(format="png", width=side, height=side)
+def frame_picture(side: int, value: bytes = b"") -> w.Image:
+    """A square PNG image widget ``side`` px wide for a frame (a mask, a shadow: white backdrop), drawn with the
+    frame's edge (:data:`FRAME_EDGE`): where a shape sits in its frame matters (the hand can change a shadow's shape,
+    never move it), and a white backdrop on the white page shows no edge."""
+    return w.Image(value=value, format="png", width=side, height=side, layout={"border": FRAME_EDGE})
 
 
 class Messages:

@@ -26,7 +26,7 @@ import numpy as np
 
 from hardware.calibration import Calibration
 from hardware.show_checks import calibrated_roll_conflict
-from widgets.images import mask_picture, png
+from widgets.images import FRAME_EDGE, mask_picture, png
 
 if TYPE_CHECKING:
     from studio.project.live import LiveResult
@@ -79,7 +79,8 @@ class LiveView:
     def __init__(self, tile: int = 240, redraw_hz: float = 10.0):
         self.tile = tile  # side of the target and shadow pictures, and the camera picture's width, px
         self.interval = 1.0 / min(max(redraw_hz, 0.1), 10.0)  # s between redraws, at least 0.1
-        self.pictures = {name: w.Image(format="png", layout=w.Layout(width=f"{tile}px")) for name in PICTURES}
+        edge = {"camera": None, "target": FRAME_EDGE, "shadow": FRAME_EDGE}  # the frames' edges (not the camera's)
+        self.pictures = {n: w.Image(format="png", layout=w.Layout(width=f"{tile}px", border=edge[n])) for n in PICTURES}
         self.status = w.Label("")
         captions = ("camera", "target (what the hand follows)", "shadow of the commanded pose")
         columns = [w.VBox([w.HTML(f"<i>{c}</i>"), self.pictures[n]]) for c, n in zip(captions, PICTURES, strict=True)]

@@ -25,6 +25,7 @@ from widgets.frame_picker import frame_picker
 from widgets.images import (
     ADD_RGB,
     ERASE_RGB,
+    FRAME_EDGE,
     MASK_RGB,
     Messages,
     frame_in_view,
@@ -67,7 +68,7 @@ class MasksPanel:
         keys = [(MASK_RGB, "expressive region (the Exp. terms weigh it)"), (ADD_RGB, "painted in"),
                 (ERASE_RGB, "painted out")]  # fmt: skip
         self.legend = legend(keys, then="drag on the frame to paint in the mode chosen")
-        framed = w.Box([picture], layout={"border": "1px solid #bbb", "width": "fit-content"})  # the frame's edge
+        framed = w.Box([picture], layout={"border": FRAME_EDGE, "width": "fit-content"})  # the frame's edge
         self.widget = w.VBox([
             title("Masks"),
             self.frame_picker,

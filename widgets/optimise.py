@@ -37,7 +37,7 @@ from studio.imitate.config import CPU_SEQUENCE, PRESETS, SequenceConfig
 from studio.jobs import Job, JobEvent
 from studio.project.run import RUN_JOB_KINDS, RunConfig, RunReport
 from studio.project.run_spread import source_keyframes
-from widgets.images import Messages, mask_picture, title
+from widgets.images import Messages, frame_picture, mask_picture, title
 from widgets.index_warmup import IndexWarmup
 from widgets.mount import MountControl, mount_line
 from widgets.optimise_view import OptimiseDrawing, budget_list
@@ -108,8 +108,8 @@ class OptimisePanel(OptimiseDrawing):
                                        layout=w.Layout(width="560px", display="none"))  # fmt: skip
         self.loss = w.HTML("")
         self.bar_box = w.VBox([])
-        self.target_image = w.Image(value=mask_picture(None, px), format="png", width=px, height=px)
-        self.shadow_image = w.Image(value=mask_picture(None, px), format="png", width=px, height=px)
+        self.target_image = frame_picture(px, mask_picture(None, px))
+        self.shadow_image = frame_picture(px, mask_picture(None, px))
         self.job_list = w.HTML("")
         pictures = w.HBox([w.VBox([w.HTML("target"), self.target_image]),
                            w.VBox([w.HTML("best shadow"), self.shadow_image])])  # fmt: skip

@@ -40,7 +40,7 @@ from studio.project.outputs import self_model_predictor
 from studio.review.recording import ProjectRecording
 from studio.review.scene import ShadowScene
 from widgets.frame_picker import frame_picker
-from widgets.images import Messages, Throttle, background, mask_picture, title
+from widgets.images import Messages, Throttle, background, frame_picture, mask_picture, title
 from widgets.review_rig import ReviewRig
 from widgets.review_viewer import ViewerBox, log_finished_play
 from widgets.scene_snapshot import SceneSnapshot
@@ -96,8 +96,8 @@ class ReviewPanel(ReviewRig):
                                          "seconds; the other tabs work meanwhile)</i>")])  # fmt: skip
         side = self.cfg.image_px
         blank = mask_picture(None, side)  # until the frame is drawn (an empty image: a broken-picture icon)
-        self.target_image = w.Image(value=blank, format="png", width=side, height=side)
-        self.shadow_image = w.Image(value=blank, format="png", width=side, height=side)
+        self.target_image = frame_picture(side, blank)
+        self.shadow_image = frame_picture(side, blank)
         self.caption = w.HTML("")
         self.scene_view = SceneSnapshot(height=self.cfg.scene_height)  # the meshcat snapshot on show
         self.shown_frame: int | None = None  # the frame whose target and shadow are shown

@@ -20,7 +20,7 @@ import numpy as np
 from studio.errors import StudioError
 from studio.project.sculpt import Sculptor, keep_pose, keyframe_at
 from studio.sim.hand import Hand
-from widgets.images import Messages, Throttle, frame_in_view, mask_picture
+from widgets.images import Messages, Throttle, frame_in_view, frame_picture, mask_picture
 from widgets.state import StudioState
 
 log = logging.getLogger(__name__)
@@ -43,9 +43,9 @@ class SculptView:
         self.measured_shadow: np.ndarray | None = None
         self.drawer = Throttle(lambda: self.messages.run(self._draw, clear=False), hz=MAX_HZ)  # draws, in its thread
         blank = mask_picture(None, PX)  # until the first draw lands (an empty image is a broken-picture icon)
-        self.target_image = W.Image(value=blank, format="png", width=PX, height=PX)
-        self.commanded_image = W.Image(value=blank, format="png", width=PX, height=PX)
-        self.measured_image = W.Image(value=blank, format="png", width=PX, height=PX)
+        self.target_image = frame_picture(PX, blank)
+        self.commanded_image = frame_picture(PX, blank)
+        self.measured_image = frame_picture(PX, blank)
         self.caption = W.HTML("<i>drawing the shadow of the sliders' pose…</i>")
         tip = "this pose becomes the result of the keyframe at the frame in view"
         self.save_button = W.Button(description="save as keyframe", icon="save", tooltip=tip)

@@ -287,7 +287,7 @@ class TargetsPanel(TargetsActions):
         self.stored_rgb = tint(grey_rgb(shown.grey), stored, MASK_RGB, 0.55)
         self.stored.value = png(self.stored_rgb)
         level = f"at Otsu's level {shown.level:.0f}" if self.otsu.value else f"at level {shown.level:.0f}"
-        reading = POLARITY_WORDS[self.polarity(source)] + (" (found)" if cfg.polarity == "auto" else "")
+        reading = ("found " if cfg.polarity == "auto" else "") + POLARITY_WORDS[self.polarity(source)]
         self.stored_info.value = f"<small>{html.escape(shown.note or level)}; {reading}</small>"
 
 
