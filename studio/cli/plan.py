@@ -17,6 +17,7 @@ from studio.motion.show_info import show_info_lines
 from studio.motion.timing import TimingConfig
 from studio.sim.hand import load_hand
 from studio.targets.path_checks import check_outputs
+from studio.words import count
 
 
 def _plan(args: argparse.Namespace) -> int:
@@ -44,7 +45,7 @@ def _plan(args: argparse.Namespace) -> int:
     if len(s.times) == 1:
         print("one keyframe at t = 0: the show holds that pose (no home move; a player ramps the hand to it first)")
     print(
-        f"planned {len(s.keyframes)} keyframe{'s' if len(s.keyframes) != 1 else ''}"
+        f"planned {count(len(s.keyframes), 'keyframe')}"
         f"{' (+ home at t = 0)' if result.home_added else ''}: "
         f"{s.duration:.3f} s, {len(s.times)} samples at {s.rate_hz:g} Hz, "
         f"{int(result.path.repaired.sum())} path points repaired, {int(result.path.refined.sum())} fingertip-refined, "
