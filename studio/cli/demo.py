@@ -127,7 +127,6 @@ def _demo(args: argparse.Namespace) -> int:
                                "beyond_soft_limits_deg": {n: round(math.degrees(r), 2) for n, r in beyond}}  # fmt: skip
     summary["no_clip"] = clip is None
     summary["seconds"] = round(time.perf_counter() - t0, 2)
-    print(f"wrote {out / 'review.rrd'} (open it with: rerun {out / 'review.rrd'})", file=sys.stderr)
     print(json.dumps(summary))
     if job.state.value == "cancelled":
         print("shadow-studio demo: playback cancelled", file=sys.stderr)
