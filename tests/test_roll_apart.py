@@ -14,7 +14,7 @@ from studio.imitate.config import LossConfig
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex
-from studio.imitate.roll_search import choose_roll
+from studio.imitate.roll_search import check_roll, choose_roll
 from studio.project.demo import demo_sources
 from studio.project.project import Project
 from studio.project.project_read import Damaged
@@ -57,6 +57,11 @@ def test_roll_auto_names_the_keyframe_its_one_mount_casts_worse(hand):
         assert named.loss >= 1.5 * named.own_loss and named.loss - named.own_loss >= 0.05, named
         assert choose_roll(index, refiner, targets[:2], make).apart == []  # every keyframe wants the show's roll
         assert choose_roll(index, refiner, targets[2:], make).apart == []  # a still has the roll best for it
+        # a roll the artist sets is measured the same way: at 90° the upright one is named, upright the tall ones
+        (typed,) = check_roll(index, refiner, targets, make, 90.0)
+        assert typed.target == 2 and typed.loss == pytest.approx(named.loss, abs=1e-6)
+        assert {a.target for a in check_roll(index, refiner, targets, make, 0.0)} == {0, 1}
+        assert check_roll(index, refiner, targets[2:], make, 90.0) == []  # a still: nothing to weigh it against
     finally:
         refiner.close()
 
@@ -79,19 +84,23 @@ def test_the_project_keeps_the_keyframes_its_mount_costs_and_says_where_they_rea
     assert entry == {"keyframe": kf.id, "source": "asl_o.jpeg", "loss": 0.2345, "own_roll_deg": -15.0,
                      "own_loss": 0.1062}  # fmt: skip
     said = (f"one mount serves the whole show: keyframe {kf.id} (asl_o.jpeg) would cast better at roll -15° "
-            "(first-answer outline loss 0.106 there, 0.234 on this mount); set the roll by hand, or give it a show of "
-            "its own")  # fmt: skip
+            "(first-answer outline loss 0.106 there, 0.234 on this mount); set another roll by hand, or give it a "
+            "show of its own")  # fmt: skip
     assert apart_text([entry]) == said
     assert said in mount_line(again)  # the Optimise panel's line under the roll box
     assert main(["project", "info", str(demo.path)]) == 0
     out = capsys.readouterr().out
     assert f"  {said}\n" in out and json.loads(out.strip().splitlines()[-1])["mount"]["apart"] == [entry]
     two = [entry, dict(entry, keyframe=3, source="muybridge_horse.gif", own_roll_deg=30.0)]
-    tail = (f"{kf.id} (asl_o.jpeg) at -15° (0.106, 0.234); 3 (muybridge_horse.gif) at +30° (0.106, 0.234); set the "
-            "roll by hand, or give them a show of their own")  # fmt: skip
+    tail = (f"{kf.id} (asl_o.jpeg) at -15° (0.106, 0.234); 3 (muybridge_horse.gif) at +30° (0.106, 0.234); set "
+            "another roll by hand, or give them a show of their own")  # fmt: skip
     assert apart_text(two).endswith(tail)
-    demo.set_roll(-83.4)  # the artist's own roll: nothing named
+    demo.set_roll(-83.4)  # the artist's own roll: nothing named until it is measured
     assert demo.mount.apart == () and demo.summary()["mount"]["apart"] == [] and "one mount" not in mount_line(demo)
+    demo.set_roll_costs(math.radians(-83.4), again.mount.apart)  # measured (roll_check_job): named as for auto's
+    assert said in mount_line(Project.open(demo.path)) and demo.summary()["mount"]["apart"] == [entry]
+    demo.set_roll_costs(math.radians(10.0), ())  # measured for a roll no longer set: kept as it is
+    assert demo.summary()["mount"]["apart"] == [entry]
 
 
 def test_a_keyframe_made_again_since_the_roll_was_chosen_is_not_named(demo):
@@ -133,3 +142,30 @@ def test_the_roll_job_of_the_demo_names_the_still_its_sideways_mount_casts_worse
     assert named.keyframe == demo.keyframes[0].id and demo.frames[named.frame].source == 0  # the still
     assert abs(wrap_deg(math.degrees(named.own_roll))) < 45 and named.own_loss < named.loss
     assert "keyframe 0 (asl_o.jpeg) would cast better at roll" in mount_line(Project.open(demo.path))
+
+
+@pytest.mark.slow  # the shipped model and index, the start of a keyframe's optimisation
+def test_a_run_measures_what_the_roll_the_artist_set_costs_before_it_poses_the_keyframes(demo):
+    """The artist sets the horse's sideways roll by hand: the run first measures what it costs the show (the ASL "o"
+    named, as roll auto names it), then poses the keyframes (cancelled here once the first keyframe's job starts)."""
+    import threading
+
+    from studio.project.run import run_project
+
+    demo.set_roll(-83.4)
+    cancel, jobs = threading.Event(), []
+
+    def on_job(job, what) -> None:
+        jobs.append((job.kind, what))
+        if job.kind != "check-roll":
+            cancel.set()  # the keyframes' poses are not what this test is about
+
+    report = run_project(demo, cancel=cancel, on_job=on_job)
+    assert report.cancelled and jobs[0] == (
+        "check-roll",
+        f"what the mount roll -83.4° costs {len(demo.keyframes)} keyframes",
+    )
+    assert not demo.mount.auto and math.degrees(demo.mount.roll) == pytest.approx(-83.4)  # the artist's roll stays
+    (named,) = demo.mount.apart
+    assert named.keyframe == demo.keyframes[0].id and abs(wrap_deg(math.degrees(named.own_roll))) < 45
+    assert "set another roll by hand" in mount_line(Project.open(demo.path))

@@ -10,34 +10,25 @@ within the first answer's budget (≈ 3 ms an angle and target, compiled, :meth:
 3. **exact** (where it pays, since the index's 32-pixel crops are coarse): each refined angle's best index poses
    (the query's shortlist, scored on the renderer) → the angle whose poses cast the targets best; then, with those
    poses held, halving steps on the rendered loss down to ``fine_deg``. These scores are taken as the audience sees
-   them: each pose rendered by the *rolled* mount and scored against the target as it is, so a hole or a thin part
-   that turning the target would blur never decides the roll;
+   them: each pose rendered by the *rolled* mount and scored against the target as it is (a hole or a thin part
+   that turning the target would blur never decides the roll);
 4. **one quick sweep** (a still; ``swept`` candidates): the exact stage's ranking is close between angles whose
-   poses differ a lot (often half a turn apart), so at each of the best candidates the index's best pose for the
-   target (its shortlist scored as the rolled mount casts it, against the target as it is) is block-swept one pass
-   with few draws (:func:`~studio.imitate.seeding.sweep`), and the roll whose swept pose casts it best is chosen.
-   A show keeps the exact stage's choice: its keyframes are posed within each other's reach at its clock, which a
-   free sweep of each keyframe ignores (on Table 2's six sequences the quick sweep moved camel's roll and took the
-   studio row's Total from 0.3255 to 0.3318).
-   On signer 1's ``dif`` letters (``benchmarks/bench_roll_choice.py --set asl``: images no table uses, each
-   candidate imitated in full) the imitations' IoU loss went 0.1571 → 0.1543 for 0.2 s a letter (the imitation's
-   own sweep, 4 starts × 1024 draws, one pass: 0.1542 for 2.1 s; no draws, only the rolled scoring: 0.1558); on 16
-   MPEG-7 animal images 0.2410 → 0.2417 (within the choice's noise: 0.2414–0.2424 over those variants).
-
+   poses differ a lot, so at each of the best candidates the index's best pose for the target is block-swept one
+   pass with few draws (:func:`~studio.imitate.seeding.sweep`, scored as the rolled mount casts it), and the roll
+   whose swept pose casts it best is chosen (signer 1's ``dif`` letters, ``bench_roll_choice.py``: IoU loss 0.1571
+   → 0.1543 for 0.2 s a letter). A show keeps the exact stage's choice: its keyframes are posed within each other's
+   reach at its clock, which a free sweep ignores (Table 2's studio row: Total 0.3255 → 0.3318 with the sweep);
 5. **what the one mount costs** (a show): a target whose first answer on the roll chosen is clearly worse
    (``apart_ratio`` ×, and ``apart_margin`` more) than at the coarse roll best for it alone is named
-   (:attr:`RollChoice.apart`), so that the artist learns why it reads worse and where it would read better (a still
-   in a show of a sideways animal: the bundled demo's ASL "o" with the Muybridge horse, 0.235 at the horse's −83.4°
-   against 0.106 at −15°; its imitation's IoU loss 0.56 against 0.19 on its own roll). The roll is not changed.
+   (:attr:`RollChoice.apart`): why it reads worse, where it would read better (the demo's ASL "o" beside the
+   Muybridge horse: 0.235 at the horse's −83.4° against 0.106 at −15°). The roll is not changed. A roll the artist
+   sets is measured the same way (:func:`check_roll`).
 
-Every stage scores the outline (the base loss: MAE + IoU, + CLIP when on), as the index does; the expressive term is
-left to the imitation at the roll chosen. A still's expressive region is its holes, lit in the target, so that term
-is a step on whether a held index pose leaks any shadow into a hole; it let such a leak decide the roll: on 12 rolled
-reachable targets (``benchmarks/bench_reach.py``) roll auto found 8 rolls within 2° with it (worst 11.5°), 11
-without (worst 2.7°).
+Every stage scores the outline (the base loss: MAE + IoU, + CLIP when on), as the index does; the expressive term
+(a still's holes) is left to the imitation: a held pose leaking shadow into a hole let it decide the roll (12 rolled
+reachable targets, ``bench_reach.py``: 8 rolls found within 2° with it, 11 without).
 
-Pure compute over an index and a refiner (renderer + collision world); the caller turns the targets by the roll
-chosen and imitates them as usual.
+Pure compute over an index and a refiner (renderer + collision world); the caller imitates at the roll chosen.
 """
 
 from __future__ import annotations
@@ -70,10 +61,8 @@ class RollSearchConfig:
     top: int = 3  # best coarse angles refined on the index and compared exactly [1, ∞)
     index_deg: float = 1.875  # index refinement stops at this step, degrees (0, coarse_deg]
     fine_deg: float = 0.25  # exact refinement (rendered loss, poses held) stops at this step, degrees (0, ∞)
-    exact_k: int = 4  # best distinct index poses per target scored exactly at each refined angle [1, ∞); 1 let an
-    # angle whose single best index pose happened to look good win (a half turn off on a rolled reachable target)
-    swept: int = 3  # a still's best candidates (by the exact stage) ranked again by a quick sweep of the index's best
-    # pose at each angle (module doc, 4.) [1, ∞); 1: the exact stage decides. About 0.07 s a candidate
+    exact_k: int = 4  # best index poses per target scored exactly at each refined angle [1, ∞); with 1 a lucky pose won
+    swept: int = 3  # a still's best candidates ranked again by a quick sweep (module doc, 4.) [1, ∞); 1: no sweep
     sweep_draws: int = 256  # settings drawn per finger block in that sweep's one pass; the wrist a quarter [4, 16384]
     apart_ratio: float = 1.5  # a show's target is named as better cast on another mount when its first answer on the
     apart_margin: float = 0.05  # roll chosen is ≥ ratio × and ≥ margin above its best roll's (module doc, 5.)
@@ -276,6 +265,18 @@ def choose_roll(
     apart = [] if len(targets) < 2 or stopped(cancel) else _apart(index, refiner, targets, make_loss, seen, memo, grid,
                                                                   best_deg, cfg)  # fmt: skip
     return RollChoice(math.radians(best_deg), loss, upright, time.perf_counter() - t0, coarse, candidates, swept, apart)
+
+
+def check_roll(index: RetrievalIndex, refiner: Refiner, targets: np.ndarray, make_loss: LossFactory, deg: float,
+               cfg: RollSearchConfig | None = None) -> list[Apart]:  # fmt: skip
+    """What a roll the artist set (``deg`` degrees) costs a show of ``targets (K, S, S)``: the targets it casts clearly
+    worse than the coarse roll best for each alone, measured as for a roll chosen (module doc, 5.; none for K < 2)."""
+    cfg, targets = cfg or RollSearchConfig(), np.asarray(targets)
+    if len(targets) < 2:
+        return []
+    grid = [float(wrap_deg(d)) for d in np.arange(0.0, 360.0, cfg.coarse_deg)]
+    seen = [_Scorer(make_loss(t, None)) for t in targets]
+    return _apart(index, refiner, targets, make_loss, seen, {}, grid, float(wrap_deg(deg)), cfg)
 
 
 def _apart(

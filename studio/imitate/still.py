@@ -32,7 +32,7 @@ from studio.imitate.live_best import LiveBest
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, cached_index
-from studio.imitate.roll_search import RollChoice, RollSearchConfig, choose_roll
+from studio.imitate.roll_search import Apart, RollChoice, RollSearchConfig, check_roll, choose_roll
 from studio.imitate.search import SearchResult, gradient_search
 from studio.imitate.seeding import Seeds, seed_poses
 from studio.imitate.still_result import ImitationResult
@@ -229,6 +229,18 @@ class Imitator:
             return None
         report(progress, "roll", 1, 1, choice.loss)
         return choice
+
+    def check_roll(
+        self, targets: np.ndarray, deg: float, cfg: RollSearchConfig | None = None,
+        progress: ProgressFn | None = None, cancel: threading.Event | None = None,
+    ) -> list[Apart] | None:  # fmt: skip
+        """The ``targets (K, S, S)`` a roll the artist set (``deg``) casts clearly worse than their own rolls would
+        (:func:`~studio.imitate.roll_search.check_roll`); stages "index", "roll". None when ``cancel`` stopped it."""
+        index = self.retrieval_index(progress, cancel)
+        if index is None or stopped(cancel):
+            return None
+        report(progress, "roll", 0, 1)
+        return check_roll(index, self.refiner, targets, self.loss_fn, deg, cfg)
 
     def seed(
         self,

@@ -239,14 +239,28 @@ def choose_roll_job(
     return Job("choose-roll", run, apply, title)
 
 
-def _choose_roll(report: Reporter, cancel, *, masks, loss_cfg, model_path):
+def check_roll_job(
+    masks: np.ndarray, deg: float, *, loss_cfg: LossConfig | None = None, model_path: Path | None = None,
+    apply: Apply = None, title: str = "mount roll check",
+) -> Job:  # fmt: skip
+    """A roll the artist set (``deg`` degrees): the keyframe targets ``masks (K, S, S)`` it casts clearly worse than a
+    roll of their own would → ``[Apart]`` (:func:`~studio.imitate.roll_search.check_roll`; stages as
+    :func:`choose_roll_job`'s)."""
+    run = functools.partial(_choose_roll, masks=np.asarray(masks), loss_cfg=loss_cfg, model_path=model_path, deg=deg)
+    return Job("check-roll", run, apply, title)
+
+
+def _choose_roll(report: Reporter, cancel, *, masks, loss_cfg, model_path, deg=None):
     from studio.imitate.still import Imitator
 
     with Imitator(None, model_path, loss_cfg, None) as im:
         progress = report.engine_progress()
-        choice = im.choose_roll(masks, progress=progress, cancel=cancel)
+        if deg is None:
+            got = im.choose_roll(masks, progress=progress, cancel=cancel)
+        else:
+            got = im.check_roll(masks, deg, progress=progress, cancel=cancel)
         report.check()
-        return choice
+        return got
 
 
 @dataclass

@@ -226,3 +226,11 @@ class Editing:
             mount = Mount(auto=True, roll=float(roll), chosen=True, loss=loss, upright_loss=upright_loss,
                           apart=tuple(apart))  # fmt: skip
             self._commit(f"mount roll chosen: {roll_deg(roll):g}°", replace(self._state, mount=mount))
+
+    def set_roll_costs(self, roll: float, apart: Sequence[MountApart]) -> None:
+        """What a roll the artist set (``roll`` rad) costs: the keyframes it casts clearly worse than a roll of their
+        own would, kept with it; nothing when the roll has changed since it was measured, or the costs are known."""
+        with self._lock:
+            m = self._state.mount
+            if not m.auto and m.roll == roll and m.apart != tuple(apart):
+                self._commit("mount roll measured", replace(self._state, mount=replace(m, apart=tuple(apart))))

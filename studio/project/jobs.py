@@ -24,11 +24,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from studio.jobs.engine import choose_roll_job, imitate_video_job, plan_job
+from studio.jobs.engine import check_roll_job, choose_roll_job, imitate_video_job, plan_job
 from studio.jobs.job import Job
 from studio.jobs.queue import DEFAULT_WORKER, JobQueue
 from studio.project.state import MountApart
 from studio.project.status import ProjectHandle
+from studio.sim.roll import roll_deg
 
 if TYPE_CHECKING:
     from studio.imitate.config import LossConfig, SequenceConfig
@@ -112,6 +113,23 @@ def roll_job(project: ProjectHandle, *, model_path: Path | None = None) -> Job:
             project.set_chosen_roll(r.roll, loss=r.loss, upright_loss=r.upright_loss, apart=apart)
 
     job = choose_roll_job(masks, loss_cfg=project_loss(project, masks.shape[-1]), model_path=model_path, apply=apply)
+    job.meta["keyframes"] = [kf.id for kf in keyframes]
+    return job
+
+
+def roll_check_job(project: ProjectHandle, *, model_path: Path | None = None) -> Job:
+    """A roll the artist set: the keyframes it casts clearly worse than a roll of their own would (measured as for a
+    roll auto chose) → ``project.set_roll_costs`` on completion (the roll and the keyframes' poses stay as they are)."""
+    keyframes, roll = project.keyframes, project.mount.roll
+    masks = np.stack([np.array(project.keyframe_masks(kf.id)[0]) for kf in keyframes])
+
+    def apply(found) -> None:
+        if found is not None:
+            project.set_roll_costs(roll, [MountApart(keyframes[a.target].id, keyframes[a.target].representative,
+                                                     a.loss, a.own_roll, a.own_loss) for a in found])  # fmt: skip
+
+    job = check_roll_job(masks, roll_deg(roll), loss_cfg=project_loss(project, masks.shape[-1]),
+                         model_path=model_path, apply=apply)  # fmt: skip
     job.meta["keyframes"] = [kf.id for kf in keyframes]
     return job
 

@@ -148,7 +148,7 @@ def state_doc(s: ProjectState) -> dict[str, Any]:
             "upright_loss": _num(s.mount.upright_loss),
             "loss": _num(s.mount.loss),
         }
-        | ({"apart": [_apart(a) for a in s.mount.apart]} if s.mount.apart else {}),  # written when auto named some
+        | ({"apart": [_apart(a) for a in s.mount.apart]} if s.mount.apart else {}),  # written when some are named
     }
 
 

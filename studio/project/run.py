@@ -38,13 +38,14 @@ from studio.jobs.job import Job
 from studio.jobs.queue import JobQueue
 from studio.learn.fanout import FanoutConfig
 from studio.motion.plan import PlanConfig
-from studio.project.jobs import queue_for, roll_job, video_job
+from studio.project.jobs import queue_for, roll_check_job, roll_job, video_job
 from studio.project.run_report import RunReport, TooFast, late_transitions
 from studio.project.run_spread import keyframe_config, place_in_source, run_spread, source_keyframes
 from studio.project.run_together import refine_stretches, refines_together, to_refine_together
 from studio.project.show_timing import ShowLayout, keyframe_box, seams_out_of_reach
 from studio.project.state import ProjectError
 from studio.project.status import ProjectHandle, check_sources
+from studio.sim.roll import roll_deg
 from studio.words import count, plural
 
 if TYPE_CHECKING:
@@ -161,6 +162,13 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
         report.roll_chosen = True
         if keyframes is None:
             pending = list(project.status().pending)  # a new roll makes the keyframes of another one stale
+    elif len(ids) > 1 and project.mount.roll and not project.mount.auto and len(pending) == len(ids):
+        job = queue.submit(roll_check_job(project, model_path=model_path))  # a roll set, every pose to find anew
+        if on_job is not None:
+            on_job(job, f"what the mount roll {roll_deg(project.mount.roll):g}° costs {count(len(ids), 'keyframe')}")
+        if job.follow(cancel) == JobState.CANCELLED:
+            report.cancelled, report.message = True, "measuring the mount roll cancelled"
+            return report.finish(project, cfg.transitions, t0)
     report.skipped = [k for k in ids if k not in pending]
     status = project.status()
     settled = {k for k in ids if k in project.results and k not in status.stale and k not in pending}

@@ -134,7 +134,7 @@ class Mount:
     chosen: bool = True  # auto: the roll has been chosen (False: it is chosen at the start of the next run)
     upright_loss: float | None = None  # auto: the retrieval's mean outline loss at roll 0, beside the chosen roll's
     loss: float | None = None  # auto: … at the chosen roll (both for the summary: what the roll bought)
-    apart: tuple[MountApart, ...] = ()  # auto: the keyframes another roll would cast clearly better (what it costs)
+    apart: tuple[MountApart, ...] = ()  # the keyframes another roll would cast clearly better (what this one costs)
 
     @staticmethod
     def from_setting(roll: str | float | None) -> Mount:

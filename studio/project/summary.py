@@ -75,9 +75,10 @@ def summarise(s: ProjectState, status: ProjectStatus) -> dict:
 
 
 def mount_apart(s: ProjectState) -> list[dict]:
-    """The keyframes that the roll auto chose casts clearly worse than a roll of their own would (``Mount.apart``),
-    those still as they were when it was chosen: ``{"keyframe", "source", "loss", "own_roll_deg", "own_loss"}``."""
-    if not (s.mount.auto and s.mount.chosen):
+    """The keyframes that the mount's roll (auto's, or the artist's) casts clearly worse than a roll of their own would
+    (``Mount.apart``), those still as they were when it was measured: ``{"keyframe", "source", "loss",
+    "own_roll_deg", "own_loss"}``."""
+    if not s.mount.chosen:
         return []
     now = {kf.id: kf.representative for kf in s.keyframes}
     return [
@@ -95,12 +96,12 @@ def apart_text(apart: list[dict]) -> str:
         a = apart[0]
         return (f"one mount serves the whole show: keyframe {a['keyframe']} ({a['source']}) would cast better at roll "
                 f"{a['own_roll_deg']:+.0f}° (first-answer outline loss {a['own_loss']:.3f} there, {a['loss']:.3f} on "
-                "this mount); set the roll by hand, or give it a show of its own")  # fmt: skip
+                "this mount); set another roll by hand, or give it a show of its own")  # fmt: skip
     each = "; ".join(f"{a['keyframe']} ({a['source']}) at {a['own_roll_deg']:+.0f}° ({a['own_loss']:.3f}, "
                      f"{a['loss']:.3f})" for a in apart)  # fmt: skip
     return ("one mount serves the whole show: these keyframes would cast better on a roll of their own (first-answer "
-            f"outline loss there, then on this mount): {each}; set the roll by hand, or give them a show of their "
-            "own")  # fmt: skip
+            f"outline loss there, then on this mount): {each}; set another roll by hand, or give them a show of "
+            "their own")  # fmt: skip
 
 
 def project_transitions(s: ProjectState, cfg: TransitionConfig | None = None) -> dict:
