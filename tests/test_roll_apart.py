@@ -169,3 +169,29 @@ def test_a_run_measures_what_the_roll_the_artist_set_costs_before_it_poses_the_k
     (named,) = demo.mount.apart
     assert named.keyframe == demo.keyframes[0].id and abs(wrap_deg(math.degrees(named.own_roll))) < 45
     assert "set another roll by hand" in mount_line(Project.open(demo.path))
+
+
+@pytest.mark.slow  # the shipped model and index
+def test_the_optimise_panels_roll_set_by_hand_is_measured_as_it_is_set(demo):
+    """The artist types the horse's roll in the Optimise tab and presses Set: within the job that measures it (in the
+    background) the mount line names the ASL "o" and where it would read better; roll 0 (the paper's rig) and a still
+    measure nothing."""
+    from studio.jobs.job import JobState
+    from studio.project.jobs import queue_for
+    from widgets.mount import MountControl
+    from widgets.state import StudioState
+
+    state = StudioState(demo, queue_for(demo))
+    said: list[str] = []
+    try:
+        control = MountControl(state, lambda text, error=False: said.append(text))
+        control.box.value = "-83.4"
+        assert control.apply() and "mount roll set to -83.4" in said[-1]
+        (job,) = [j for j in state.queue.jobs() if j.kind == "check-roll"]
+        assert job.wait(300) == JobState.DONE, job.error
+        assert "keyframe 0 (asl_o.jpeg) would cast better at roll" in control.line.value  # redrawn as it landed
+        assert "set another roll by hand" in control.line.value
+        control.box.value = "0"
+        assert control.apply() and control.measure() is None and "would cast better" not in control.line.value
+    finally:
+        state.close()

@@ -3,7 +3,8 @@
 The roll is the project's (:attr:`Project.mount`): "auto" lets the next optimisation choose one roll for the whole
 show (by the retrieval index, under a second a keyframe), a number fixes it (degrees, counter-clockwise as the
 audience sees the backdrop; 0 is the paper's upright rig). A new roll makes every keyframe stale, since each pose is
-chosen for its roll; the line under the box says what the project holds now.
+chosen for its roll; the line under the box says what the project holds now, and, for a roll set by hand, which
+keyframes it casts clearly worse than a roll of their own would (measured in the background as it is set).
 """
 
 from __future__ import annotations
@@ -12,6 +13,8 @@ import html
 
 import ipywidgets as w
 
+from studio.jobs.job import Job
+from studio.project.jobs import roll_check_job
 from studio.project.state import ProjectError
 from studio.project.summary import apart_text, mount_apart
 from studio.sim.roll import mount_text, roll_deg
@@ -65,4 +68,19 @@ class MountControl:
         self.say(f"mount roll set to {text}: the keyframes are stale until optimised for it")
         self.state.changed("project")
         self.refresh()
+        self.measure()
         return True
+
+    def measure(self) -> Job | None:
+        """A roll set by hand for a show (not the paper's 0°): what it costs the keyframes, measured in the background
+        (:func:`~studio.project.jobs.roll_check_job`, about a second once the index is loaded); the line says it
+        when it lands. The job, or None when there is nothing to measure."""
+        p = self.state.project
+        if p.mount.auto or not p.mount.roll or len(p.keyframes) < 2:
+            return None
+        return self.state.queue.submit(roll_check_job(p, on_applied=self._measured))
+
+    def _measured(self) -> None:
+        """The costs of the roll set landed (the queue's thread): this line, then every panel."""
+        self.refresh()
+        self.state.changed("project")

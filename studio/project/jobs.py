@@ -117,9 +117,10 @@ def roll_job(project: ProjectHandle, *, model_path: Path | None = None) -> Job:
     return job
 
 
-def roll_check_job(project: ProjectHandle, *, model_path: Path | None = None) -> Job:
+def roll_check_job(project: ProjectHandle, *, model_path: Path | None = None, on_applied: Any = None) -> Job:
     """A roll the artist set: the keyframes it casts clearly worse than a roll of their own would (measured as for a
-    roll auto chose) → ``project.set_roll_costs`` on completion (the roll and the keyframes' poses stay as they are)."""
+    roll auto chose) → ``project.set_roll_costs`` on completion (the roll and the keyframes' poses stay as they are),
+    then ``on_applied()`` when given (a panel redraws)."""
     keyframes, roll = project.keyframes, project.mount.roll
     masks = np.stack([np.array(project.keyframe_masks(kf.id)[0]) for kf in keyframes])
 
@@ -127,6 +128,8 @@ def roll_check_job(project: ProjectHandle, *, model_path: Path | None = None) ->
         if found is not None:
             project.set_roll_costs(roll, [MountApart(keyframes[a.target].id, keyframes[a.target].representative,
                                                      a.loss, a.own_roll, a.own_loss) for a in found])  # fmt: skip
+            if on_applied is not None:
+                on_applied()
 
     job = check_roll_job(masks, roll_deg(roll), loss_cfg=project_loss(project, masks.shape[-1]),
                          model_path=model_path, apply=apply)  # fmt: skip

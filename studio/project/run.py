@@ -150,7 +150,8 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
         if unknown:
             raise ProjectError(f"{project.path}: no keyframe {unknown}; the keyframes are {ids}")
         pending = [k for k in ids if k in set(keyframes)]
-    if project.mount.auto and not project.mount.chosen and (pending or project.results):
+    mount = project.mount
+    if mount.auto and not mount.chosen and (pending or project.results):
         job = queue.submit(roll_job(project, model_path=model_path))
         if on_job is not None:
             on_job(job, f"the mount roll for {count(len(ids), 'keyframe')}")
@@ -162,7 +163,7 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
         report.roll_chosen = True
         if keyframes is None:
             pending = list(project.status().pending)  # a new roll makes the keyframes of another one stale
-    elif len(ids) > 1 and project.mount.roll and not project.mount.auto and len(pending) == len(ids):
+    elif len(ids) > 1 and len(pending) == len(ids) and mount.roll and not (mount.auto or mount.apart):
         job = queue.submit(roll_check_job(project, model_path=model_path))  # a roll set, every pose to find anew
         if on_job is not None:
             on_job(job, f"what the mount roll {roll_deg(project.mount.roll):g}° costs {count(len(ids), 'keyframe')}")
