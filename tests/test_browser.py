@@ -9,6 +9,8 @@ written as it is taken into ``$SHADOW_STUDIO_SCREENSHOT``, a folder, when set, e
   or cuts a button's or a field's label short (an ellipsis where its words should be);
 - **Keyframes**: the live count at the project's τ lands and agrees with the project's keyframes (worked out in the
   tab's own thread as the studio opens);
+- **Masks**: a drag of the mouse across the frame paints: its path is drawn green in the canvas's pixels, and the
+  project saves the stroke as its own PNG;
 - **Targets**: the preview tints the horse, not the backdrop nor the black bars: its tinted pixels match the mask
   the project stored;
 - **Review**: the embedded Rerun viewer fills the output area's width and its canvas draws the recording (the target
@@ -238,6 +240,34 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
             assert not cut, f"the {name} tab cuts these labels short: {cut}"
             if name in ("Keyframes", "Masks", "Weights", "Rig", "Live", "Export"):
                 shots.append(shoot_tab(page, name, folder))
+
+        # Masks: a drag of the mouse across the frame paints: the stroke is drawn (green, the legend's "painted in")
+        # where the mouse went, and the project keeps it as its own PNG
+        open_tab(page, "Masks")
+        paint = page.locator(f"{TAB} canvas").first
+        paint.scroll_into_view_if_needed()
+        box = paint.bounding_box()
+        x0, x1, y = box["x"] + 0.2 * box["width"], box["x"] + 0.7 * box["width"], box["y"] + 0.2 * box["height"]
+        page.mouse.move(x0, y)
+        page.mouse.down()
+        page.mouse.move(x1, y, steps=12)
+        page.mouse.up()
+        deadline = time.monotonic() + 30
+        while not list((project.path / "masks").glob("add-*.png")) and time.monotonic() < deadline:
+            page.wait_for_timeout(250)
+        assert list((project.path / "masks").glob("add-*.png")), "a stroke painted with the mouse was not saved"
+        painted = picture(paint)
+        keep(painted, folder / "masks_painted.png")
+        h, w = painted.shape[:2]
+        g = painted.astype(int)
+        green = (g[..., 1] - g[..., 0] > 60) & (g[..., 1] - g[..., 2] > 40)
+        row = green[int(0.2 * h) - 3 : int(0.2 * h) + 4]
+        along = row[:, int(0.25 * w) : int(0.65 * w)].any(axis=0).mean()
+        assert along > 0.9 and not green[int(0.5 * h) :].any(), (
+            f"the stroke is not drawn where the mouse went: {along:.0%} of its path green, {green.mean():.1%} painted"
+        )
+        page.locator(f"{TAB} button", has_text="Undo").first.click()  # the keyframe's result is current again
+        page.locator(f"{TAB} .widget-label:text-is('frame 0')").first.wait_for(timeout=30_000)
 
         # Keyframes: the count at the project's τ lands (the tab works it out in its own thread as the studio opens)
         open_tab(page, "Keyframes")
