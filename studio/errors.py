@@ -1,7 +1,8 @@
-"""The foundation's typed errors, and the one progress and cancel protocol of every long engine call.
+"""The foundation's typed errors, the one progress and cancel protocol of every long engine call, and counts in words.
 
 Errors: each one a user can meet says what is wrong and what to do (the CLI reports a :class:`StudioError` as one
-clear line, no traceback).
+clear line, no traceback). Every message counts in words that agree with the number (:func:`count`: ``1 keyframe``,
+``3 keyframes``, never ``keyframe(s)``; the CLI, the engine and the panels alike).
 
 Progress (DESIGN §5.11): a long call (segmentation, the retrieval index build, the block sweep, the gradient search,
 the refinement, a keyframe or a sequence of them, planning a show, playing it, collecting or training, a table over
@@ -26,6 +27,22 @@ import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
+
+IRREGULAR = {"was": "were", "is": "are", "it": "them", "collides": "collide", "belongs": "belong"}  # not word + "s"
+
+
+def plural(word: str, n: int) -> str:
+    """``word`` for one, its plural for any other count (``keyframe`` → ``keyframes``, ``was`` → ``were``)."""
+    if n == 1:
+        return word
+    if word in IRREGULAR:
+        return IRREGULAR[word]
+    return word + ("es" if word.endswith(("s", "x", "ch", "sh")) else "s")
+
+
+def count(n: int, word: str) -> str:
+    """``1 keyframe``, ``0 keyframes``, ``200,000 poses``: the number and the word that agrees with it."""
+    return f"{n:,} {plural(word, n)}"
 
 
 class StudioError(Exception):

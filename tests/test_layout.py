@@ -28,7 +28,6 @@ FOUNDATION = {
     "studio.atomic",  # the one atomic writer, and the one bounded JSON reader
     "studio.assets",
     "studio.home",
-    "studio.words",  # counts in words that agree with the number, for every message of every stage
 }  # DESIGN §3's foundation (learn.fanout + learn.ray_cluster, many items through one task in this process, on local
 # processes or on Ray, are learn's: no stage below it uses them; targets.path_checks is the footage stage's)
 

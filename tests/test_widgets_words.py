@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 from studio.assets import asset
 
+from studio.errors import count, plural
 from studio.project.jobs import queue_for
 from studio.project.project import Project
 from studio.targets.video import VideoConfig
-from studio.words import count, plural
 from widgets.state import StudioState
 from widgets.words import bar_label, late_lines, seconds, span, stage
 
@@ -70,11 +70,11 @@ MAYBE_PLURAL = re.compile(r"[a-z]\(s\)")  # keyframe(s): a count that does not a
 
 @pytest.mark.parametrize("package", ["studio", "widgets", "hardware"])
 def test_no_message_writes_a_word_with_s_in_brackets(package):
-    """Every message counts in words that agree with the number (``studio.words.count``), never ``keyframe(s)``."""
+    """Every message counts in words that agree with the number (``studio.errors.count``), never ``keyframe(s)``."""
     root = WIDGETS.parent / package
     said = [(str(p.relative_to(root.parent)), line, text) for p in sorted(root.rglob("*.py"))
             for line, text in shown_strings(p) if MAYBE_PLURAL.search(text)]  # fmt: skip
-    assert said == [], f"write these counts with studio.words.count / plural: {said}"
+    assert said == [], f"write these counts with studio.errors.count / plural: {said}"
 
 
 def visible(widget) -> list[str]:

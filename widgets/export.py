@@ -29,7 +29,7 @@ import ipywidgets as w
 
 from hardware.player import PlayerConfig
 from hardware.session import ServoSession
-from studio.errors import StudioError
+from studio.errors import StudioError, count
 from studio.jobs import Job
 from studio.motion.errors import SegmentTiming
 from studio.motion.plan import PlanConfig
@@ -39,7 +39,6 @@ from studio.project.run import plan_project_job
 from studio.project.show_timing import ShowLayout
 from studio.project.state import ProjectError
 from studio.sim.hand import Hand, load_hand
-from studio.words import count
 from widgets.calibration_file import studio_calibration
 from widgets.export_jobs import ExportJobs
 from widgets.images import Messages, title

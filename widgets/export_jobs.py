@@ -12,10 +12,10 @@ import time
 from hardware.player import PlayerConfig
 from hardware.session import ServoSession
 from hardware.show_checks import check_mount, check_show_hand
+from studio.errors import count
 from studio.jobs import Job, JobEvent, JobState
 from studio.project.play import play_job
 from studio.project.run_report import TooFast
-from studio.words import count
 from widgets.calibration_file import calibration_path, studio_calibration
 from widgets.words import ALLOW_LATE, late_lines, seconds
 

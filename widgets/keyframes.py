@@ -20,10 +20,10 @@ import threading
 import ipywidgets as w
 import numpy as np
 
+from studio.errors import count
 from studio.project.edits import combined_masks
 from studio.project.state import AWAITS, Keyframe
 from studio.project.status import ProjectStatus
-from studio.words import count
 from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, png, tint, title, upscale
 from widgets.state import StudioState
 from widgets.words import loss, seconds, span

@@ -12,10 +12,10 @@ from functools import partial
 import ipywidgets as w
 import numpy as np
 
+from studio.errors import count
 from studio.imitate.config import PRESET_WORDS, PRESETS, STUDIO, SequenceConfig
 from studio.jobs import JobEvent, JobState
 from studio.project.run import RunReport
-from studio.words import count
 from widgets.images import background, mask_picture
 from widgets.words import ALLOW_LATE, bar_label, late_lines, stage
 

@@ -21,9 +21,9 @@ from hardware.calibration import Calibration
 from hardware.constants import CENTER_UNITS
 from hardware.player import Player, PlayerConfig
 from hardware.show_checks import soft_limit_summary
+from studio.errors import count
 from studio.motion.show import Show
 from studio.motion.show_info import show_info_lines
-from studio.words import count
 from widgets.words import late_lines, seconds
 
 LABEL = 14  # width of a line's label, as show-info prints them ("keyframes:    ")

@@ -24,12 +24,12 @@ import ipywidgets as w
 import numpy as np
 from studio.assets import shipped_samples
 
+from studio.errors import count
 from studio.jobs import Job
 from studio.project.sources import locate
 from studio.project.state import ProjectError
 from studio.targets.pockets import POCKET_REACH
 from studio.targets.source import raw_frames
-from studio.words import count
 from widgets.first_frame import FirstFrame
 from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, mask_picture, png, tint, title
 from widgets.relink import RelinkControl

@@ -14,13 +14,12 @@ from pathlib import Path
 from typing import Any
 
 from studio.atomic import write_bytes
-from studio.errors import Progress, ProgressFn
+from studio.errors import Progress, ProgressFn, count
 from studio.jobs import Job, JobState
 from studio.project.containment import check_subfolders
 from studio.project.state import ProjectError
 from studio.targets.source import source_kind
 from studio.targets.video import SegmentationNeeded
-from studio.words import count
 
 log = logging.getLogger(__name__)
 

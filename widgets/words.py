@@ -1,14 +1,14 @@
 """How the panels write numbers for the artist: times, losses and shares, the stages of a job, late transitions.
 
 One place, so every panel writes a time as ``0.80 s`` (never ``0.7999999999999999``); a count is
-:func:`studio.words.count` (``1 keyframe`` / ``5 keyframes``, never ``1 keyframes`` nor ``keyframe(s)``).
+:func:`studio.errors.count` (``1 keyframe`` / ``5 keyframes``, never ``1 keyframes`` nor ``keyframe(s)``).
 """
 
 from __future__ import annotations
 
 import math
 
-from studio.words import count
+from studio.errors import count
 
 ALLOW_LATE = "allow late transitions"  # the box that stretches moves too fast for the servos (Optimise, Export)
 

@@ -12,9 +12,9 @@ from __future__ import annotations
 import argparse
 
 from studio.cli.flags import field_docs, ranged
+from studio.errors import plural
 from studio.learn.config import TrainerConfig
 from studio.learn.threads import DEFAULT_THREADS
-from studio.words import plural
 
 MAX_THREADS = int(field_docs(TrainerConfig)["threads"].range.hi)  # more threads than this only slow torch down
 DEVICES = ("cpu", "cuda")  # what --device names (cuda:N picks one GPU)

@@ -23,10 +23,10 @@ from studio.cli.progress import add_quiet_flag, ctrl_c_cancels
 from studio.cli.run_flags import add_budget_flags, sequence_from_args
 from studio.cli.scale_flags import add_fanout_flags, fanout_from_args, models_from_args
 from studio.cli.source_flags import add_source_flags, still_config_from_args
+from studio.errors import count
 from studio.imitate.config import still_configs
 from studio.learn.threads import torch_threads
 from studio.targets.image_sets import gather_targets
-from studio.words import count
 
 DEFAULT_INVERSE = asset("models/inverse_cpu128.pt", must_exist=False)
 

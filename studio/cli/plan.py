@@ -8,7 +8,7 @@ from pathlib import Path
 
 from studio.cli.flags import add_config_flags, config_from_args
 from studio.cli.progress import add_quiet_flag
-from studio.errors import report
+from studio.errors import count, report
 from studio.motion.limits import LimitsConfig
 from studio.motion.path import PathConfig
 from studio.motion.plan import PlanConfig, load_keyframes, plan_show
@@ -17,7 +17,6 @@ from studio.motion.show_info import show_info_lines
 from studio.motion.timing import TimingConfig
 from studio.sim.hand import load_hand
 from studio.targets.path_checks import check_outputs
-from studio.words import count
 
 
 def _plan(args: argparse.Namespace) -> int:

@@ -37,8 +37,8 @@ from studio.cli.run_flags import add_budget_flags, add_engine_flags, add_show_fl
 from studio.cli.runs import print_run, run_with_bars
 from studio.cli.scale_flags import add_fanout_flags, fanout_from_args, models_from_args
 from studio.cli.source_flags import add_source_flags, roll_arg, source_settings_from_args
+from studio.errors import count, plural
 from studio.learn.threads import torch_threads
-from studio.words import count, plural
 
 
 def print_info(project) -> dict:

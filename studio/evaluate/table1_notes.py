@@ -4,8 +4,8 @@
 
 from __future__ import annotations
 
+from studio.errors import count
 from studio.evaluate.config import EvalConfig
-from studio.words import count
 
 
 def _method_note(st: dict) -> str:

@@ -26,8 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from studio.atomic import JsonFileError, read_json, write_json, write_with
-from studio.errors import StudioError
-from studio.words import count
+from studio.errors import StudioError, count
 
 if TYPE_CHECKING:
     from studio.sim.hand import Hand

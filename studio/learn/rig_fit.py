@@ -35,10 +35,9 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from studio.errors import Cancelled, ProgressFn, StudioError, report
+from studio.errors import Cancelled, ProgressFn, StudioError, plural, report
 from studio.sim.hand import Hand, load_hand
 from studio.sim.shadow import Rig, ShadowRenderer
-from studio.words import plural
 
 log = logging.getLogger(__name__)
 

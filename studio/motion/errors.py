@@ -5,8 +5,7 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 
-from studio.errors import Cancelled, StudioError, stopped
-from studio.words import count
+from studio.errors import Cancelled, StudioError, count, stopped
 
 
 class PlanError(StudioError):

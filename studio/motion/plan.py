@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from studio.atomic import JsonFileError, read_json
-from studio.errors import ProgressFn, report
+from studio.errors import ProgressFn, count, plural, report
 from studio.motion.bounds import MAX_KEYFRAMES, MAX_SHOW_S, MAX_SOURCE_FRAME, fmt, is_number, number_problem
 from studio.motion.errors import KeyframeCollisionError, PlanError, check_cancel
 from studio.motion.limits import JointLimits, LimitsConfig
@@ -45,7 +45,6 @@ from studio.motion.timing import TimedTrajectory, TimingConfig, time_path
 from studio.sim.hand import Hand
 from studio.sim.physics import CollisionWorld
 from studio.sim.roll import file_deg
-from studio.words import count, plural
 
 log = logging.getLogger(__name__)
 

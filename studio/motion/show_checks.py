@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from studio.errors import count
 from studio.motion.bounds import (
     MAX_KEYFRAMES,
     MAX_LIMIT,
@@ -24,7 +25,6 @@ from studio.motion.bounds import (
 )
 from studio.motion.limits import limit_problems
 from studio.sim.hand import Hand
-from studio.words import count
 
 FORMAT_NAME = "shadow-studio-show"
 READABLE_VERSIONS = (1,)  # versions this code can read

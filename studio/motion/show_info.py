@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from studio.errors import count
 from studio.motion.show import Show
 from studio.sim.roll import mount_text
-from studio.words import count
 
 
 def show_info_lines(show: Show) -> list[str]:

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from studio.errors import count
 from studio.motion.show import Show
 from studio.motion.video_timing import VideoTiming
 from studio.project.show_timing import project_timing
@@ -29,7 +30,6 @@ from studio.project.state import ProjectState
 from studio.project.status import ProjectStatus
 from studio.review.preview import PreviewClock, PreviewTick, home_move, remap, show_clock_map
 from studio.review.video_review import frame_at, video_times
-from studio.words import count
 
 
 @dataclass(frozen=True, eq=False)

@@ -23,6 +23,7 @@ import numpy as np
 from PIL import Image
 
 from studio.atomic import JsonFileError, read_json
+from studio.errors import count, plural
 from studio.imitate.config import LossConfig
 from studio.motion.bounds import MAX_SHOW_S, number_problem
 from studio.motion.show import load_show
@@ -45,7 +46,6 @@ from studio.project.state import (
 from studio.targets.images import TargetConfig
 from studio.targets.keyframes import KeyframeConfig
 from studio.targets.video import VideoConfig
-from studio.words import count, plural
 
 MAX_DOC_BYTES = 64 << 20  # a project.json larger than this is not one this studio wrote (≈ 100,000 frames)
 

@@ -28,7 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
-from studio.errors import ProgressFn
+from studio.errors import ProgressFn, count, plural
 from studio.evaluate.worker_models import ModelRecipe
 from studio.imitate.config import CPU_SEQUENCE, SequenceConfig
 from studio.imitate.transitions import TransitionConfig
@@ -46,7 +46,6 @@ from studio.project.show_timing import ShowLayout, keyframe_box, seams_out_of_re
 from studio.project.state import ProjectError
 from studio.project.status import ProjectHandle, check_sources
 from studio.sim.roll import roll_deg
-from studio.words import count, plural
 
 if TYPE_CHECKING:
     from studio.motion.plan import Keyframes

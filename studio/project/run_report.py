@@ -8,10 +8,10 @@ import time
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
+from studio.errors import count
 from studio.jobs.events import JobError
 from studio.project.summary import mount_apart, project_transitions
 from studio.sim.roll import mount_text, roll_deg
-from studio.words import count
 
 if TYPE_CHECKING:
     from studio.imitate.transitions import TransitionConfig

@@ -223,9 +223,9 @@ def run_spread(
     finished before it are saved; those in ``together`` as awaiting their refinement together)."""
     import traceback
 
+    from studio.errors import count
     from studio.jobs.events import JobError
     from studio.project.jobs import project_loss
-    from studio.words import count
 
     chains = chains_of(project, pending, settled, layout)
     task = KeyframeTask(models, project_loss(project, chains[0].masks.shape[-1], clip), seq, project.mount.roll, limits)

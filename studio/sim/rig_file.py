@@ -22,10 +22,9 @@ from pathlib import Path
 
 import yaml
 
-from studio.errors import StudioError
+from studio.errors import StudioError, plural
 from studio.sim.roll import file_deg
 from studio.sim.shadow import Rig
-from studio.words import plural
 
 KEYS = ("light_distance_m", "backdrop_distance_m", "hand_offset_m", "mount_roll_deg", "foam_mm")
 ALIASES = {"roll_deg": "mount_roll_deg"}  # a calibration file's rig section names the roll roll_deg
