@@ -42,10 +42,30 @@ import time
 from pathlib import Path
 from urllib.parse import urlparse
 
-import cv2
 import numpy as np
 import pytest
-from browser_pixels import drawn_recording, drawn_rig, over_the_shape, plotted, red, shadow_tile
+from browser_page import (
+    BROKEN_PICTURES,
+    CHROMIUM,
+    CHROMIUM_FLAGS,
+    CUT_LABELS,
+    KERNEL_IDLE,
+    LOCAL_HOSTS,
+    SHOWN_TAB,
+    STUDIO,
+    TAB,
+    keep,
+    open_tab,
+    picture,
+    picture_now,
+    playwright_api,
+    progress_widths,
+    rerun_draws,
+    rgb_of,
+    shoot_tab,
+    tracebacks,
+)  # fmt: skip
+from browser_pixels import drawn_recording, drawn_rig, over_the_shape, red, shadow_tile
 from preview_support import dark, give_results, horse, plan
 
 from studio.cli.lab import free_port
@@ -53,48 +73,11 @@ from studio.imitate.config import COMPONENTS
 from studio.review.blueprint import FRAME_LOSS
 from studio.review.series import PALETTE, series_colour
 
-CHROMIUM = Path("/usr/bin/chromium")
 TOTAL_LINE = series_colour("loss/frame/total")  # the colour of the total loss's line in Rerun's plots
 SERVO_LINE = next(c for c in PALETTE if c not in {series_colour(f"{FRAME_LOSS}/{n}") for n in COMPONENTS})
-CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--disable-background-networking",
-                  "--disable-component-update", "--disable-sync", "--no-first-run"]  # fmt: skip
 VIEWPORT = {"width": 1600, "height": 2300}  # the tester's 1,600 px wide window, tall enough for a whole tab
 PANELS = ["Targets", "Keyframes", "Masks", "Weights", "Optimise", "Review", "Jog", "Rig", "Live", "Export"]
 SCREENSHOTS = os.environ.get("SHADOW_STUDIO_SCREENSHOT")  # a folder that keeps the screenshots (unset: the test's own)
-STUDIO = ".jp-OutputArea-output .shadow-studio"
-LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
-
-KERNEL_IDLE = """() => {
-  const w = window.jupyterapp && window.jupyterapp.shell.currentWidget;
-  const k = w && w.sessionContext && w.sessionContext.session && w.sessionContext.session.kernel;
-  return !!k && k.connectionStatus === 'connected' && k.status === 'idle';
-}"""
-BROKEN_PICTURES = """() => Array.from(document.querySelectorAll(
-  ".jp-OutputArea-output .shadow-studio [data-shown-tab='1'] img"))
-  .filter(i => i.offsetParent !== null && i.complete && i.naturalWidth === 0).length"""  # drawn as the broken icon
-CUT_LABELS = """() => Array.from(document.querySelectorAll(
-  ".jp-OutputArea-output .shadow-studio [data-shown-tab='1'] :is(button, .widget-label)"))
-  .filter(b => b.offsetParent !== null && b.scrollWidth > b.clientWidth + 1).map(b => b.textContent.trim())"""
-SHOWN_TAB = """() => {  // the studio tab on show (ipywidgets 8 hides the others with lm-mod-hidden)
-  const tab = document.querySelector('.jp-OutputArea-output .shadow-studio .jupyter-widget-tab, '
-                                     + '.jp-OutputArea-output .shadow-studio .widget-tab');
-  const kids = Array.from(tab.querySelectorAll(':scope > .widget-tab-contents > *, :scope > .lm-StackedPanel > *'));
-  const shown = kids.filter(k => !k.classList.contains('lm-mod-hidden') && k.offsetParent !== null);
-  shown.forEach(k => k.setAttribute('data-shown-tab', '1'));
-  kids.filter(k => !shown.includes(k)).forEach(k => k.removeAttribute('data-shown-tab'));
-  return shown.map(k => k.innerText).join('\\n');
-}"""
-TAB = f"{STUDIO} [data-shown-tab='1']"  # the tab on show, once SHOWN_TAB marked it
-
-
-def playwright_api():
-    if not CHROMIUM.is_file():
-        pytest.skip(f"no chromium at {CHROMIUM} (Debian's chromium package; .ci/run installs it)")
-    try:
-        from playwright.sync_api import sync_playwright
-    except ImportError:
-        pytest.skip("playwright is not installed (pip install -e '.[dev]')")
-    return sync_playwright
 
 
 @pytest.fixture
@@ -132,76 +115,6 @@ def lab(tmp_path, hand):
                 proc.wait(30)
             except subprocess.TimeoutExpired:
                 proc.kill()
-
-
-# ---------------------------------------------------------------- the page
-def open_tab(page, name: str) -> str:
-    """Show the studio tab ``name`` → its text (and mark it: :data:`TAB`)."""
-    page.locator(f"{STUDIO} .lm-TabBar-tab", has_text=name).first.click()
-    page.wait_for_function(
-        """(name) => {
-          const t = document.querySelector('.jp-OutputArea-output .shadow-studio .lm-TabBar-tab.lm-mod-current');
-          return t && t.innerText.trim() === name; }""",
-        arg=name,
-    )
-    return page.evaluate(SHOWN_TAB)
-
-
-def rgb_of(png: bytes) -> np.ndarray:
-    """A PNG screenshot as ``(H, W, 3)`` uint8 RGB."""
-    return cv2.cvtColor(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
-
-
-def picture(locator) -> np.ndarray:
-    """A screenshot of one element as ``(H, W, 3)`` uint8 RGB."""
-    return rgb_of(locator.screenshot())
-
-
-def picture_now(page, locator) -> np.ndarray:
-    """What the page shows where ``locator`` is now, as ``(H, W, 3)`` uint8 RGB, without waiting for the element to
-    hold still (a playing show player redraws, and its box moves with its label, several times a second)."""
-    return rgb_of(page.screenshot(clip=locator.bounding_box()))
-
-
-def keep(rgb: np.ndarray, path: Path) -> None:
-    """Write ``rgb (H, W, 3)`` uint8 to ``path`` (PNG) for a person to look at."""
-    cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-
-
-def shoot_tab(page, name: str, folder: Path) -> Path:
-    """The studio (tab ``name`` on show) as a person sees it → ``folder/tab_<name>.png``."""
-    path = folder / f"tab_{name.lower()}.png"
-    studio = page.locator(STUDIO).first
-    studio.scroll_into_view_if_needed()
-    studio.screenshot(path=str(path))
-    return path
-
-
-def progress_widths(page) -> list[float]:
-    """Widths (%) of the progress bars in the tab on show."""
-    return page.evaluate("""() => Array.from(document.querySelectorAll(
-        ".jp-OutputArea-output .shadow-studio [data-shown-tab='1'] .progress-bar"))
-        .map(b => parseFloat(b.style.width) || 0)""")
-
-
-def rerun_draws(page, canvas, colour: tuple[int, int, int], path: Path, seconds: float = 30) -> tuple:
-    """Look at the Rerun canvas until it draws a frame of the recording and a plot line of ``colour``, or ``seconds``
-    pass; the last picture is kept at ``path`` → (drawn_recording's answer, plotted's answer)."""
-    canvas.scroll_into_view_if_needed()
-    deadline = time.monotonic() + seconds
-    while True:
-        shown = picture(canvas)
-        drawn, line = drawn_recording(shown), plotted(shown, colour)
-        if (drawn[0] and line[0]) or time.monotonic() > deadline:
-            keep(shown, path)
-            return drawn, line
-        page.wait_for_timeout(1000)
-
-
-def tracebacks(page) -> list[str]:
-    """The text of every output that shows a traceback (the kernel's, or a panel's logged exception)."""
-    return page.evaluate("""() => Array.from(document.querySelectorAll('.jp-OutputArea-output'))
-        .map(e => e.innerText).filter(t => t.includes('Traceback (most recent call last)'))""")
 
 
 @pytest.mark.slow

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rerun as rr
-from test_browser import CHROMIUM, CHROMIUM_FLAGS, playwright_api
+from browser_page import CHROMIUM, CHROMIUM_FLAGS, playwright_api
 from test_review_series import edited
 
 from studio.cli.lab import free_port

@@ -133,9 +133,6 @@ panel.refresher.settle(60)
 panel.job.wait(120)
 panel.widget
 """
-KERNEL_IDLE = """() => { const w = window.jupyterapp && window.jupyterapp.shell.currentWidget;
-  const k = w && w.sessionContext && w.sessionContext.session && w.sessionContext.session.kernel;
-  return !!k && k.connectionStatus === 'connected' && k.status === 'idle'; }"""
 PLAYER = "document.querySelector('.show-player')"
 
 
@@ -193,7 +190,7 @@ def lab_on(tmp_path):
 def test_the_player_plays_in_the_browser_and_the_strip_selects(planned, lab_on):
     """In JupyterLab (headless Chromium): the player's canvas shows the preview's pixels, plays at ≥ 20 frames a
     second, and a click on the strip's cell of frame 3 moves the player to where frame 3 plays."""
-    from test_browser import CHROMIUM, CHROMIUM_FLAGS, playwright_api
+    from browser_page import CHROMIUM, CHROMIUM_FLAGS, KERNEL_IDLE, playwright_api
 
     from hardware.player import PlayerConfig
 
