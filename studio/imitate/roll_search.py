@@ -24,10 +24,8 @@ within the first answer's budget (≈ 3 ms an angle and target, compiled, :meth:
    Muybridge horse: 0.235 at the horse's −83.4° against 0.106 at −15°). The roll is not changed. A roll the artist
    sets is measured the same way (:func:`check_roll`).
 
-Every stage scores the outline (the base loss: MAE + IoU, + CLIP when on), as the index does; the expressive term
-(a still's holes) is left to the imitation: a held pose leaking shadow into a hole let it decide the roll (12 rolled
-reachable targets, ``bench_reach.py``: 8 rolls found within 2° with it, 11 without).
-
+Every stage scores the outline (MAE + IoU, + CLIP when on), as the index does; the expressive term (a still's holes)
+is left to the imitation (a hole leak let it decide the roll: ``bench_reach.py``, 8 of 12 rolls within 2°, not 11).
 Pure compute over an index and a refiner (renderer + collision world); the caller imitates at the roll chosen.
 """
 
@@ -79,6 +77,11 @@ class RollSearchConfig:
     def quick_sweep(self) -> SweepConfig:
         """The sweep that ranks the candidates: one start, one pass, ``sweep_draws``."""
         return SweepConfig(starts=1, draws=self.sweep_draws, wrist_draws=self.sweep_draws // 4, passes=1)
+
+    @property
+    def grid(self) -> list[float]:
+        """The coarse pass's rolls: every ``coarse_deg`` around the circle, degrees in (-180, 180]."""
+        return [float(wrap_deg(d)) for d in np.arange(0.0, 360.0, self.coarse_deg)]
 
 
 @dataclass(frozen=True)
@@ -213,7 +216,7 @@ def choose_roll(
     if targets.ndim != 3 or not len(targets):
         raise ValueError(f"targets must be (K, S, S) with K ≥ 1, not shape {targets.shape}")
     memo: dict[float, np.ndarray] = {}
-    grid = [float(wrap_deg(d)) for d in np.arange(0.0, 360.0, cfg.coarse_deg)]
+    grid = cfg.grid
     coarse = dict(zip(grid, _index_scores(index, targets, grid, memo), strict=True))
     starts = sorted(coarse, key=coarse.get)[: cfg.top]
     refined = [_halve(lambda ds: _index_scores(index, targets, ds, memo), d, cfg.coarse_deg / 2, cfg.index_deg)
@@ -272,11 +275,8 @@ def check_roll(index: RetrievalIndex, refiner: Refiner, targets: np.ndarray, mak
     """What a roll the artist set (``deg`` degrees) costs a show of ``targets (K, S, S)``: the targets it casts clearly
     worse than the coarse roll best for each alone, measured as for a roll chosen (module doc, 5.; none for K < 2)."""
     cfg, targets = cfg or RollSearchConfig(), np.asarray(targets)
-    if len(targets) < 2:
-        return []
-    grid = [float(wrap_deg(d)) for d in np.arange(0.0, 360.0, cfg.coarse_deg)]
-    seen = [_Scorer(make_loss(t, None)) for t in targets]
-    return _apart(index, refiner, targets, make_loss, seen, {}, grid, float(wrap_deg(deg)), cfg)
+    seen = [_Scorer(make_loss(t, None)) for t in targets] if len(targets) > 1 else []
+    return _apart(index, refiner, targets, make_loss, seen, {}, cfg.grid, float(wrap_deg(deg)), cfg) if seen else []
 
 
 def _apart(
