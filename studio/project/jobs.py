@@ -108,9 +108,7 @@ def roll_job(project: ProjectHandle, *, model_path: Path | None = None) -> Job:
 
     def apply(r) -> None:
         if r is not None:
-            apart = [MountApart(keyframes[a.target].id, keyframes[a.target].representative, a.loss, a.own_roll,
-                                a.own_loss) for a in r.apart]  # fmt: skip
-            project.set_chosen_roll(r.roll, loss=r.loss, upright_loss=r.upright_loss, apart=apart)
+            project.set_chosen_roll(r.roll, loss=r.loss, upright_loss=r.upright_loss, apart=_named(keyframes, r.apart))
 
     job = choose_roll_job(masks, loss_cfg=project_loss(project, masks.shape[-1]), model_path=model_path, apply=apply)
     job.meta["keyframes"] = [kf.id for kf in keyframes]
@@ -126,8 +124,7 @@ def roll_check_job(project: ProjectHandle, *, model_path: Path | None = None, on
 
     def apply(found) -> None:
         if found is not None:
-            project.set_roll_costs(roll, [MountApart(keyframes[a.target].id, keyframes[a.target].representative,
-                                                     a.loss, a.own_roll, a.own_loss) for a in found])  # fmt: skip
+            project.set_roll_costs(roll, _named(keyframes, found))
             if on_applied is not None:
                 on_applied()
 
@@ -135,6 +132,12 @@ def roll_check_job(project: ProjectHandle, *, model_path: Path | None = None, on
                          model_path=model_path, apply=apply)  # fmt: skip
     job.meta["keyframes"] = [kf.id for kf in keyframes]
     return job
+
+
+def _named(keyframes, found) -> list[MountApart]:
+    """The roll search's ``Apart`` targets (indices into ``keyframes``) as the project keeps them."""
+    return [MountApart(keyframes[a.target].id, keyframes[a.target].representative, a.loss, a.own_roll, a.own_loss)
+            for a in found]  # fmt: skip
 
 
 def search_renderer(model_path: Path | None = None) -> Any:
