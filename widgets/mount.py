@@ -76,7 +76,7 @@ class MountControl:
         (:func:`~studio.project.jobs.roll_check_job`, about a second once the index is loaded); the line says it
         when it lands. The job, or None when there is nothing to measure."""
         p = self.state.project
-        if p.mount.auto or not p.mount.roll or len(p.keyframes) < 2:
+        if not p.mount.measurable(len(p.keyframes)):
             return None
         return self.state.queue.submit(roll_check_job(p, on_applied=self._measured))
 

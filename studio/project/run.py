@@ -162,7 +162,7 @@ def _run(project: ProjectHandle, cfg: RunConfig, clip, queue, cancel, model_path
         report.roll_chosen = True
         if keyframes is None:
             pending = list(project.status().pending)  # a new roll makes the keyframes of another one stale
-    elif len(ids) > 1 and len(pending) == len(ids) and mount.roll and not (mount.auto or mount.apart):
+    elif mount.measurable(len(ids)) and len(pending) == len(ids):
         job = queue.submit(roll_check_job(project, model_path=model_path))  # a roll set, every pose to find anew
         if on_job is not None:
             on_job(job, f"what the mount roll {roll_deg(project.mount.roll):g}° costs {count(len(ids), 'keyframe')}")

@@ -136,6 +136,11 @@ class Mount:
     loss: float | None = None  # auto: … at the chosen roll (both for the summary: what the roll bought)
     apart: tuple[MountApart, ...] = ()  # the keyframes another roll would cast clearly better (what this one costs)
 
+    def measurable(self, keyframes: int) -> bool:
+        """Whether the roll is one the artist set (not the paper's 0°) that nothing has measured yet, for a show of
+        ``keyframes`` (at least two: a still has nothing to weigh it against)."""
+        return not self.auto and bool(self.roll) and not self.apart and keyframes > 1
+
     @staticmethod
     def from_setting(roll: str | float | None) -> Mount:
         """``"auto"`` (or None) → to be chosen; a number → that roll in degrees, as the artist set it."""
