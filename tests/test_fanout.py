@@ -9,6 +9,7 @@ import json
 import shutil
 import threading
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -297,14 +298,18 @@ def weights(path) -> dict[str, torch.Tensor]:
     return read_checkpoint(path, "selfmodel").state_dict
 
 
-def test_train_on_ray_stopped_by_ctrl_c_resumes_to_the_one_process_weights(tmp_path, hand, ray_cluster, capsys):
+def test_train_on_ray_stopped_by_ctrl_c_resumes_to_the_one_process_weights(
+    tmp_path, hand, ray_cluster, capsys, monkeypatch
+):
     """`train --ray` on two Ray Train workers at the same global batch as one process, stopped by Ctrl-C after its
     first checkpoint: it reports the steps it made, exits 130 and leaves a checkpoint that `train --resume` (one
     process) continues to the end, to the one process's weights and metrics (so every Ray step was the one process's
-    step)."""
+    step). Its ``--out`` is relative, as typed in a shell: the checkpoint lands where the verb was started (Ray Train
+    starts its workers in folders of their own)."""
     whole = tiny(tmp_path / "whole.pt", steps=40)
     reference = train(whole, hand)
-    parts = tmp_path / "parts.pt"
+    monkeypatch.chdir(tmp_path)
+    parts = Path("parts.pt")
     with ctrl_c_once_written(parts):  # the first checkpoint: step 4 of 40
         code = main([*verb(parts, 40, quiet=False), "--workers", "2", "--ray"])
     captured = capsys.readouterr()

@@ -16,6 +16,7 @@ Train) are imported only here and in :mod:`studio.learn.ray_cluster`, and only f
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 import threading
@@ -74,7 +75,11 @@ class _RelayCancel:
 
 
 def _worker(config: dict) -> None:
-    """One Ray Train worker: the training call as replica ``rank`` of ``world``."""
+    """One Ray Train worker: the training call as replica ``rank`` of ``world``, in the driver's working folder
+    where this machine has it (Ray Train starts each worker in a folder of its own, where a relative ``--out``,
+    ``--data`` or ``--rig-file`` would name files the driver never sees)."""
+    if os.path.isdir(config["cwd"]):
+        os.chdir(config["cwd"])
     ctx = ray.train.get_context()
     replica = Replica(ctx.get_world_rank(), ctx.get_world_size())
     relay = config["relay"]
@@ -100,7 +105,7 @@ def fit_on_ray(
         storage = Path(tempfile.mkdtemp(prefix="studio-ray-train-"))  # Ray Train's own records (not the checkpoint)
         trainer = TorchTrainer(
             _worker,
-            train_loop_config={"run": run, "relay": relay},
+            train_loop_config={"run": run, "relay": relay, "cwd": os.getcwd()},
             scaling_config=ScalingConfig(num_workers=fanout.workers, use_gpu=gpus > 0,
                                          resources_per_worker={"CPU": cpus} | ({"GPU": gpus} if gpus else {})),
             run_config=RunConfig(storage_path=str(storage), name="train"),
