@@ -82,5 +82,6 @@ def plotted(rgb: np.ndarray, colour: tuple[int, int, int], tolerance: int = 40) 
     h, w = rgb.shape[:2]
     plots = rgb[int(0.5 * h) : int(0.93 * h), : int(0.6 * w)].astype(int)
     ys, xs = np.nonzero((np.abs(plots - np.array(colour)) <= tolerance).all(axis=-1))
-    facts = {"pixels": int(len(xs)), "columns": int(len(set(xs.tolist())))}
+    facts = {"pixels": int(len(xs)), "columns": int(len(set(xs.tolist()))),
+             "left_columns": int(len(set(xs[xs < plots.shape[1] / 3].tolist())))}  # fmt: skip
     return facts["pixels"] >= 30 and facts["columns"] >= 20, facts

@@ -324,6 +324,8 @@ def test_the_studio_in_jupyterlab(lab, tmp_path):
         open_tab(page, "Review")
         (ok, facts), (line, line_facts) = rerun_draws(page, canvas, SERVO_LINE, folder / "rerun_after_play.png")
         assert line, f"after a play the Rerun viewer shows no servo angles (its plot tab): {line_facts}"
+        # the angles from the ramp's start on: no legend of 42 series over the plot's left third (9 columns there)
+        assert line_facts["left_columns"] >= 40, f"the servo plot's left third is covered: {line_facts}"
         assert ok, f"after a play the Rerun viewer's image views show no frame of the show: {facts}"
         marks["play reviewed"] = time.perf_counter() - t0
 

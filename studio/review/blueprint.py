@@ -89,6 +89,12 @@ def set_time(rec: rr.RecordingStream, **times: float) -> None:
             rec.set_time(timeline, duration=float(value))
 
 
+def servo_plot(name: str = SERVO_TAB) -> rrb.TimeSeriesView:
+    """The servo angles' plot: every joint's commanded and measured angle (42 series), without a legend (it would
+    cover a third of the plot, and still not fit: hovering a line names it)."""
+    return rrb.TimeSeriesView(origin=SERVO, name=name, plot_legend=rrb.PlotLegend(visible=False))
+
+
 def project_blueprint(timeline: str = FRAME, sources: bool = False, plot: str = LOSS_TAB) -> rrb.Blueprint:
     """The viewer layout of a project's review: the images side by side (source, when ``sources``, then target,
     expressive mask, self-model shadow, rendered shadow), under them tabs of plots (loss, servo angles, keyframe per
@@ -104,7 +110,7 @@ def project_blueprint(timeline: str = FRAME, sources: bool = False, plot: str = 
         views.insert(0, rrb.Spatial2DView(origin=SOURCE, name="source"))
     plots = rrb.Tabs(
         rrb.TimeSeriesView(origin=LOSS, name=LOSS_TAB),
-        rrb.TimeSeriesView(origin=SERVO, name=SERVO_TAB),
+        servo_plot(),
         rrb.TimeSeriesView(origin=KEYFRAME_OF_FRAME, name="keyframe per frame"),
         rrb.TextLogView(origin=LOG, name="log"),
         active_tab=plot,

@@ -28,7 +28,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from studio.review.blueprint import LOG, LOSS, PLAYBACK_LOG, SERVO, SHOW_TIME, TARGET, set_time
+from studio.review.blueprint import LOG, LOSS, PLAYBACK_LOG, SHOW_TIME, TARGET, servo_plot, set_time
 from studio.review.playback import log_playback
 from studio.review.real_vs_sim import overlay
 from studio.review.recording import APPLICATION
@@ -83,7 +83,7 @@ def capture_blueprint() -> rrb.Blueprint:
     ]
     plots = rrb.Tabs(
         rrb.TimeSeriesView(origin=CAPTURE_LOSS, name="losses per keyframe"),
-        rrb.TimeSeriesView(origin=SERVO, name="servos: commanded vs measured"),
+        servo_plot(),
         rrb.TextLogView(origin=LOG, name="log"),
     )
     return rrb.Blueprint(
