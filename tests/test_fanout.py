@@ -91,12 +91,17 @@ def test_follow_ups_run_after_the_item_that_brings_them(tmp_path, where, request
 
 
 @pytest.mark.parametrize("where", ["processes", "ray"])
-def test_a_failing_item_is_named_and_stops_the_run(tmp_path, where, request):
+def test_a_failing_item_is_named_and_stops_the_run(tmp_path, where, request, capfd):
     how = PROCESSES if where == "processes" else request.getfixturevalue("ray_cluster")
     (tmp_path / "shard_00002.npz").mkdir()  # shard 2 cannot be written: a folder stands where the file goes
     task = ShardTask(tmp_path, SMALL, SamplerConfig())
-    with pytest.raises(FanoutError, match=r"item 2 \(2\) failed: .*Error"):
-        fan_out(task, range(SMALL.num_shards), how)
+    with pytest.raises(FanoutError, match=r"item 2 \(shard 2\) failed: .*Error"):  # by its name, not its repr
+        fan_out(task, range(SMALL.num_shards), how, names=lambda k: f"shard {k}")
+    # workers that cannot set up (a rig file that is not there): the error once, and no worker's traceback
+    broken = ShardTask(tmp_path / "b", replace(SMALL, rig_file=str(tmp_path / "no_rig.yaml")), SamplerConfig())
+    with pytest.raises(FanoutError, match=r"^a worker could not start: \w+: .*no_rig\.yaml"):
+        fan_out(broken, range(SMALL.num_shards), how)
+    assert "Traceback" not in capfd.readouterr().err
 
 
 def test_a_cluster_address_where_nothing_answers_is_refused_at_once():

@@ -302,4 +302,6 @@ def test_evaluate_cli_errors_are_one_line(setup, tmp_path, capsys):
     args[args.index("--nn-data") + 1] = str(tmp_path / "no-shards")
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "collect" in err
+    assert len(err.splitlines()) == 1 and "--nn-data" in err and "shadow-studio collect" in err
+    assert main([*args, "--workers", "2"]) == 2  # the same line, before the index is built or a worker starts
+    assert capsys.readouterr().err.strip() == err

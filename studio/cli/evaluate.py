@@ -46,6 +46,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     from studio.evaluate.table1 import FILES
 
     _check_table_folder(args.out, FILES, [*args.targets, args.model, args.inverse])
+    _check_nn_data(args.nn_data)
     with torch_threads(args.threads):
         return _run_evaluation(args, files)  # (the ones spread over workers set their own threads)
 
@@ -76,6 +77,7 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
 
         task = Table1Task(models_from_args(args), str(args.inverse), str(args.nn_data), eval_cfg, search, refine,
                           config, sweep)  # fmt: skip
+        task.check()  # before the index is built and the workers start
         clip = clip_from_args(args)  # said once here; each worker finds the same weights
         with TqdmBars(disable=args.quiet) as bars, ctrl_c_cancels() as cancel:
             if config.retrieve:  # built once, spread, before the workers load it (not once per worker)
@@ -100,6 +102,18 @@ def _run_evaluation(args: argparse.Namespace, files: list[Path]) -> int:
               file=sys.stderr)  # fmt: skip
         return 130
     return 0
+
+
+def _check_nn_data(folder: str) -> None:
+    """Refuse a missing ``--nn-data`` before anything loads (every worker, or this process, would fail on it)."""
+    from studio.errors import ShardError
+    from studio.learn.shards import list_shards
+
+    if not Path(folder).is_dir():
+        raise ShardError(f"--nn-data {folder}: no such folder; the Random and Nearest Neighbour rows draw from it: "
+                         f"make it with `shadow-studio collect --resolution 128 --n 50000 --out {folder}` (128: the "
+                         "shipped self-model's side)")  # fmt: skip
+    list_shards(Path(folder))
 
 
 def _check_table_folder(out: str, files: tuple[str, ...], inputs: list) -> None:

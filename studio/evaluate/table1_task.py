@@ -57,6 +57,15 @@ class Table1Task:
                             sweep=self.sweep, retrieval=self.retrieval)  # fmt: skip
         self._held = imitator, Evaluator(imitator, Path(self.inverse), Path(self.nn_data), self.eval_cfg)
 
+    def check(self) -> None:
+        """The baselines' files every worker loads, read here before any worker starts (the errors their setup
+        would raise, said at once: a missing ``--nn-data`` folder, an unreadable inverse checkpoint)."""
+        from studio.learn.checkpoint import read_checkpoint
+        from studio.learn.shards import list_shards
+
+        read_checkpoint(self.inverse, "inverse")
+        list_shards(Path(self.nn_data))
+
     def close(self) -> None:
         if self._held is not None:
             imitator, evaluator = self._held
@@ -83,6 +92,7 @@ def evaluate_spread(
     """Table 1 over ``targets`` (as :meth:`~studio.evaluate.table1.Evaluator.run` takes them) on the workers
     ``fanout`` names. Reports stage "evaluate" as each target finishes (item: its name). ``cancel`` stops the
     workers; the table then holds the targets finished before it (in their order)."""
+    task.check()
     items = [(i, *t) for i, t in enumerate(targets)]
     done = fan_out(task, items, fanout, progress, cancel, "evaluate", [t[0] for t in targets])
     records = [r for i in sorted(done) for r in done[i][0]]

@@ -16,8 +16,9 @@ work that must run in order (a source's keyframes, each continuing from the one 
 time and each step's result is kept the moment it comes back. Progress: stage ``stage``, step = items finished, of
 ``total`` (default: the items known so far; ``item``: the item's name when ``names`` gives one). ``cancel`` stops
 handing out items and ends the workers (on Ray the actors are killed, so running items stop at once); the items
-finished before it are returned. An error in a task is raised here as :class:`FanoutError` naming the item, after
-the other workers are stopped. Nothing imports Ray unless ``cfg.ray`` asks for it (DESIGN §3).
+finished before it are returned. An error in a task is raised here as :class:`FanoutError` naming the item (one
+in a worker's ``setup()``: the error, once), after the other workers are stopped. Nothing imports Ray unless
+``cfg.ray`` asks for it (DESIGN §3).
 """
 
 from __future__ import annotations
@@ -105,16 +106,45 @@ def fan_out(
     report(progress, stage, 0, max(total or 0, len(work.items)))
     if not work.items or stopped(cancel):
         return done
+
+    def failed(items: Sequence[Any], i: int, e: BaseException) -> FanoutError:
+        if isinstance(e, SetupFailed):  # every item of that worker would say it: said once, as the workers'
+            return FanoutError(f"a worker could not start: {e}")
+        return FanoutError(f"item {i} ({name(i) or str(items[i])[:80]}) failed: {type(e).__name__}: {e}")
+
     width = min(cfg.workers, len(work.items))  # no more workers than items (a follow-up takes its item's place)
     if cfg.ray:
         from studio.learn.ray_cluster import run_on_ray
 
-        run_on_ray(task, work.items, work.take, replace(cfg, workers=width), finished, cancel, _failed)
+        run_on_ray(_Kept(task), work.items, work.take, replace(cfg, workers=width), finished, cancel, failed)
     elif cfg.workers == 1:
         _in_process(task, work, finished, cancel)
     else:
-        _on_processes(task, work, width, finished, cancel)
+        _on_processes(_Kept(task), work, width, finished, cancel, failed)
     return done
+
+
+class SetupFailed(StudioError):
+    """A worker could not set its task up (a model or data it loads): raised for each item it is handed."""
+
+
+class _Kept:
+    """A task as a worker holds it: an error in its ``setup()`` is kept and raised (as :class:`SetupFailed`, its
+    message) for each item, so the driver says it in one line instead of a broken pool's traceback per worker."""
+
+    def __init__(self, task: Task):
+        self.task, self.error = task, None
+
+    def setup(self) -> None:
+        try:
+            self.task.setup()
+        except Exception as e:
+            self.error = SetupFailed(f"{type(e).__name__}: {e}")
+
+    def __call__(self, item: Any) -> Any:
+        if self.error is not None:
+            raise self.error
+        return self.task(item)
 
 
 class Work:
@@ -131,10 +161,6 @@ class Work:
         return self._next - 1
 
 
-def _failed(items: Sequence[Any], i: int, e: BaseException) -> FanoutError:
-    return FanoutError(f"item {i} ({str(items[i])[:80]}) failed: {type(e).__name__}: {e}")
-
-
 def _in_process(task: Task, work: Work, finished: Callable, cancel: threading.Event | None) -> None:
     task.setup()
     try:
@@ -146,10 +172,10 @@ def _in_process(task: Task, work: Work, finished: Callable, cancel: threading.Ev
             close()
 
 
-_WORKER_TASK: Task | None = None  # the task a worker process set up (one per process)
+_WORKER_TASK: _Kept | None = None  # the task a worker process set up (one per process)
 
 
-def _set_up(task: Task) -> None:
+def _set_up(task: _Kept) -> None:
     global _WORKER_TASK
     task.setup()
     _WORKER_TASK = task
@@ -160,7 +186,9 @@ def _run_one(item: Any) -> Any:
     return _WORKER_TASK(item)
 
 
-def _on_processes(task: Task, work: Work, workers: int, finished: Callable, cancel: threading.Event | None) -> None:
+def _on_processes(
+    task: _Kept, work: Work, workers: int, finished: Callable, cancel: threading.Event | None, failed: Callable
+) -> None:
     """At most ``2 × workers`` items in flight (a short queue: a cancel leaves little unstarted work behind) on
     ``workers`` spawned processes, each process set up once."""
     ctx = multiprocessing.get_context("spawn")
@@ -183,7 +211,7 @@ def _on_processes(task: Task, work: Work, workers: int, finished: Callable, canc
                 try:
                     result = f.result()
                 except Exception as e:
-                    raise _failed(work.items, i, e) from e
+                    raise failed(work.items, i, e) from e
                 finished(i, result)
             top_up()
         ok = not stopped(cancel)
