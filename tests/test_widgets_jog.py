@@ -72,6 +72,10 @@ def test_a_slider_moves_its_servo_and_stops_at_the_soft_limit(panel, hand):
     lo, hi = panel.cal.lower[j], panel.cal.upper[j]
     assert panel.sliders[j].min == pytest.approx(math.degrees(lo)) and panel.sliders[j].max == pytest.approx(
         math.degrees(hi))  # fmt: skip
+    # beside each slider its range, so one at an end reads as the end of its joint (abductions end near 0°)
+    a = panel.cal.joint_names.index("index_mcp_abd")
+    assert panel.spans[a].value == f"−{-math.degrees(panel.cal.lower[a]):.0f}…{math.degrees(panel.cal.upper[a]):.0f}°"
+    assert panel.sliders[a].value == pytest.approx(panel.sliders[a].max)
     before = emulator_rad(panel)
     panel.sliders[j].value = 20.0
     settle()

@@ -54,6 +54,11 @@ def _deg(x: float) -> str:
     return "?" if not math.isfinite(x) else f"{math.degrees(x):.1f}°"
 
 
+def _span(lo_deg: float, hi_deg: float) -> str:
+    """A joint's range as the slider beside it reads it: ``−60…0°``."""
+    return f"{round(lo_deg)}…{round(hi_deg)}°".replace("-", "−")  # (round: an int, never "-0")
+
+
 class JogPanel(JogActions):
     """The jog panel of one studio (``.widget``); ``state.extras["jog"]`` is this panel while it is open."""
 
@@ -90,6 +95,7 @@ class JogPanel(JogActions):
         self.message = W.HTML()
         self.sliders: list[W.FloatSlider] = []
         self.measured: list[W.Label] = []
+        self.spans: list[W.Label] = []  # each joint's range, beside its slider
         rows = []
         for k, j in enumerate(self.cal.joints):
             lo, hi = math.degrees(j.lower), math.degrees(j.upper)
@@ -98,9 +104,11 @@ class JogPanel(JogActions):
                               layout=W.Layout(width="420px"))  # fmt: skip
             s.observe(lambda change, k=k: self._slid(k, change["new"]), names="value")
             m = W.Label("measured ?", layout=W.Layout(width="110px"))
+            span = W.Label(_span(lo, hi), layout=W.Layout(width="90px"))  # a slider at an end of its joint's range
             self.sliders.append(s)
             self.measured.append(m)
-            rows.append(W.HBox([s, m]))
+            self.spans.append(span)
+            rows.append(W.HBox([s, span, m]))
         self.read_button = W.Button(description="read back")
         self.auto = W.Checkbox(value=False, description="refresh", indent=False, layout=W.Layout(width="90px"))
         self.torque_on_button = W.Button(description="torque on")
