@@ -68,6 +68,12 @@ def test_lab_refuses_a_folder_that_is_not_a_project(tmp_path):
     done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "project not found" in done.stderr, done.stderr
     assert not (tmp_path / "home" / "lab").exists()  # nothing started, nothing copied
+    image = tmp_path / "horse.gif"  # a source given where its project goes: how to make the project of it
+    image.write_bytes(b"GIF89a")
+    done = subprocess.run([*cmd[:-2], str(image), "--no-browser"], env=env, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "horse.gif is a file" in done.stderr, done.stderr
+    assert f"project new horse.shadow --source {image}" in done.stderr and "Traceback" not in done.stderr
+    assert not (tmp_path / "home" / "lab").exists()
 
 
 def test_lab_refuses_a_port_another_server_answers_on(tmp_path, monkeypatch, capsys):

@@ -73,6 +73,10 @@ def test_project_verbs_report_bad_input_in_one_line(tmp_path, sources, in_proces
     assert "(shadow-studio project new makes one)" in r.stderr
     r = in_process("project", "info", ".")  # a folder, but no project's
     assert r.returncode == 2 and "not a project (no project.json)" in r.stderr, r.stderr
+    still = sources[1].relative_to(tmp_path)  # the image itself, given for its project: how to make one from it
+    r = in_process("project", "run", str(still))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert f"{still} is a file" in r.stderr and f"project new {still.stem}.shadow --source {still}" in r.stderr
     p = Project.create(tmp_path / "p.shadow", sources=[str(s) for s in sources], video=VIDEO)
     doc = json.loads((p.path / "project.json").read_text())
     (p.path / "project.json").write_text(json.dumps(doc | {"version": 2}))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, TypeVar
 
 from studio.learn.threads import DEFAULT_THREADS
@@ -88,7 +89,7 @@ ADVICE: dict[str, str | Callable[[BaseException], str]] = {  # an engine error's
     "ResultsNeeded": " (shadow-studio project run optimises them)",
     "ShowNeeded": " (shadow-studio project run plans it)",
     "SegmentTooFastError": " (pass --allow-late to stretch them)",
-    "NotAProject": " (shadow-studio project new makes one)",
+    "NotAProject": lambda e: _new_project(getattr(e, "file", None)),
     "CalibrationMissing": " (shadow-studio calibrate makes one)",
     "MountMismatch": " (shadow-studio calibrate --roll DEG --start CAL --out CAL records it)",
     "CheckpointError": lambda e: " (shadow-studio {} --out PATH makes one)".format(
@@ -101,6 +102,13 @@ ADVICE: dict[str, str | Callable[[BaseException], str]] = {  # an engine error's
     "ChecksumError": " (shadow-studio scan --port PORT lists the servos that answer)",
     "UnexpectedReply": " (shadow-studio scan --port PORT lists the servos that answer)",
 }
+
+
+def _new_project(source: str | None) -> str:
+    """How to make the project that was not there: from the file given instead of it, when one was."""
+    if source is None:
+        return " (shadow-studio project new makes one)"
+    return f" (make one from it: shadow-studio project new {Path(source).stem}.shadow --source {source})"
 
 
 def advice(error: BaseException) -> str:

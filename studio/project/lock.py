@@ -64,7 +64,7 @@ def stamp(folder: Path) -> str:
 
     try:
         return hashlib.sha256((Path(folder) / DOC).read_bytes()).hexdigest()
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):  # (a file given as the folder: read_doc says so)
         return ""
 
 

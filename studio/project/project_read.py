@@ -57,8 +57,8 @@ class Damaged(ProjectError):
 def read_doc(folder: Path) -> dict[str, Any]:
     """``project.json`` of ``folder``, its format and version checked (a newer version is refused)."""
     path = Path(folder) / DOC
-    if not Path(folder).exists():
-        raise NotAProject(f"project not found: {folder}")
+    if not Path(folder).is_dir():
+        raise NotAProject.at(Path(folder))
     if not path.is_file():
         raise NotAProject(f"not a project (no {DOC}): {folder}")
     check_subfolders(folder)

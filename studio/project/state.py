@@ -12,6 +12,7 @@ import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, is_dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -30,7 +31,19 @@ class ProjectError(StudioError):
 
 
 class NotAProject(ProjectError):
-    """A folder opened as a project has no project document (a face says how it makes one)."""
+    """A folder opened as a project has no project document (a face says how it makes one); ``file``: the path
+    given when it is a file (an image or a video meant as the project's source)."""
+
+    def __init__(self, message: str, file: str | None = None):
+        super().__init__(message)
+        self.file = file
+
+    @classmethod
+    def at(cls, path: Path) -> NotAProject:
+        """The error for a ``path`` that is not there, or is a file rather than a project folder."""
+        if path.is_file():
+            return cls(f"not a project: {path} is a file (a project is a folder, NAME.shadow)", str(path))
+        return cls(f"project not found: {path}")
 
 
 class ResultsNeeded(ProjectError):
