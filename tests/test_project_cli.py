@@ -78,6 +78,10 @@ def test_project_verbs_report_bad_input_in_one_line(tmp_path, sources, in_proces
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert f"{still} is a file" in r.stderr and f"project new {still.stem}.shadow --source {still}" in r.stderr
     p = Project.create(tmp_path / "p.shadow", sources=[str(s) for s in sources], video=VIDEO)
+    for verb in ("play", "show-info"):  # the project given where its show file goes: how to write that file
+        r = in_process(verb, "p.shadow", *(["--dry-run"] if verb == "play" else []))
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert "p.shadow: a folder, not a show file" in r.stderr and "project export p.shadow --out" in r.stderr
     doc = json.loads((p.path / "project.json").read_text())
     (p.path / "project.json").write_text(json.dumps(doc | {"version": 2}))
     r = in_process("project", "info", str(p.path))

@@ -90,6 +90,7 @@ ADVICE: dict[str, str | Callable[[BaseException], str]] = {  # an engine error's
     "ShowNeeded": " (shadow-studio project run plans it)",
     "SegmentTooFastError": " (pass --allow-late to stretch them)",
     "NotAProject": lambda e: _new_project(getattr(e, "file", None)),
+    "ShowError": lambda e: _project_show(getattr(e, "path", None)),
     "CalibrationMissing": " (shadow-studio calibrate makes one)",
     "MountMismatch": " (shadow-studio calibrate --roll DEG --start CAL --out CAL records it)",
     "CheckpointError": lambda e: " (shadow-studio {} --out PATH makes one)".format(
@@ -109,6 +110,15 @@ def _new_project(source: str | None) -> str:
     if source is None:
         return " (shadow-studio project new makes one)"
     return f" (make one from it: shadow-studio project new {Path(source).stem}.shadow --source {source})"
+
+
+def _project_show(path: str | None) -> str:
+    """How to get the show of a project folder given where a show file goes ("" for anything else)."""
+    from studio.project.project_format import DOC
+
+    if path is None or not (Path(path) / DOC).is_file():
+        return ""
+    return f" (a project: shadow-studio project export {path} --out show.json writes its show)"
 
 
 def advice(error: BaseException) -> str:

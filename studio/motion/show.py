@@ -226,6 +226,8 @@ def load_show(path: str | Path, hand: Hand | None = None) -> Show:
     time from 0, angles within the hand's and the file's limits, sample-to-sample speed within the velocity limits.
     """
     path = Path(path)
+    if path.is_dir():
+        raise ShowError("a folder, not a show file", path)
     if not path.is_file():
         raise FileNotFoundError(f"show file not found: {path}")
     try:
