@@ -4,6 +4,7 @@ every keyframe edit (add, remove, move a frame, time, hold) through the project,
 from __future__ import annotations
 
 import io
+import re
 import shutil
 
 import numpy as np
@@ -197,6 +198,29 @@ def test_cards_show_each_keyframes_status_and_loss_counts_and_times_in_words(sta
     assert p.state.keyframe(first.id).time_s == 0.8
     card = panel.strip.children[[kf.id for kf in p.keyframes].index(first.id)]
     assert "at 0.80 s" in card.children[2].value and "99999" not in card.children[2].value
+
+
+def test_the_legend_names_the_colours_the_cards_paint(state):
+    """Under the strip a line names each colour a card paints: the expressive region's tint and each status's frame,
+    checked against the cards' pixels (a legend coloured otherwise fails)."""
+    import cv2
+
+    panel = KeyframesPanel(state)
+    keys = re.findall(r"background:rgb\((\d+), (\d+), (\d+)\)\"></span>([^&<]+)", panel.legend.value)
+    said = {words.strip(): tuple(int(v) for v in rgb) for *rgb, words in keys}
+    assert list(said) == ["expressive region", "frame: result missing", "frame: result stale", "frame: result current"]
+    card = panel.strip.children[0]  # no result yet
+    assert card_frame(card) == said["frame: result missing"]
+    rgb = np.asarray(Image.open(io.BytesIO(bytes(card.children[0].value))).convert("RGB"))
+    hsv = cv2.cvtColor(rgb[8:-8, 8:-8], cv2.COLOR_RGB2HSV_FULL).reshape(-1, 3).astype(int)
+    tinted = hsv[hsv[:, 1] > 80]  # inside the frame, the only coloured pixels are the expressive region's
+    assert len(tinted) > 50, "the card paints no expressive region"
+
+    def hue(c) -> int:
+        return int(cv2.cvtColor(np.uint8([[c]]), cv2.COLOR_RGB2HSV_FULL)[0, 0, 0])
+
+    drawn, named = int(np.median(tinted[:, 0])), hue(said["expressive region"])
+    assert min(abs(drawn - named), 256 - abs(drawn - named)) <= 6, (drawn, named)  # (of 256)
 
 
 def test_the_count_is_worked_out_aside_and_only_when_what_it_reads_changes(state, monkeypatch):

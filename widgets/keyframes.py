@@ -24,7 +24,19 @@ from studio.errors import count
 from studio.project.edits import combined_masks
 from studio.project.state import AWAITS, Keyframe
 from studio.project.status import ProjectStatus
-from widgets.images import MASK_RGB, Messages, Throttle, frame_in_view, grey_rgb, png, tint, title, upscale
+from studio.review.preview_strips import STATUS_RGB  # a result's status: the Review strip's colours
+from widgets.images import (
+    MASK_RGB,
+    Messages,
+    Throttle,
+    frame_in_view,
+    grey_rgb,
+    legend,
+    png,
+    tint,
+    title,
+    upscale,
+)
 from widgets.state import StudioState
 from widgets.words import loss, seconds, span
 
@@ -32,7 +44,6 @@ log = logging.getLogger(__name__)
 
 CARD_PX = 96  # side of a cluster's picture in the strip, px
 FRAME_PX = 5  # width of the status frame drawn around a card's picture, px
-STATUS_RGB = {"current": (40, 160, 70), "stale": (235, 150, 0), "missing": (200, 40, 40)}  # a result's status
 TIME_STEP_S = 0.001  # keyframe times are kept to the millisecond (a browser's spinner adds 0.1 in binary)
 
 
@@ -81,10 +92,13 @@ class KeyframesPanel:
         self.undo.on_click(lambda _: self.messages.run(self.state.undo))
         self.redo.on_click(lambda _: self.messages.run(self.state.redo))
 
+        keys = [(MASK_RGB, "expressive region"), *((rgb, f"frame: result {name}") for name, rgb in STATUS_RGB.items())]
+        self.legend = legend(keys, then="a button selects its keyframe and frame in every tab")
         self.widget = w.VBox([
             title("Keyframes"),
             w.HBox([self.tau, self.count, self.apply_tau]),
             self.strip,
+            self.legend,
             w.HBox([self.keyframe, self.hold, self.remove]),
             w.HBox([self.time, self.clock, self.set_time]),
             self.frame_info,
