@@ -269,7 +269,7 @@ def test_cli_plan_validate_info_csv(tmp_path, capsys):
     assert load_show(out, HAND).title == "cli" and (tmp_path / "a.csv").is_file()
     assert main(["validate", str(out)]) == 0
     assert main(["show-info", str(out)]) == 0
-    assert "keyframes:    2 at 0.800, 1.600" in capsys.readouterr().out
+    assert "keyframes:    2 keyframes, on the show clock at 0.80 s, 1.60 s" in capsys.readouterr().out
     assert main(["export-csv", str(out), "--out", str(tmp_path / "b.csv"), "--degrees"]) == 0
     frames[0]["t"] = 0.05  # too fast: one clear line, exit 2
     poses.write_text(json.dumps({"keyframes": frames}))

@@ -1,9 +1,10 @@
 """What the Export panel says about a show, in the artist's terms.
 
 It starts from what ``shadow-studio show-info`` prints (:func:`studio.motion.show_info.show_info_lines`) and says
-three things differently: the **keyframes** are the project's (a video's keyframe reached twice is one keyframe, and
-the planner's home pose is not one), **media** is what the show plays beside or, when nothing, the sources it was
-made from, and the **late** transitions are listed (frames, keyframes, needed versus given seconds). It adds the
+three things differently: the **keyframes** are counted as the project holds them (show-info counts the distinct
+targets the show's marks name: the same unless the file lacks them), **media** is what the show plays beside or,
+when nothing, the sources it was made from, and the **late** transitions are listed (frames, keyframes, needed
+versus given seconds). It adds the
 **ramp-in**: before show time 0 the player brings the hand from where it stands to the show's first pose, as
 :meth:`hardware.player.Player.trajectory` computes it, so a 1.44 s show can take seconds more to play; and the
 **limits**: the joints the show asks beyond the calibration's soft limits, where the player stops them.
@@ -23,7 +24,7 @@ from hardware.player import Player, PlayerConfig
 from hardware.show_checks import soft_limit_summary
 from studio.errors import count
 from studio.motion.show import Show
-from studio.motion.show_info import show_info_lines
+from studio.motion.show_info import keyframe_text, show_info_lines
 from widgets.words import late_lines, seconds
 
 LABEL = 14  # width of a line's label, as show-info prints them ("keyframes:    ")
@@ -43,14 +44,8 @@ def _line(label: str, text: str) -> str:
 
 
 def keyframe_line(show: Show, keyframes: int | None) -> str:
-    """The keyframes as the artist made them, then the times the show reaches them."""
-    marks = show.keyframes
-    n = keyframes if keyframes is not None else len({m.target for m in marks if m.target}) or len(marks)
-    times = ", ".join(seconds(m.t) + (" (hold)" if m.hold else "") for m in marks[:12])
-    times += ", …" if len(marks) > 12 else ""
-    if len(marks) != n:  # a held still, or a keyframe of several frames, is reached at more than one mark
-        return _line("keyframes", f"{count(n, 'keyframe')} at {count(len(marks), 'mark')} on the show clock: {times}")
-    return _line("keyframes", f"{count(n, 'keyframe')}, on the show clock at {times}")
+    """The keyframes as the artist made them (the project's ``keyframes``), then the times the show reaches them."""
+    return _line("keyframes", keyframe_text(show, keyframes))
 
 
 def media_line(show: Show, sources: tuple[str, ...]) -> str | None:

@@ -102,6 +102,7 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
+    from studio.motion.show_info import keyframe_text
     from studio.project.outputs import FILES
     from studio.project.project import Project
     from studio.targets.path_checks import check_outputs
@@ -111,7 +112,8 @@ def _export(args: argparse.Namespace) -> int:
     project = Project.open(Path(args.name))
     out = project.export_show(Path(args.out))
     show = project.show
-    print(f"wrote {out}: {show.duration:.2f} s, {len(show.times)} samples, {len(show.keyframes)} keyframes")
+    marks = keyframe_text(show, len(project.keyframes))
+    print(f"wrote {out}: {show.duration:.2f} s, {len(show.times)} samples; {marks}")
     summary = {"project": str(project.path), "show": str(out), "duration_s": show.duration}
     if args.files is not None:
         from studio.project.outputs import self_model_predictor, write_outputs

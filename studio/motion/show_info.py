@@ -9,6 +9,19 @@ from studio.motion.show import Show
 from studio.sim.roll import mount_text
 
 
+def keyframe_text(show: Show, keyframes: int | None = None) -> str:
+    """The keyframes as the artist made them (``keyframes``: the project's count; else the distinct targets the
+    show's marks name, or the marks), then the times the show reaches them: a held still, or a keyframe a video
+    reaches again, has more than one mark."""
+    marks = show.keyframes
+    n = keyframes if keyframes is not None else len({m.target for m in marks if m.target}) or len(marks)
+    times = ", ".join(f"{m.t:.2f} s" + (" (hold)" if m.hold else "") for m in marks[:12])
+    times += ", …" if len(marks) > 12 else ""
+    if len(marks) != n:
+        return f"{count(n, 'keyframe')} at {count(len(marks), 'mark')} on the show clock: {times}"
+    return f"{count(n, 'keyframe')}, on the show clock at {times}"
+
+
 def show_info_lines(show: Show) -> list[str]:
     """Title, format, hand, calibration, how to mount the hand (its roll), duration and samples, keyframe times,
     media, the peak joint speed as a share of its velocity limit, and the late segments the planner stretched, one
@@ -22,8 +35,7 @@ def show_info_lines(show: Show) -> list[str]:
         f"calibration:  {show.calibration or '-'}",
         f"mount:        {mount_text(show.roll)}",
         f"duration:     {show.duration:.3f} s, {len(show.times)} samples at {show.rate_hz:g} Hz",
-        f"keyframes:    {len(show.keyframes)} at "
-        + ", ".join(f"{k.t:.3f}{' (hold)' if k.hold else ''}" for k in show.keyframes),
+        f"keyframes:    {keyframe_text(show)}",
         f"media:        {media}",
     ]
     if speed is not None:
