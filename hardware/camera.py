@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import logging
 import math
-import re
 import threading
 import time
 from dataclasses import dataclass
@@ -30,6 +29,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from hardware.camera_sources import FolderCapture, as_bgr, open_device
 from hardware.errors import CameraAbsent, CameraEnded, CameraError, CameraStalled
 from studio.errors import ClosedError
 
@@ -37,7 +37,6 @@ __all__ = ["Camera", "Frame"]
 
 log = logging.getLogger(__name__)
 
-FRAME_SUFFIXES = (".png", ".jpg", ".jpeg")
 DEFAULT_FPS = 30.0  # the rate of a file whose own rate is unknown, and of a frame folder
 
 
@@ -48,48 +47,6 @@ class Frame:
     image: np.ndarray  # (H, W, 3) uint8 BGR, read-only (shared by every caller that gets this frame)
     t: float  # time.monotonic() when it arrived from the source, s
     index: int  # running frame index since open(), from 0
-
-
-class _FolderCapture:
-    """A folder of frames with ``VideoCapture``'s methods: files in natural order (``f2`` before ``f10``)."""
-
-    def __init__(self, folder: Path, fps: float):
-        def key(p: Path) -> list:
-            return [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", p.name)]
-
-        self.files = sorted((p for p in folder.iterdir() if p.suffix.lower() in FRAME_SUFFIXES), key=key)
-        self.fps, self.pos = fps, 0
-
-    def isOpened(self) -> bool:
-        return bool(self.files)
-
-    def read(self) -> tuple[bool, np.ndarray | None]:
-        while self.pos < len(self.files):  # an unreadable file is skipped, as a dropped frame
-            self.pos += 1
-            image = cv2.imread(str(self.files[self.pos - 1]), cv2.IMREAD_COLOR)
-            if image is not None:
-                return True, image
-            log.warning("skipping unreadable frame %s", self.files[self.pos - 1])
-        return False, None
-
-    def set(self, prop: int, value: float) -> bool:
-        self.pos = int(value) if prop == cv2.CAP_PROP_POS_FRAMES else self.pos
-        return prop == cv2.CAP_PROP_POS_FRAMES
-
-    def get(self, prop: int) -> float:
-        return self.fps if prop == cv2.CAP_PROP_FPS else 0.0
-
-    def release(self) -> None:
-        self.files = []
-
-
-def _as_bgr(image: Any) -> np.ndarray | None:
-    """A source's picture as ``(H, W, 3)`` uint8 BGR (grey and BGRA converted), or None when it is no picture."""
-    img = np.asarray(image) if image is not None else np.zeros((0, 0))
-    channels = 1 if img.ndim == 2 else img.shape[-1]
-    if img.dtype != np.uint8 or img.ndim not in (2, 3) or min(img.shape[:2]) < 1 or channels not in (1, 3, 4):
-        return None
-    return img if channels == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2BGR if channels == 1 else cv2.COLOR_BGRA2BGR)
 
 
 class Camera:
@@ -136,7 +93,7 @@ class Camera:
     def _open_source(self) -> Any:
         src = self.source
         if isinstance(src, int):
-            cap = cv2.VideoCapture(src)
+            cap = open_device(src)
             if not cap.isOpened():
                 cap.release()
                 raise CameraAbsent(f"no camera at index {src}: is it plugged in, free, and may this user open it?")
@@ -145,7 +102,7 @@ class Camera:
         if isinstance(src, (str, Path)):  # played as a camera
             path = Path(src)
             if path.is_dir():
-                cap = _FolderCapture(path, self._fps_wanted or DEFAULT_FPS)
+                cap = FolderCapture(path, self._fps_wanted or DEFAULT_FPS)
                 if not cap.isOpened():
                     raise CameraAbsent(f"no frames in frame folder {path} (PNG or JPG files)")
             elif not path.exists():
@@ -216,7 +173,7 @@ class Camera:
                 ok, raw = cap.read()
                 if self._stop.is_set():
                     break
-                image = _as_bgr(raw) if ok else None
+                image = as_bgr(raw) if ok else None
                 if image is None:
                     if ok:
                         raise CameraError(f"{self.name} gave a picture that is not an 8-bit image: {np.shape(raw)}")
