@@ -86,7 +86,7 @@ def lab(tmp_path, hand):
     with SIGINT. As root the verb passes JupyterLab ``--allow-root`` itself. PROJECT is the horse (five frames at 64²
     masks, mounted rolled) with every keyframe posed differently and its show planned, as preview_support makes it
     (a real optimisation would take minutes here; the shadows are the poses' own, rendered)."""
-    playwright_api()  # skip before starting anything
+    playwright_api()  # skip (fail on CI) before starting anything
     project = horse(tmp_path)
     give_results(project, hand)
     plan(project, hand)
@@ -119,7 +119,7 @@ def lab(tmp_path, hand):
 
 @pytest.mark.slow
 def test_the_studio_in_jupyterlab(lab, tmp_path):
-    sync_playwright = playwright_api()  # the fixture skipped already when it is absent
+    sync_playwright = playwright_api()  # the fixture stopped already when it is absent
     from playwright.sync_api import Error as PlaywrightError
 
     url, proc, project, t0 = lab
