@@ -59,7 +59,7 @@ def bench_evaluate(root: Path, n_targets: int, workers: int) -> dict:
     from studio.evaluate.table1_task import Table1Task, evaluate_spread
     from studio.evaluate.worker_models import ModelRecipe
     from studio.imitate.config import PRESETS, still_configs
-    from studio.imitate.retrieval import cached_index
+    from studio.imitate.index_cache import cached_index
     from studio.imitate.still import DEFAULT_MODEL, Imitator
     from studio.targets.image_sets import gather_targets
     from studio.targets.images import load_target

@@ -22,7 +22,8 @@ from studio.evaluate.table1 import Evaluator
 from studio.evaluate.table1_task import Table1Task, evaluate_spread
 from studio.evaluate.worker_models import ModelRecipe
 from studio.imitate.config import ImitateConfig, RefineConfig, SearchConfig, SweepConfig
-from studio.imitate.retrieval import RetrievalConfig, cached_index
+from studio.imitate.index_cache import cached_index
+from studio.imitate.retrieval import RetrievalConfig
 from studio.imitate.still import Imitator
 from studio.learn.checkpoint import read_checkpoint, save_model
 from studio.learn.config import CollectConfig, TrainConfig

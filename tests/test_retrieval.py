@@ -3,16 +3,25 @@ answers, the cache) and the first answer it gives the Imitator."""
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import threading
+import time
 
 import numpy as np
 import pytest
 
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None
+
 from studio.errors import Progress
 from studio.imitate.config import ImitateConfig, LossConfig, RefineConfig, SearchConfig, SweepConfig
+from studio.imitate.index_cache import WAIT_POLL_S, WAITING, cached_index, index_path
 from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import RenderedLoss, crop_batch
-from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, cached_index, index_key, pack_crops
+from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, index_key, pack_crops
 from studio.imitate.still import Imitator
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
 from studio.sim.crop_pad import pad_pixels
@@ -104,9 +113,69 @@ def test_a_cancelled_build_returns_nothing_and_saves_nothing(tmp_path, renderer)
         cancel.set()
 
     assert cached_index(renderer, cfg, folder=tmp_path, progress=progress, cancel=cancel) is None
-    assert len(seen) == 1 and 0 < seen[0] <= 300 and list(tmp_path.iterdir()) == []  # one chunk, then stopped
+    assert len(seen) == 1 and 0 < seen[0] <= 300 and list(tmp_path.glob("*.npz")) == []  # one chunk, then stopped
     built = cached_index(renderer, cfg, folder=tmp_path)
     assert len(built) == 900 and (tmp_path / f"index-{built.key}.npz").is_file()
+
+
+@contextlib.contextmanager
+def another_builder(path):
+    """Hold the build lock of the index file ``path`` as another process building it would (``flock`` is per open
+    file, so a second open file in this process is excluded as another process is)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path.with_name(path.name + ".lock"), "a") as f:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX)
+        yield
+
+
+def wait_for(what, timeout: float = 10.0) -> None:
+    t0 = time.monotonic()
+    while not what():
+        assert time.monotonic() - t0 < timeout, "timed out"
+        time.sleep(0.02)
+
+
+@pytest.mark.skipif(fcntl is None, reason="no POSIX locks on this platform")
+def test_a_process_waits_for_another_ones_build_and_loads_it_rather_than_building_twice(renderer, tmp_path, caplog):
+    """Two processes wanting the index on a fresh machine (``project run --workers 2``, the notebook beside a
+    terminal): while one builds, the other says once that it waits (stage "index", its item), then loads the file the
+    builder saved; it never builds."""
+    cfg = RetrievalConfig(size=300, chunk=300, seed=23)
+    path = index_path(renderer, cfg, tmp_path)
+    got, seen = [], []
+    with another_builder(path), caplog.at_level(logging.INFO, logger="studio.imitate.index_cache"):
+        waiter = threading.Thread(target=lambda: got.append(cached_index(renderer, cfg, tmp_path, seen.append)))
+        waiter.start()
+        wait_for(lambda: seen)
+        assert (seen[0].stage, seen[0].step, seen[0].total, seen[0].item) == ("index", 0, 300, WAITING)
+        time.sleep(3 * WAIT_POLL_S)
+        assert waiter.is_alive() and not got and not path.exists()  # still waiting, building nothing
+        built = RetrievalIndex.build(renderer, cfg)  # the other process's build, saved before it lets go
+        built.save(path)
+    waiter.join(10)
+    assert len(got) == 1 and got[0] is not None
+    np.testing.assert_array_equal(got[0].theta, built.theta)
+    assert seen[-1].step == seen[-1].total == 300 and seen[-1].item == WAITING
+    said = [r.getMessage() for r in caplog.records]
+    assert sum("waiting for it" in m for m in said) == 1
+    assert not any("building the retrieval index once" in m for m in said)
+
+
+@pytest.mark.skipif(fcntl is None, reason="no POSIX locks on this platform")
+def test_a_cancel_while_waiting_for_another_build_returns_nothing(renderer, tmp_path):
+    """Cancelled while another process builds: None within a poll, nothing built or saved; once the other process
+    is gone without saving (killed), the next call takes the lock and builds."""
+    cfg = RetrievalConfig(size=300, chunk=300, seed=29)
+    path = index_path(renderer, cfg, tmp_path)
+    cancel, got = threading.Event(), []
+    with another_builder(path):
+        waiter = threading.Thread(target=lambda: got.append(cached_index(renderer, cfg, tmp_path, cancel=cancel)))
+        waiter.start()
+        time.sleep(3 * WAIT_POLL_S)
+        cancel.set()
+        waiter.join(2 * WAIT_POLL_S + 1.0)
+        assert not waiter.is_alive() and got == [None] and not path.exists()
+    assert len(cached_index(renderer, cfg, tmp_path)) == 300 and path.is_file()
 
 
 def test_a_cancel_while_the_index_is_built_ends_the_imitation_cancelled(hand, renderer, tmp_path, monkeypatch):

@@ -1,7 +1,7 @@
 """The retrieval index built in the background when the studio opens (the Optimise panel's line about it).
 
 The searches' first answers come from a retrieval index over 200,000 poses, built once per machine and then cached
-(:func:`studio.imitate.retrieval.cached_index`, ~40 s on two cores). When this machine has not built it yet, the
+(:func:`studio.imitate.index_cache.cached_index`, ~40 s on two cores). When this machine has not built it yet, the
 studio builds it as soon as it opens, as a job on the project's queue (:func:`studio.project.jobs.index_job`), so
 the first optimisation does not wait for it; a line says what is happening. Whether it is cached takes seconds of
 imports to tell, so that is found off the kernel's thread. One build per studio (``state.extras["index_job"]``).

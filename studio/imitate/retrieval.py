@@ -9,8 +9,9 @@ every entry is ranked by the pixel base loss ``w_mae·MAE + w_iou·(1 − IoU)``
 popcount per 64 pixels), then the ``shortlist`` best are rendered and scored exactly by the target's loss and the
 best *distinct* poses (max joint distance ≥ ``min_dist``) are returned, best first.
 
-The index depends only on the hand, the rig and :class:`RetrievalConfig`; :func:`cached_index` keeps it in
-``studio.home.cache_dir()/retrieval/`` (built once per machine, ~30 s for 200,000 poses on 2 cores).
+The index depends only on the hand, the rig and :class:`RetrievalConfig` (:func:`index_key`);
+:func:`studio.imitate.index_cache.cached_index` keeps it in ``studio.home.cache_dir()/retrieval/`` (built once per
+machine, by one process at a time, ~30 s for 200,000 poses on 2 cores).
 """
 
 from __future__ import annotations
@@ -30,7 +31,6 @@ from numba import njit, prange
 
 from studio.atomic import write_with
 from studio.errors import ProgressFn, report, stopped
-from studio.home import cache_dir
 from studio.imitate.config import LossConfig
 from studio.imitate.index_chunks import IndexChunkTask, pack_crops
 from studio.learn.fanout import FanoutConfig, fan_out
@@ -240,54 +240,3 @@ def index_key(hand: Hand, renderer: ShadowRenderer, cfg: RetrievalConfig) -> str
     build = {k: v for k, v in asdict(cfg).items() if k not in ("shortlist", "min_dist", "chunk")}
     text = json.dumps([FORMAT, hand.hash, renderer.rig.hash, renderer.ring_points, build, asdict(SamplerConfig())])
     return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-_MEMO: dict[str, RetrievalIndex] = {}  # one index per key per process (the studio, evaluate and jobs share it)
-
-
-def index_path(renderer: ShadowRenderer, cfg: RetrievalConfig | None = None, folder: Path | None = None) -> Path:
-    """Where :func:`cached_index` keeps the index for ``renderer``'s hand and rig: ``folder`` (default
-    ``cache_dir()/retrieval``) / ``index-<key>.npz``."""
-    key = index_key(renderer.hand, renderer, cfg or RetrievalConfig())
-    return Path(folder or cache_dir() / "retrieval") / f"index-{key}.npz"
-
-
-def is_cached(renderer: ShadowRenderer, cfg: RetrievalConfig | None = None, folder: Path | None = None) -> bool:
-    """Whether :func:`cached_index` would find the index without building it (in this process, or its file)."""
-    cfg = cfg or RetrievalConfig()
-    return index_key(renderer.hand, renderer, cfg) in _MEMO or index_path(renderer, cfg, folder).is_file()
-
-
-def cached_index(
-    renderer: ShadowRenderer,
-    cfg: RetrievalConfig | None = None,
-    folder: Path | None = None,
-    progress: ProgressFn | None = None,
-    cancel: threading.Event | None = None,
-    fanout: FanoutConfig | None = None,
-) -> RetrievalIndex | None:
-    """The index for ``renderer``'s hand and rig: from this process, else from ``folder`` (default
-    ``cache_dir()/retrieval``), else built (logged; stage "index", :meth:`RetrievalIndex.build`) and saved there.
-    None when ``cancel`` stopped the build (nothing is saved or kept; the next call builds again). A build is spread
-    as ``fanout`` says (the same index)."""
-    cfg = cfg or RetrievalConfig()
-    key = index_key(renderer.hand, renderer, cfg)
-    if key in _MEMO:
-        return _MEMO[key]
-    path = index_path(renderer, cfg, folder)
-    index = RetrievalIndex.load(path, key)
-    if index is None:
-        log.info("building the retrieval index once: %d collision-free poses → %s", cfg.size, path)
-        t0 = time.perf_counter()
-        index = RetrievalIndex.build(renderer, cfg, progress=progress, cancel=cancel, fanout=fanout)
-        if index is None:
-            log.info("retrieval index build cancelled; nothing saved")
-            return None
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            index.save(path)
-        except OSError as exc:  # a read-only cache is no reason to fail: the index lives in this process
-            log.warning("could not save the retrieval index to %s (%s); it will be rebuilt next time", path, exc)
-        log.info("retrieval index built in %.1f s", time.perf_counter() - t0)
-    _MEMO[key] = index
-    return index

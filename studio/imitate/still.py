@@ -27,11 +27,12 @@ from studio.imitate.config import (
     SweepConfig,
 )
 from studio.imitate.framing import Framed, Framer
+from studio.imitate.index_cache import cached_index
 from studio.imitate.kernels import compile_first
 from studio.imitate.live_best import LiveBest
 from studio.imitate.losses import ImageLoss
 from studio.imitate.refine import Refiner
-from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, cached_index
+from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex
 from studio.imitate.roll_search import Apart, RollChoice, RollSearchConfig, check_roll, choose_roll
 from studio.imitate.search import SearchResult, gradient_search
 from studio.imitate.seeding import Seeds, seed_poses
@@ -50,7 +51,7 @@ class Imitator:
 
     Owns its refiner's collision world: ``close()`` (or the end of a ``with`` block) disconnects it, after which
     ``imitate`` raises :class:`~studio.errors.ClosedError`. The retrieval index (``config.retrieve``) is loaded (or
-    built once per machine, :func:`~studio.imitate.retrieval.cached_index`) on the first ``imitate``, or given.
+    built once per machine, :func:`~studio.imitate.index_cache.cached_index`) on the first ``imitate``, or given.
     """
 
     def __init__(

@@ -158,7 +158,7 @@ def index_needed(model_path: Path | None = None, retrieval: Any = None) -> bool:
     """Whether the first search on this machine would build the retrieval index (its cache missing): seconds of
     imports and a checkpoint read, so call it off the kernel's thread. ``retrieval``: a RetrievalConfig (None: the
     searches' default)."""
-    from studio.imitate.retrieval import is_cached
+    from studio.imitate.index_cache import is_cached
 
     return not is_cached(search_renderer(model_path), retrieval)
 
@@ -174,8 +174,8 @@ def index_job(*, model_path: Path | None = None, retrieval: Any = None) -> Job:
 
 def _build_index(report, cancel, *, model_path: Path | None, retrieval: Any) -> int:
     from studio.imitate.config import LossConfig
+    from studio.imitate.index_cache import cached_index
     from studio.imitate.kernels import compile_first
-    from studio.imitate.retrieval import cached_index
 
     renderer = search_renderer(model_path)
     # a machine without the index is a fresh install: its kernels compile here first (stage "compile"), not in the

@@ -14,6 +14,8 @@ the results equal :func:`~studio.project.run.run_project`'s in one process.
 A keyframe's place in its source (:func:`source_keyframes`, :func:`place_in_source`) and the seeds that place gives it
 (:func:`keyframe_config`) live here, for both runs.
 
+Before any keyframe goes out, the driver makes sure this machine has the retrieval index every worker searches
+from (:func:`index_built`: built here, spread over the same workers, when it has not), so no worker builds its own.
 The driver saves each keyframe (``project.set_result``, one edit) the moment it comes back, and progress counts
 keyframes; ``cancel`` (Ctrl-C) stops the workers, and the project keeps every keyframe finished before it.
 """
@@ -39,7 +41,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "Chain", "KeyframeStep", "KeyframeTask", "chains_of", "keyframe_config", "optimise_spread", "place_in_source",
-    "run_spread", "source_keyframes",
+    "index_built", "run_spread", "source_keyframes",
 ]  # fmt: skip
 
 
@@ -212,6 +214,17 @@ def optimise_spread(
     return [kf.id for kf in project.keyframes if kf.id in set(saved)]
 
 
+def index_built(models: ModelRecipe, fanout: FanoutConfig, progress: ProgressFn | None,
+                cancel: threading.Event | None) -> bool:  # fmt: skip
+    """The retrieval index every worker searches from, built here first when this machine has none, spread over
+    ``fanout``'s workers (stage "index"), so that they load it rather than each building it; False when cancelled."""
+    from studio.imitate.index_cache import cached_index, is_cached
+    from studio.project.jobs import search_renderer
+
+    renderer = search_renderer(Path(models.model))
+    return is_cached(renderer) or cached_index(renderer, progress=progress, cancel=cancel, fanout=fanout) is not None
+
+
 def run_spread(
     project: ProjectHandle, pending: list[int], settled: set[int], seq: SequenceConfig, layout: Any,
     limits: LimitsConfig, fanout: FanoutConfig, clip: Any, models: ModelRecipe, progress: ProgressFn | None,
@@ -230,7 +243,9 @@ def run_spread(
     chains = chains_of(project, pending, settled, layout)
     task = KeyframeTask(models, project_loss(project, chains[0].masks.shape[-1], clip), seq, project.mount.roll, limits)
     try:
-        report.optimised = optimise_spread(project, chains, task, fanout, progress, cancel, report.optimised, together)
+        if index_built(models, fanout, progress, cancel):
+            report.optimised = optimise_spread(project, chains, task, fanout, progress, cancel, report.optimised,
+                                               together)  # fmt: skip
     except Exception as e:  # a worker's failure, or no Ray to run on: one line, what was saved stays
         report.error = JobError(type(e).__name__, str(e), traceback.format_exc())
         done = count(len(report.optimised), "keyframe")
