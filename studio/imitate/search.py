@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from studio.errors import ProgressFn, report, stopped
+from studio.imitate.adam import Adam
 from studio.imitate.config import SearchConfig
 from studio.imitate.losses import ImageLoss
 from studio.learn.selfmodel import SelfModel
@@ -93,7 +94,7 @@ def gradient_search(
     theta0 = torch.tensor(theta0, dtype=torch.float32, device=device)
     phi = _to_phi(theta0, lo, hi).requires_grad_(True)
     prev = None if theta_prev is None else torch.tensor(theta_prev, dtype=torch.float32, device=device)
-    opt = torch.optim.Adam([phi], lr=cfg.lr)
+    opt = Adam(phi, lr=cfg.lr)  # torch.optim.Adam's step, without its torch._dynamo import (studio.imitate.adam)
     model.eval().requires_grad_(False)
     curve: list[tuple[int, float, float]] = []
     step, cancelled = 0, False
@@ -103,7 +104,7 @@ def gradient_search(
             break
         theta = lo + (hi - lo) * torch.sigmoid(phi)
         total, _ = loss_fn(model(theta), theta, prev)
-        opt.zero_grad(set_to_none=True)
+        opt.zero_grad()
         total.sum().backward()
         opt.step()
         if step % cfg.log_every == 0 or step == cfg.iterations:

@@ -278,9 +278,8 @@ class Imitator:
 
     def _warm_model(self) -> None:
         """torch's lazy start-up, paid beside the sweep's numba kernels (which release the GIL) instead of when the
-        search starts (where a cancel during the sweep would wait for it): the first optimiser imports
-        torch._dynamo (~1.7 s), the first forward pass sets up the kernels."""
-        torch.optim.Adam([torch.zeros(1, requires_grad=True)])
+        search starts (where a cancel during the sweep would wait for it): the first forward pass sets up the
+        kernels. (The search's optimiser imports nothing: :mod:`studio.imitate.adam`.)"""
         device = next(self.model.parameters()).device
         with torch.no_grad():
             self.model(torch.zeros((1, self.hand.dof), dtype=torch.float32, device=device))

@@ -33,10 +33,28 @@ LIMIT_TOLERANCE = 1e-6  # rad of slack on the position limits
 MAX_SCHEMA_MESSAGES = 8  # schema violations listed before "and N more"
 
 
-def _schema_problems(doc: dict[str, Any], schema: dict[str, Any]) -> list[str]:
-    import jsonschema
+def _jsonschema() -> Any:
+    """``jsonschema``, imported without its optional "iri" format checker's package when this process has not
+    loaded that package yet: ``rfc3987_syntax`` (which Jupyter's ``jsonschema[format-nongpl]`` installs beside the
+    studio) builds a parser for its grammar on import, 1.7 s of the 1.9 s that importing ``jsonschema`` took in
+    every process that checked a show. The show schema asks for no format check, and the package stays importable:
+    only the name's placeholder is set while ``jsonschema`` loads."""
+    import sys
 
-    validator = jsonschema.Draft202012Validator(schema)
+    if "jsonschema" in sys.modules or "rfc3987_syntax" in sys.modules:
+        import jsonschema
+
+        return jsonschema
+    sys.modules["rfc3987_syntax"] = None  # type: ignore[assignment]  # its import fails; jsonschema goes on without it
+    try:
+        import jsonschema
+    finally:
+        del sys.modules["rfc3987_syntax"]
+    return jsonschema
+
+
+def _schema_problems(doc: dict[str, Any], schema: dict[str, Any]) -> list[str]:
+    validator = _jsonschema().Draft202012Validator(schema)
     errors = sorted(validator.iter_errors(doc), key=lambda e: [str(p) for p in e.absolute_path])
     out = []
     for e in errors[:MAX_SCHEMA_MESSAGES]:
