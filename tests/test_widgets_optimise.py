@@ -13,6 +13,7 @@ import pytest
 from studio.assets import asset
 
 from studio.imitate.config import PRESETS, STUDIO, JointConfig, RefineConfig, SearchConfig, SequenceConfig
+from studio.imitate.index_cache import WAITING
 from studio.jobs import Job, JobState
 from studio.jobs.events import JobEvent
 from studio.project.jobs import queue_for
@@ -229,6 +230,10 @@ def test_overall_progress_names_the_keyframe_of_the_run_and_bars_complete_when_a
         assert "keyframe 7 (3 of 5)" in panel.status.value
         assert "building the retrieval index of 200,000 poses (first use only, cached)" in panel.status.value
         assert "index 16384" not in panel.status.value and "1/1" not in panel.status.value
+        waiting = JobEvent(11, "imitate-keyframes", JobState.RUNNING, "index", 0, 200_000, float("nan"), None, 1.0, 2,
+                           item=WAITING)  # another process builds it: this job waits, and says so  # fmt: skip
+        panel._draw_event(waiting)
+        assert "(first use only, cached): waiting for another process or job building it" in panel.status.value
         panel._draw_event(event(11, "search", 30, 60))  # half-way when the search stops early
         assert panel.overall.value == pytest.approx(2 / 5) and "2 of 5 keyframes done" in panel.overall.description
         assert panel.bars["search"].value == 0.5

@@ -75,7 +75,7 @@ class IndexWarmup:
         """One event of the build on :attr:`line` (widget trait sets only: any thread)."""
         if not e.final:
             share = f": {e.step / e.total:.0%}" if e.total else ""
-            text = f"{stage(e.stage or 'index', e.total)}{share}"  # the kernels' compile, then the index
+            text = f"{stage(e.stage or 'index', e.total, e.item)}{share}"  # the kernels' compile, then the index
         elif e.state == JobState.DONE:
             text = "the retrieval index is ready (cached)"
         else:

@@ -224,7 +224,7 @@ class LiveRunner:
         if now - self._said >= 0.25:
             self._said = now
             share = f": {p.fraction:.0%}" if p.total > 0 else "…"
-            self.messages.say(f"{stage(p.stage, p.total)}{share}")
+            self.messages.say(f"{stage(p.stage, p.total, p.item)}{share}")
 
     def _open_servos(self, stack: ExitStack, port: str | None, cal: Calibration, hold: bool) -> ServoSession:
         """The Jog panel's session when it is connected to the chosen servos, else one of the runner's own, closed

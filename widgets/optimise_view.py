@@ -108,7 +108,7 @@ class OptimiseDrawing:
             self._show_target(e)
         what = html.escape(self.job_line(e.job_id))
         if not e.final:
-            self.status.value = f"{what}: {html.escape(stage(e.stage, e.total))} ({e.elapsed:.1f} s)"
+            self.status.value = f"{what}: {html.escape(stage(e.stage, e.total, e.item))} ({e.elapsed:.1f} s)"
             return False
         if e.error is not None:
             self.messages.say(str(e.error), error=True)

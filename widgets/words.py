@@ -33,14 +33,15 @@ def loss(value: float | None) -> str:
     return f"{float(value):.3f}"
 
 
-def stage(name: str, total: int = 0) -> str:
+def stage(name: str, total: int = 0, item: str = "") -> str:
     """A job's stage as the artist reads it: ``index`` (its total: poses) is the retrieval index being built, once
-    per machine, ``compile`` the kernels compiling, once per install, ``together`` a show's keyframes refined
-    together; a prefix (``keyframe 2/5: index``) is kept."""
+    per machine (its ``item``, when there is one, says that another process or job builds it and this one waits:
+    :data:`studio.imitate.index_cache.WAITING`), ``compile`` the kernels compiling, once per install, ``together`` a
+    show's keyframes refined together; a prefix (``keyframe 2/5: index``) is kept."""
     head, _, last = name.rpartition(": ")
     if last == "index":
         size = count(total, "pose") if total else "poses"
-        last = f"building the retrieval index of {size} (first use only, cached)"
+        last = f"building the retrieval index of {size} (first use only, cached)" + (f": {item}" if item else "")
     elif last == "compile":  # studio.imitate.kernels
         last = "compiling the renderer's and the losses' kernels (first run after this install only)"
     elif last == "together":  # studio.imitate.joint_refine
