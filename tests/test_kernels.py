@@ -21,3 +21,37 @@ def test_the_studios_first_use_job_compiles_the_kernels_before_it_builds_the_ind
         job = queue.submit(index_job(retrieval=RetrievalConfig(size=200)))
         assert job.wait(120) == JobState.DONE, job.error
     assert stages[:2] == ["compile", "index"] and job.result == 200
+
+
+def test_a_process_that_finds_another_compiling_waits_and_then_loads_rather_than_compiling(tmp_path, monkeypatch):
+    """Two processes' first runs after an install (the workers of a spread run, two terminals): while one compiles
+    the kernels, the other says once that it waits (stage "compile", its item), then finds them in numba's disk
+    cache and compiles nothing; a process that finds no one compiling compiles them itself, once."""
+    import fcntl
+    import threading
+    import time
+
+    from studio.imitate import kernels
+    from studio.machine_lock import POLL_S
+
+    lock = tmp_path / "studio-kernels.lock"
+    monkeypatch.setattr(kernels, "_lock_path", lambda: lock)
+    done = threading.Event()  # "the other process has written the disk cache"
+    monkeypatch.setattr(kernels, "kernels_compiled", done.is_set)
+    compiled: list[float] = []
+    monkeypatch.setattr(kernels, "compile_kernels", lambda renderer, cfg: compiled.append(1.0) or 1.0)
+    seen = []
+    with open(lock, "a") as other:  # the other process, compiling
+        fcntl.flock(other.fileno(), fcntl.LOCK_EX)
+        waiter = threading.Thread(target=kernels.compile_first, args=(None, None, seen.append))
+        waiter.start()
+        time.sleep(4 * POLL_S)
+        assert waiter.is_alive() and [(p.stage, p.step, p.item) for p in seen] == [("compile", 0, kernels.WAITING)]
+        done.set()
+    waiter.join(5)
+    assert not waiter.is_alive() and compiled == [] and (seen[-1].stage, seen[-1].step) == ("compile", 1)
+
+    done.clear()
+    seen.clear()
+    kernels.compile_first(None, None, seen.append)  # nobody else compiling: this process does, saying so
+    assert compiled == [1.0] and [(p.step, p.item) for p in seen] == [(0, ""), (1, "")]

@@ -18,12 +18,13 @@ except ImportError:  # pragma: no cover - Windows
 
 from studio.errors import Progress
 from studio.imitate.config import ImitateConfig, LossConfig, RefineConfig, SearchConfig, SweepConfig
-from studio.imitate.index_cache import WAIT_POLL_S, WAITING, cached_index, index_path
+from studio.imitate.index_cache import WAITING, cached_index, index_path
 from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import RenderedLoss, crop_batch
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, index_key, pack_crops
 from studio.imitate.still import Imitator
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
+from studio.machine_lock import POLL_S
 from studio.sim.crop_pad import pad_pixels
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import Rig, ShadowRenderer
@@ -148,7 +149,7 @@ def test_a_process_waits_for_another_ones_build_and_loads_it_rather_than_buildin
         waiter.start()
         wait_for(lambda: seen)
         assert (seen[0].stage, seen[0].step, seen[0].total, seen[0].item) == ("index", 0, 300, WAITING)
-        time.sleep(3 * WAIT_POLL_S)
+        time.sleep(3 * POLL_S)
         assert waiter.is_alive() and not got and not path.exists()  # still waiting, building nothing
         built = RetrievalIndex.build(renderer, cfg)  # the other process's build, saved before it lets go
         built.save(path)
@@ -171,9 +172,9 @@ def test_a_cancel_while_waiting_for_another_build_returns_nothing(renderer, tmp_
     with another_builder(path):
         waiter = threading.Thread(target=lambda: got.append(cached_index(renderer, cfg, tmp_path, cancel=cancel)))
         waiter.start()
-        time.sleep(3 * WAIT_POLL_S)
+        time.sleep(3 * POLL_S)
         cancel.set()
-        waiter.join(2 * WAIT_POLL_S + 1.0)
+        waiter.join(2 * POLL_S + 1.0)
         assert not waiter.is_alive() and got == [None] and not path.exists()
     assert len(cached_index(renderer, cfg, tmp_path)) == 300 and path.is_file()
 

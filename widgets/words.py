@@ -35,15 +35,17 @@ def loss(value: float | None) -> str:
 
 def stage(name: str, total: int = 0, item: str = "") -> str:
     """A job's stage as the artist reads it: ``index`` (its total: poses) is the retrieval index being built, once
-    per machine (its ``item``, when there is one, says that another process or job builds it and this one waits:
-    :data:`studio.imitate.index_cache.WAITING`), ``compile`` the kernels compiling, once per install, ``together`` a
-    show's keyframes refined together; a prefix (``keyframe 2/5: index``) is kept."""
+    per machine, ``compile`` the kernels compiling, once per install (the ``item`` of either, when there is one, says
+    that another process builds it and this one waits: :data:`studio.imitate.index_cache.WAITING`,
+    :data:`studio.imitate.kernels.WAITING`), ``together`` a show's keyframes refined together; a prefix
+    (``keyframe 2/5: index``) is kept."""
     head, _, last = name.rpartition(": ")
+    waits = f": {item}" if item else ""
     if last == "index":
         size = count(total, "pose") if total else "poses"
-        last = f"building the retrieval index of {size} (first use only, cached)" + (f": {item}" if item else "")
+        last = f"building the retrieval index of {size} (first use only, cached){waits}"
     elif last == "compile":  # studio.imitate.kernels
-        last = "compiling the renderer's and the losses' kernels (first run after this install only)"
+        last = f"compiling the renderer's and the losses' kernels (first run after this install only){waits}"
     elif last == "together":  # studio.imitate.joint_refine
         last = "refining the keyframes together, within their reach on the show's clock"
     return f"{head}: {last}" if head else last

@@ -4,38 +4,28 @@ process at a time.
 :func:`cached_index` returns the index from this process, else from its file, else builds it (~30 s for 200,000
 poses on 2 cores) and saves it. Several processes may want it at once on a fresh machine: the two workers of
 ``project run --workers 2``, the notebook's first-use job beside a terminal's run, the test suite's workers. The build
-is therefore done under an advisory ``fcntl.flock`` on ``index-<key>.npz.lock`` beside the file: the first process
-builds, every other one waits for it (saying so once, stage "index"), then loads what it saved, so the machine
-builds each index once. The kernel releases the lock when its holder exits for any reason, so a killed build leaves
-no stale lock: the next process builds. ``flock`` locks are per open file, so two threads of one process exclude each
-other too. A waiting process still honours ``cancel``. A cache where the lock cannot be made (read-only) is used
-without it.
+is therefore done under :func:`studio.machine_lock.held` on ``index-<key>.npz.lock`` beside the file: the first
+process builds, every other one waits for it (saying so once, stage "index" with the item :data:`WAITING`; a cancel
+still stops it), then loads what it saved, so the machine builds each index once.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
-from studio.errors import ProgressFn, report, stopped
+from studio.errors import ProgressFn, report
 from studio.home import cache_dir
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, index_key
 from studio.learn.fanout import FanoutConfig
+from studio.machine_lock import held
 from studio.sim.shadow import ShadowRenderer
-
-try:
-    import fcntl
-except ImportError:  # pragma: no cover - Windows: no POSIX locks; two processes may then both build
-    fcntl = None  # type: ignore[assignment]
 
 __all__ = ["cached_index", "index_path", "is_cached"]
 
 log = logging.getLogger(__name__)
-WAIT_POLL_S = 0.2  # how often a process waiting for another's build looks at the lock and at ``cancel``, s
 WAITING = "waiting for another process or job building it"  # the "index" stage's item while this one waits
 
 _MEMO: dict[str, RetrievalIndex] = {}  # one index per key per process (the studio, evaluate and jobs share it)
@@ -74,10 +64,19 @@ def cached_index(
     path = index_path(renderer, cfg, folder)
     index = RetrievalIndex.load(path, key)
     if index is None:
-        with _build_lock(path, progress, cancel, cfg.size) as held:
-            if not held:
+        waited: list[bool] = []
+
+        def on_wait() -> None:
+            waited.append(True)
+            log.info("another process or job is building the retrieval index %s; waiting for it", path.name)
+            report(progress, "index", 0, cfg.size, item=WAITING)
+
+        with held(path.with_name(path.name + ".lock"), cancel, on_wait) as mine:
+            if not mine:
                 log.info("waiting for the retrieval index cancelled")
                 return None
+            if waited:
+                report(progress, "index", cfg.size, cfg.size, item=WAITING)
             index = RetrievalIndex.load(path, key)  # another process may have built it while this one waited
             if index is None:
                 index = _build(renderer, cfg, path, progress, cancel, fanout)
@@ -109,45 +108,3 @@ def _build(
         log.warning("could not save the retrieval index to %s (%s); it will be rebuilt next time", path, exc)
     log.info("retrieval index built in %.1f s", time.perf_counter() - t0)
     return index
-
-
-@contextlib.contextmanager
-def _build_lock(path: Path, progress: ProgressFn | None, cancel: threading.Event | None, size: int) -> Iterator[bool]:
-    """Hold the machine-wide lock of building ``path`` (module doc): True once held (or when no lock can be made),
-    False when ``cancel`` was set while waiting for another process's build."""
-    lock = path.with_name(path.name + ".lock")
-    try:
-        lock.parent.mkdir(parents=True, exist_ok=True)
-        f = open(lock, "a")  # noqa: SIM115 - held open for the lock's lifetime, closed below
-    except OSError as exc:
-        log.debug("no build lock at %s (%s): building without one", lock, exc)
-        yield True
-        return
-    try:
-        if fcntl is not None and not _take(f, path, progress, cancel, size):
-            yield False
-            return
-        yield True
-    finally:
-        f.close()  # releases the lock
-
-
-def _take(f, path: Path, progress: ProgressFn | None, cancel: threading.Event | None, size: int) -> bool:
-    """Lock the open file ``f``: at once, or after another process's build, saying once that it waits; False when
-    ``cancel`` is set first."""
-    said = False
-    while True:
-        try:
-            fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            if not said:
-                log.info("another process or job is building the retrieval index %s; waiting for it", path.name)
-                report(progress, "index", 0, size, item=WAITING)
-                said = True
-            if stopped(cancel):
-                return False
-            time.sleep(WAIT_POLL_S)
-            continue
-        if said:
-            report(progress, "index", size, size, item=WAITING)
-        return True

@@ -13,10 +13,12 @@ first run waits.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -26,12 +28,14 @@ from studio.imitate.index_chunks import pack_crops
 from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import PARALLEL_FROM, RenderedLoss
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex
+from studio.machine_lock import held
 from studio.sim.raster import SERIAL_BELOW
 from studio.sim.shadow import ShadowRenderer
 
 log = logging.getLogger(__name__)
 
 STAGE = "compile"  # the progress stage while the kernels compile
+WAITING = "waiting for another process compiling them"  # the stage's item while another process compiles
 MESSAGE = (
     "first run after this install: compiling the renderer's and the losses' kernels (about 20 s on two cores, "
     "once; numba keeps them on disk for every later run)"
@@ -85,11 +89,30 @@ def compile_kernels(renderer: ShadowRenderer, loss_cfg: LossConfig) -> float:
 
 def compile_first(renderer: ShadowRenderer, loss_cfg: LossConfig, progress: ProgressFn | None = None) -> None:
     """Compile the kernels now when this install has not yet, saying so (log line, stage "compile"); nothing when
-    it has."""
+    it has. One process of the machine compiles at a time (:func:`studio.machine_lock.held` beside numba's cache):
+    another one that starts meanwhile waits for it, saying so, and then loads the kernels from the disk cache."""
     if kernels_compiled():
         return
-    log.info(MESSAGE)
-    report(progress, STAGE, 0, 1)
-    seconds = compile_kernels(renderer, loss_cfg)
-    log.info("the kernels are compiled (%.1f s)", seconds)
-    report(progress, STAGE, 1, 1)
+    lock = _lock_path()
+    with contextlib.nullcontext(True) if lock is None else held(lock, on_wait=lambda: _waiting(progress)):
+        if kernels_compiled():  # another process compiled them while this one waited
+            report(progress, STAGE, 1, 1)
+            return
+        log.info(MESSAGE)
+        report(progress, STAGE, 0, 1)
+        seconds = compile_kernels(renderer, loss_cfg)
+        log.info("the kernels are compiled (%.1f s)", seconds)
+        report(progress, STAGE, 1, 1)
+
+
+def _waiting(progress: ProgressFn | None) -> None:
+    log.info("another process is compiling the renderer's and the losses' kernels; waiting for it")
+    report(progress, STAGE, 0, 1, item=WAITING)
+
+
+def _lock_path() -> Path | None:
+    """The compile's lock file, in numba's cache folder of the first kernel (None: its layout is not known here)."""
+    try:
+        return Path(_kernels()[0]._cache._cache_file._index_path).parent / "studio-kernels.lock"
+    except AttributeError:
+        return None

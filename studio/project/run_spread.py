@@ -14,8 +14,9 @@ the results equal :func:`~studio.project.run.run_project`'s in one process.
 A keyframe's place in its source (:func:`source_keyframes`, :func:`place_in_source`) and the seeds that place gives it
 (:func:`keyframe_config`) live here, for both runs.
 
-Before any keyframe goes out, the driver makes sure this machine has the retrieval index every worker searches
-from (:func:`index_built`: built here, spread over the same workers, when it has not), so no worker builds its own.
+Before any keyframe goes out, the driver makes sure this machine has what every worker's first search needs
+(:func:`searches_ready`: the kernels compiled, the retrieval index built here, spread over the same workers), so no
+worker compiles or builds its own.
 The driver saves each keyframe (``project.set_result``, one edit) the moment it comes back, and progress counts
 keyframes; ``cancel`` (Ctrl-C) stops the workers, and the project keeps every keyframe finished before it.
 """
@@ -41,7 +42,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "Chain", "KeyframeStep", "KeyframeTask", "chains_of", "keyframe_config", "optimise_spread", "place_in_source",
-    "index_built", "run_spread", "source_keyframes",
+    "run_spread", "searches_ready", "source_keyframes",
 ]  # fmt: skip
 
 
@@ -214,14 +215,19 @@ def optimise_spread(
     return [kf.id for kf in project.keyframes if kf.id in set(saved)]
 
 
-def index_built(models: ModelRecipe, fanout: FanoutConfig, progress: ProgressFn | None,
-                cancel: threading.Event | None) -> bool:  # fmt: skip
-    """The retrieval index every worker searches from, built here first when this machine has none, spread over
-    ``fanout``'s workers (stage "index"), so that they load it rather than each building it; False when cancelled."""
+def searches_ready(models: ModelRecipe, fanout: FanoutConfig, progress: ProgressFn | None,
+                   cancel: threading.Event | None) -> bool:  # fmt: skip
+    """What every worker's first search needs, made here first when this machine has not yet: the kernels compiled
+    (stage "compile", once per install) and the retrieval index built, spread over ``fanout``'s workers (stage
+    "index"), so that the workers load both rather than each compiling and building them, without a word, at once;
+    False when cancelled."""
+    from studio.imitate.config import LossConfig
     from studio.imitate.index_cache import cached_index, is_cached
+    from studio.imitate.kernels import compile_first
     from studio.project.jobs import search_renderer
 
     renderer = search_renderer(Path(models.model))
+    compile_first(renderer, LossConfig(use_clip=False, crop_size=renderer.rig.resolution), progress)
     return is_cached(renderer) or cached_index(renderer, progress=progress, cancel=cancel, fanout=fanout) is not None
 
 
@@ -243,7 +249,7 @@ def run_spread(
     chains = chains_of(project, pending, settled, layout)
     task = KeyframeTask(models, project_loss(project, chains[0].masks.shape[-1], clip), seq, project.mount.roll, limits)
     try:
-        if index_built(models, fanout, progress, cancel):
+        if searches_ready(models, fanout, progress, cancel):
             report.optimised = optimise_spread(project, chains, task, fanout, progress, cancel, report.optimised,
                                                together)  # fmt: skip
     except Exception as e:  # a worker's failure, or no Ray to run on: one line, what was saved stays
