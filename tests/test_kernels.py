@@ -31,8 +31,8 @@ def test_a_process_that_finds_another_compiling_waits_and_then_loads_rather_than
     import threading
     import time
 
+    from studio.home import LOCK_POLL_S as POLL_S
     from studio.imitate import kernels
-    from studio.machine_lock import POLL_S
 
     lock = tmp_path / "studio-kernels.lock"
     monkeypatch.setattr(kernels, "_lock_path", lambda: lock)

@@ -17,6 +17,7 @@ except ImportError:  # pragma: no cover - Windows
     fcntl = None
 
 from studio.errors import Progress
+from studio.home import LOCK_POLL_S as POLL_S
 from studio.imitate.config import ImitateConfig, LossConfig, RefineConfig, SearchConfig, SweepConfig
 from studio.imitate.index_cache import WAITING, cached_index, index_path
 from studio.imitate.losses import ImageLoss
@@ -24,7 +25,6 @@ from studio.imitate.rendered_loss import RenderedLoss, crop_batch
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, index_key, pack_crops
 from studio.imitate.still import Imitator
 from studio.learn.selfmodel import SelfModel, SelfModelConfig
-from studio.machine_lock import POLL_S
 from studio.sim.crop_pad import pad_pixels
 from studio.sim.physics import CollisionWorld
 from studio.sim.shadow import Rig, ShadowRenderer

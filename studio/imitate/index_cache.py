@@ -4,7 +4,7 @@ process at a time.
 :func:`cached_index` returns the index from this process, else from its file, else builds it (~30 s for 200,000
 poses on 2 cores) and saves it. Several processes may want it at once on a fresh machine: the two workers of
 ``project run --workers 2``, the notebook's first-use job beside a terminal's run, the test suite's workers. The build
-is therefore done under :func:`studio.machine_lock.held` on ``index-<key>.npz.lock`` beside the file: the first
+is therefore done under :func:`studio.home.cache_lock` on ``index-<key>.npz.lock`` beside the file: the first
 process builds, every other one waits for it (saying so once, stage "index" with the item :data:`WAITING`; a cancel
 still stops it), then loads what it saved, so the machine builds each index once.
 """
@@ -17,10 +17,9 @@ import time
 from pathlib import Path
 
 from studio.errors import ProgressFn, report
-from studio.home import cache_dir
+from studio.home import cache_dir, cache_lock
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex, index_key
 from studio.learn.fanout import FanoutConfig
-from studio.machine_lock import held
 from studio.sim.shadow import ShadowRenderer
 
 __all__ = ["cached_index", "index_path", "is_cached"]
@@ -71,7 +70,7 @@ def cached_index(
             log.info("another process or job is building the retrieval index %s; waiting for it", path.name)
             report(progress, "index", 0, cfg.size, item=WAITING)
 
-        with held(path.with_name(path.name + ".lock"), cancel, on_wait) as mine:
+        with cache_lock(path.with_name(path.name + ".lock"), cancel, on_wait) as mine:
             if not mine:
                 log.info("waiting for the retrieval index cancelled")
                 return None

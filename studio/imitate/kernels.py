@@ -23,12 +23,12 @@ from pathlib import Path
 import numpy as np
 
 from studio.errors import ProgressFn, report
+from studio.home import cache_lock
 from studio.imitate.config import LossConfig
 from studio.imitate.index_chunks import pack_crops
 from studio.imitate.losses import ImageLoss
 from studio.imitate.rendered_loss import PARALLEL_FROM, RenderedLoss
 from studio.imitate.retrieval import RetrievalConfig, RetrievalIndex
-from studio.machine_lock import held
 from studio.sim.raster import SERIAL_BELOW
 from studio.sim.shadow import ShadowRenderer
 
@@ -89,12 +89,12 @@ def compile_kernels(renderer: ShadowRenderer, loss_cfg: LossConfig) -> float:
 
 def compile_first(renderer: ShadowRenderer, loss_cfg: LossConfig, progress: ProgressFn | None = None) -> None:
     """Compile the kernels now when this install has not yet, saying so (log line, stage "compile"); nothing when
-    it has. One process of the machine compiles at a time (:func:`studio.machine_lock.held` beside numba's cache):
+    it has. One process of the machine compiles at a time (:func:`studio.home.cache_lock` beside numba's cache):
     another one that starts meanwhile waits for it, saying so, and then loads the kernels from the disk cache."""
     if kernels_compiled():
         return
     lock = _lock_path()
-    with contextlib.nullcontext(True) if lock is None else held(lock, on_wait=lambda: _waiting(progress)):
+    with contextlib.nullcontext(True) if lock is None else cache_lock(lock, on_wait=lambda: _waiting(progress)):
         if kernels_compiled():  # another process compiled them while this one waited
             report(progress, STAGE, 1, 1)
             return
