@@ -135,6 +135,50 @@ def test_the_panel_opens_at_once_and_its_viewer_follows_when_ready(state, monkey
         panel.close()
 
 
+def test_an_edit_undone_while_the_recording_opens_is_logged_as_the_project_is_now(state, monkeypatch):
+    """An edit made while the project is first logged, and undone before the recording is published (the browser
+    test's painted stroke and its Undo, on a busy machine): the first log read the edited project, and the undo
+    brings back the very state object the panel noted before it, so the recording is logged again all the same;
+    otherwise it would keep the edited project (a stale show: no frame on ``show_time``) until the next edit."""
+    from studio.review.recording import ProjectRecording
+
+    entered, release, first_done, undone = threading.Event(), threading.Event(), threading.Event(), threading.Event()
+    real, logged = ProjectRecording.log_project, []
+
+    def slow_first(self, project, model=None):
+        first = not logged
+        if first:
+            entered.set()
+            release.wait(30)
+        logged.append(project.state)
+        out = real(self, project, model)
+        if first:
+            first_done.set()
+            undone.wait(30)
+        return out
+
+    monkeypatch.setattr(ProjectRecording, "log_project", slow_first)
+    before = state.project.state
+    panel = review_panel(state, ReviewConfig(scene=False))
+    try:
+        assert entered.wait(60)  # the panel noted the project's state and started to log it
+        state.edit("set_keyframe_time", state.project.keyframes[0].id, 0.5)  # while the first log waits
+        release.set()
+        assert first_done.wait(30) and logged == [state.project.state]  # it logged the edited project
+        assert state.undo() and state.project.state is before  # the state object it noted before logging
+        assert panel.relogger.settle(10)  # the edits' own relogs came and went: no recording to log to yet
+        undone.set()
+        assert panel.opened.wait(60) and panel.recording is not None
+        deadline = time.monotonic() + 10
+        while len(logged) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(logged) >= 2 and logged[-1] is before  # logged again: the project as it is now
+    finally:
+        release.set()
+        undone.set()
+        panel.close()
+
+
 def test_the_rig_scene_opens_in_the_background_and_draws_the_frame_in_view(state, hand, monkeypatch):
     """The meshcat scene's server takes a second or two to start: the panel is built without it, says so, and once
     the scene is up it shows the pose of the frame selected meanwhile; a panel closed while its scene starts stops

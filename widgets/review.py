@@ -91,6 +91,7 @@ class ReviewPanel(ReviewRig):
         self.viewer_controls: ViewerBox | None = None  # the viewer with its height control and "follow" switch
         self.self_model = None  # θ (K, 21) → the self-model's shadows (K, R, R) for the viewer (None: not drawn)
         self._unsubscribe = lambda: None
+        self._edits = 0  # project changes heard so far (an edit undone returns the same state object: counted)
         self.opened = threading.Event()  # set once the recording, its viewer and the scene are open (or could not be)
         self.viewer_box = w.VBox([w.HTML("<i>opening the Rerun viewer (the first time in a session takes a few "
                                          "seconds; the other tabs work meanwhile)</i>")])  # fmt: skip
@@ -147,7 +148,7 @@ class ReviewPanel(ReviewRig):
         serve = self.missing is None
         model = self.messages.run(self_model_predictor) if self.cfg.self_model else None  # None: the reason is said
         try:
-            logged = self.state.project.state
+            logged = self.state.project.state, self._edits  # what is logged next, and how many changes it follows
             recording = ProjectRecording(path=self.rrd, notebook=serve)
             recording.log_project(self.state.project, model)
             recording.flush()
@@ -176,8 +177,9 @@ class ReviewPanel(ReviewRig):
                     queue.subscribe(box.job_event if box else partial(log_finished_play, recording, queue)),
                 ]
                 self._unsubscribe = lambda: [stop() for stop in stops]
-            if recording is not None and self.state.project.state is not logged:  # edited while it opened
-                self.relog()
+            state, edits = logged if logged is not None else (None, None)
+            if recording is not None and (self.state.project.state is not state or self._edits != edits):
+                self.relog()  # edited while it opened (an edit and its undo: the state it read, not the one logged)
             self._show_viewer()
 
     def _show_viewer(self) -> None:
@@ -251,6 +253,7 @@ class ReviewPanel(ReviewRig):
             if self.closed:
                 return
             if what == "project":
+                self._edits += 1
                 self.relogger()  # in its thread: logging a long video's project takes a tenth of a second or more
             if what in ("project", "selection"):
                 self.show_frame()
