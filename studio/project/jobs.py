@@ -164,25 +164,38 @@ def index_needed(model_path: Path | None = None, retrieval: Any = None) -> bool:
 
 
 def index_job(*, model_path: Path | None = None, retrieval: Any = None) -> Job:
-    """Build (or load) the retrieval index the keyframe jobs search from (:func:`~studio.imitate.retrieval.
-    cached_index`, stage "index": poses packed of its size) into this machine's cache, so that the first
-    optimisation does not wait for it, compiling the kernels first when this install has not (stage "compile",
-    :mod:`studio.imitate.kernels`); cancelled, it saves nothing. Its result: the index's size (0: cancelled)."""
+    """Build the retrieval index the keyframe jobs search from into this machine's cache (:func:`search_ready`:
+    stage "index", poses packed of its size), so that the first optimisation does not wait for it, compiling the
+    kernels first when this install has not (stage "compile"); cancelled, it saves nothing. Its result: the index's
+    size (0: cancelled)."""
     run = functools.partial(_build_index, model_path=model_path, retrieval=retrieval)
     return Job("index", run, title="retrieval index (first use only)")
 
 
 def _build_index(report, cancel, *, model_path: Path | None, retrieval: Any) -> int:
+    from studio.imitate.retrieval import RetrievalConfig
+
+    # a machine without the index is a fresh install: its kernels compile here first (stage "compile"), not in the
+    # first optimisation
+    return (retrieval or RetrievalConfig()).size if search_ready(model_path, retrieval, report, cancel) else 0
+
+
+def search_ready(
+    model_path: Path | None = None, retrieval: Any = None, progress: Any = None, cancel: Any = None, fanout: Any = None
+) -> bool:
+    """What a search from scratch needs first, made now where this machine has not yet, in this order: the kernels
+    compiled (stage "compile", once per install, :mod:`studio.imitate.kernels`), then the retrieval index built
+    (stage "index", once per machine; spread as ``fanout``, a :class:`~studio.learn.fanout.FanoutConfig`, says)
+    unless it is cached. One process of the machine does each at a time (``studio.home.cache_lock``). False when
+    ``cancel`` stopped the index (nothing saved). The notebook's first-use job and a spread project run call it."""
     from studio.imitate.config import LossConfig
-    from studio.imitate.index_cache import cached_index
+    from studio.imitate.index_cache import cached_index, is_cached
     from studio.imitate.kernels import compile_first
 
     renderer = search_renderer(model_path)
-    # a machine without the index is a fresh install: its kernels compile here first (stage "compile"), not in the
-    # first optimisation
-    compile_first(renderer, LossConfig(use_clip=False, crop_size=renderer.rig.resolution), report)
-    index = cached_index(renderer, retrieval, progress=report, cancel=cancel)
-    return 0 if index is None else len(index)
+    compile_first(renderer, LossConfig(use_clip=False, crop_size=renderer.rig.resolution), progress)
+    return is_cached(renderer, retrieval) or cached_index(renderer, retrieval, progress=progress, cancel=cancel,
+                                                          fanout=fanout) is not None  # fmt: skip
 
 
 def show_job(project: ProjectHandle, keyframes: Keyframes, *, cfg: PlanConfig | None = None) -> Job:

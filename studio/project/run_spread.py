@@ -15,8 +15,8 @@ A keyframe's place in its source (:func:`source_keyframes`, :func:`place_in_sour
 (:func:`keyframe_config`) live here, for both runs.
 
 Before any keyframe goes out, the driver makes sure this machine has what every worker's first search needs
-(:func:`searches_ready`: the kernels compiled, the retrieval index built here, spread over the same workers), so no
-worker compiles or builds its own.
+(:func:`studio.project.jobs.search_ready`: the kernels compiled, the retrieval index built here, spread over the
+same workers), so no worker compiles or builds its own.
 The driver saves each keyframe (``project.set_result``, one edit) the moment it comes back, and progress counts
 keyframes; ``cancel`` (Ctrl-C) stops the workers, and the project keeps every keyframe finished before it.
 """
@@ -42,7 +42,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "Chain", "KeyframeStep", "KeyframeTask", "chains_of", "keyframe_config", "optimise_spread", "place_in_source",
-    "run_spread", "searches_ready", "source_keyframes",
+    "run_spread", "source_keyframes",
 ]  # fmt: skip
 
 
@@ -215,22 +215,6 @@ def optimise_spread(
     return [kf.id for kf in project.keyframes if kf.id in set(saved)]
 
 
-def searches_ready(models: ModelRecipe, fanout: FanoutConfig, progress: ProgressFn | None,
-                   cancel: threading.Event | None) -> bool:  # fmt: skip
-    """What every worker's first search needs, made here first when this machine has not yet: the kernels compiled
-    (stage "compile", once per install) and the retrieval index built, spread over ``fanout``'s workers (stage
-    "index"), so that the workers load both rather than each compiling and building them, without a word, at once;
-    False when cancelled."""
-    from studio.imitate.config import LossConfig
-    from studio.imitate.index_cache import cached_index, is_cached
-    from studio.imitate.kernels import compile_first
-    from studio.project.jobs import search_renderer
-
-    renderer = search_renderer(Path(models.model))
-    compile_first(renderer, LossConfig(use_clip=False, crop_size=renderer.rig.resolution), progress)
-    return is_cached(renderer) or cached_index(renderer, progress=progress, cancel=cancel, fanout=fanout) is not None
-
-
 def run_spread(
     project: ProjectHandle, pending: list[int], settled: set[int], seq: SequenceConfig, layout: Any,
     limits: LimitsConfig, fanout: FanoutConfig, clip: Any, models: ModelRecipe, progress: ProgressFn | None,
@@ -244,12 +228,12 @@ def run_spread(
 
     from studio.errors import count
     from studio.jobs.events import JobError
-    from studio.project.jobs import project_loss
+    from studio.project.jobs import project_loss, search_ready
 
     chains = chains_of(project, pending, settled, layout)
     task = KeyframeTask(models, project_loss(project, chains[0].masks.shape[-1], clip), seq, project.mount.roll, limits)
     try:
-        if searches_ready(models, fanout, progress, cancel):
+        if search_ready(Path(models.model), None, progress, cancel, fanout):  # before any worker starts
             report.optimised = optimise_spread(project, chains, task, fanout, progress, cancel, report.optimised,
                                                together)  # fmt: skip
     except Exception as e:  # a worker's failure, or no Ray to run on: one line, what was saved stays
