@@ -321,40 +321,6 @@ def test_the_budgets_list_offers_the_presets_and_the_choice_reaches_the_run(stat
         panel.close()
 
 
-def test_the_retrieval_index_is_built_in_the_background_when_the_studio_opens(tmp_path, monkeypatch):
-    """No index cached on this machine: opening the panel starts its build as a job on the project's queue, with
-    its own progress line; once cached, another studio starts nothing."""
-    from studio.imitate.retrieval import RetrievalConfig
-
-    monkeypatch.setenv("SHADOW_STUDIO_CACHE", str(tmp_path / "cache"))
-    monkeypatch.delenv("SHADOW_STUDIO_NO_INDEX_WARMUP", raising=False)  # the suite turns it off (conftest)
-    small = RetrievalConfig(size=300, chunk=150, seed=7)
-    project = Project.create(tmp_path / "i.shadow", sources=[asset("targets/asl_o.jpeg")], roll=0)
-    s = StudioState(project, queue_for(project))
-    heard: list[JobEvent] = []
-    s.queue.subscribe(heard.append)
-    panel = optimise_panel(s, OptimiseConfig(sequence=TINY, index=small))
-    try:
-        assert panel.warmup.checked.wait(60) and panel.warmup.job is not None
-        job = panel.warmup.job
-        assert job.kind == "index" and s.extras["index_job"] is job and job.wait(120) == JobState.DONE, job.error
-        assert job.result == 300 and list((tmp_path / "cache" / "retrieval").glob("index-*.npz"))
-        assert any(e.job_id == job.id and e.stage == "index" and e.total == 300 for e in heard)
-        assert until(lambda: "retrieval index is ready" in panel.warmup.line.value, 10, panel.refresh)
-        assert panel.jobs == [] and not panel.busy  # not an optimisation: the buttons stay usable
-    finally:
-        panel.close()
-        s.close()
-    again = StudioState(Project.open(project.path), queue_for(Project.open(project.path)))
-    other = optimise_panel(again, OptimiseConfig(sequence=TINY, index=small))
-    try:
-        assert other.warmup.checked.wait(60)
-        assert other.warmup.job is None and again.queue.jobs() == [] and "index_job" not in again.extras
-    finally:
-        other.close()
-        again.close()
-
-
 def test_keyframes_posed_again_last_to_first_show_each_ones_own_target_beside_its_shadow(tmp_path):
     """The job refining a stretch together poses it again last to first with live shadows: the target shown beside
     each is the keyframe its stage names, not the stretch's first."""
